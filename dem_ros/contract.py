@@ -1,0 +1,110 @@
+"""The topic contract of the dem_ros graph, defined once.
+
+The plant simulator and a hardware driver honour the same contract, so the
+estimator and controller cannot tell them apart. Only standard ROS 2 message
+types are used (``sensor_msgs``, ``std_msgs``, ``diagnostic_msgs``,
+``rcl_interfaces``), so no message package has to be built.
+
+Conventions:
+    * Every 1 kHz message carries in ``header.stamp`` the stamp of the
+      measurement it derives from (the plant's sample time), unchanged through
+      the graph; the sequence number is ``round(stamp / dt)``. Latency is traced
+      by matching stamps.
+    * Per-magnet ``sensor_msgs/JointState`` messages use
+      ``name = ["magnet_1", "magnet_2"]``, ``position`` = gap d_j [m],
+      ``velocity`` = gap rate [m/s] (empty when not measured), ``effort`` =
+      coil current i_j [A]; for commands ``effort`` = coil voltage u_j [V].
+    * Named vectors (reference, controller state) are ``JointState`` messages
+      whose ``name`` labels each entry of ``position``; units are listed below.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["QoS", "Topic", "TOPICS", "MAGNETS", "REFERENCE_NAMES", "CONTROLLER_STATE_NAMES"]
+
+MAGNETS = ("magnet_1", "magnet_2")
+#: y_d [m], y_d' [m/s], y_d'' [m/s^2], y_d''' [m/s^3] for both magnets.
+REFERENCE_NAMES = (
+    "y_1", "y_2", "dy_1", "dy_2", "ddy_1", "ddy_2", "dddy_1", "dddy_2", "r_1", "r_2",
+)
+#: m_hat [kg], R_hat [ohm], K_hat [N m^2/A^2], e_c [m], tracking error e [m], flags.
+CONTROLLER_STATE_NAMES = (
+    "m_hat", "R_hat", "K_hat", "ec_1", "ec_2", "e_1", "e_2", "adapting", "age_s", "fault",
+)
+
+
+@dataclass(frozen=True)
+class QoS:
+    """The QoS subset we use (maps 1:1 to rclpy and DDS policies)."""
+
+    reliable: bool = True
+    transient_local: bool = False
+    depth: int = 10
+
+
+QOS_STREAM = QoS(reliable=True, transient_local=False, depth=10)
+QOS_LATCHED = QoS(reliable=True, transient_local=True, depth=1)
+QOS_PARAM_EVENTS = QoS(reliable=True, transient_local=False, depth=1000)
+
+
+@dataclass(frozen=True)
+class Topic:
+    name: str
+    type: str  # ROS 2 type name, e.g. "sensor_msgs/msg/JointState"
+    qos: QoS
+    rate_hz: float | None
+    publisher: str
+    subscribers: tuple[str, ...]
+    fields: str
+
+
+MEASUREMENT = Topic(
+    "/dem/measurement", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "plant_sim | hardware driver",
+    ("estimator", "reference", "recorder"),
+    "position: gaps d1, d2 [m]; velocity: gap rates [m/s] (empty if not measured); effort: coil currents i1, i2 [A]",
+)
+TRUTH = Topic(
+    "/dem/plant/truth", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "plant_sim (simulator only)",
+    ("recorder",),
+    "noise-free plant state, same layout as /dem/measurement; name also carries 'mass' (position: m [kg])",
+)
+ESTIMATE = Topic(
+    "/dem/state_estimate", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "estimator",
+    ("controller", "recorder"),
+    "position: estimated gaps [m]; velocity: estimated gap rates [m/s]; effort: estimated currents [A]",
+)
+REFERENCE = Topic(
+    "/dem/reference", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "reference",
+    ("controller", "recorder"),
+    "named vector: y_j [m], dy_j [m/s], ddy_j [m/s^2], dddy_j [m/s^3] of M(s) r, and the command r_j [m]; "
+    "stamped one period ahead (the sample it is meant for)",
+)
+COMMAND = Topic(
+    "/dem/command", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "controller",
+    ("plant_sim | hardware driver", "recorder"),
+    "effort: coil voltages u1, u2 [V]; stamp = stamp of the measurement it was computed from",
+)
+CONTROLLER_STATE = Topic(
+    "/dem/controller/state", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "controller",
+    ("recorder",),
+    "named vector: m_hat [kg], R_hat [ohm], K_hat [N m^2/A^2], ec_j [m], e_j [m], adapting (0/1), age_s [s], fault (0/1)",
+)
+DIAGNOSTICS = Topic(
+    "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", QOS_STREAM, 1.0, "every node",
+    ("recorder", "rqt_robot_monitor"),
+    "loop statistics (cycles, deadline misses, latency), stale/invalid input counts, faults",
+)
+RUN_INFO = Topic(
+    "/dem/run_info", "std_msgs/msg/String", QOS_LATCHED, None, "launcher",
+    ("recorder",),
+    "JSON: full configuration, scenario, controller, transport, package version",
+)
+PARAMETER_EVENTS = Topic(
+    "/parameter_events", "rcl_interfaces/msg/ParameterEvent", QOS_PARAM_EVENTS, None, "every node",
+    ("recorder",),
+    "standard ROS 2 parameter change events",
+)
+
+TOPICS = (MEASUREMENT, TRUTH, ESTIMATE, REFERENCE, COMMAND, CONTROLLER_STATE, DIAGNOSTICS, RUN_INFO, PARAMETER_EVENTS)

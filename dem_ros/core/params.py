@@ -1,0 +1,446 @@
+"""One parameter schema for the whole package.
+
+Every tunable of the plant simulator, reference generator, state estimator and
+controller is declared exactly once here, with its type, default, SI unit,
+bounds and description. The offline simulator, both ROS transports and the
+config files all read this schema; nothing else repeats a default.
+
+Groups are named after the nodes that own them (``plant_sim``, ``reference``,
+``estimator``, ``controller``), so ``config/dem_ros.yaml`` is a plain ROS 2
+params file::
+
+    controller:
+      ros__parameters:
+        k1: 70.0
+
+Validation happens in one place (:meth:`Schema.validate`): per field (type,
+bounds, choices) and per group (cross-field rules such as a Hurwitz error
+polynomial). Failures raise :class:`ConfigError` naming the field, the value
+and what is allowed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping
+
+__all__ = [
+    "ConfigError",
+    "ParamSpec",
+    "Schema",
+    "SCHEMA",
+    "TABLE2",
+    "load_params_file",
+    "default_config",
+]
+
+
+class ConfigError(ValueError):
+    """A configuration file or value is invalid; the message names the field."""
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One typed parameter.
+
+    Attributes:
+        name: parameter name inside its group (a valid ROS parameter name).
+        type: ``float``, ``int``, ``bool`` or ``str``.
+        default: default value (already of ``type``).
+        unit: SI unit, ``""`` when dimensionless.
+        description: one line for humans and ROS parameter descriptors.
+        min, max: inclusive numeric bounds (``None``: unbounded).
+        choices: allowed values for strings.
+        read_only: may not change after start-up (e.g. loop period).
+    """
+
+    name: str
+    type: type
+    default: Any
+    unit: str = ""
+    description: str = ""
+    min: float | None = None
+    max: float | None = None
+    choices: tuple[str, ...] | None = None
+    read_only: bool = False
+
+    def allowed(self) -> str:
+        """Human description of the allowed values."""
+        if self.choices is not None:
+            return "one of " + ", ".join(repr(c) for c in self.choices)
+        if self.type is bool:
+            return "true or false"
+        lo = "-inf" if self.min is None else f"{self.min:g}"
+        hi = "inf" if self.max is None else f"{self.max:g}"
+        unit = f" {self.unit}" if self.unit else ""
+        return f"a {self.type.__name__} in [{lo}, {hi}]{unit}"
+
+    def coerce(self, value: Any, where: str) -> Any:
+        """Return ``value`` converted to this parameter's type, or raise ConfigError."""
+        bad = ConfigError(f"{where}: got {value!r}, expected {self.allowed()}")
+        if self.type is bool:
+            if isinstance(value, bool):
+                return value
+            raise bad
+        if self.type is int:
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise bad
+            if isinstance(value, float) and not value.is_integer():
+                raise bad
+            value = int(value)
+        elif self.type is float:
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise bad
+            value = float(value)
+            if not math.isfinite(value):
+                raise bad
+        elif self.type is str:
+            if not isinstance(value, str):
+                raise bad
+            if self.choices is not None and value not in self.choices:
+                raise bad
+            return value
+        if self.min is not None and value < self.min:
+            raise bad
+        if self.max is not None and value > self.max:
+            raise bad
+        return value
+
+
+GroupCheck = Callable[[Mapping[str, Any]], "str | None"]
+
+
+@dataclass
+class Schema:
+    """Parameter groups (one per node) plus cross-field checks per group."""
+
+    groups: dict[str, tuple[ParamSpec, ...]]
+    checks: dict[str, tuple[GroupCheck, ...]] = field(default_factory=dict)
+
+    def spec(self, group: str, name: str) -> ParamSpec:
+        for p in self.groups[group]:
+            if p.name == name:
+                return p
+        raise ConfigError(
+            f"{group}.{name}: unknown parameter; known: "
+            + ", ".join(p.name for p in self.groups[group])
+        )
+
+    def defaults(self, group: str) -> dict[str, Any]:
+        return {p.name: p.default for p in self.groups[group]}
+
+    def validate_group(self, group: str, values: Mapping[str, Any]) -> dict[str, Any]:
+        """Coerce and check a complete group; return the clean dict."""
+        if group not in self.groups:
+            raise ConfigError(f"unknown parameter group {group!r}; known: {', '.join(self.groups)}")
+        clean = {}
+        for name, value in values.items():
+            clean[name] = self.spec(group, name).coerce(value, f"{group}.{name}")
+        missing = [p.name for p in self.groups[group] if p.name not in clean]
+        if missing:
+            raise ConfigError(f"{group}: missing parameters {missing}")
+        for check in self.checks.get(group, ()):
+            reason = check(clean)
+            if reason:
+                raise ConfigError(f"{group}: {reason}")
+        return clean
+
+    def merged(self, group: str, base: Mapping[str, Any], changes: Mapping[str, Any]) -> dict[str, Any]:
+        """Validate ``changes`` applied on top of ``base`` as a whole (atomic)."""
+        values = dict(base)
+        values.update(changes)
+        return self.validate_group(group, values)
+
+
+# ---------------------------------------------------------------------------
+# Physical constants of the rig (paper Table 2, notes section 3).
+# ---------------------------------------------------------------------------
+TABLE2 = {
+    "L": 0.3,  # m, centre O to load points
+    "l": 0.168,  # m, centre O to magnet force points
+    "m": 14.852,  # kg
+    "I": 0.5648,  # kg m^2
+    "N1": 36.5,  # N
+    "N2": 36.5,  # N
+    "g": 9.81,  # m/s^2
+    "R": 20.0,  # ohm (notes 3, recommended truth)
+    "K": 4.374e-4,  # N m^2 / A^2 (notes 3)
+}
+
+
+def _geometry(prefix_desc: str) -> tuple[ParamSpec, ...]:
+    return (
+        ParamSpec("L", float, TABLE2["L"], "m", f"{prefix_desc}distance from centre O to the load points", 0.01, 10.0),
+        ParamSpec("l", float, TABLE2["l"], "m", f"{prefix_desc}distance from centre O to the magnet force points", 0.001, 10.0),
+        ParamSpec("I", float, TABLE2["I"], "kg*m^2", f"{prefix_desc}pitch inertia about O", 1e-4, 1e4),
+        ParamSpec("N1", float, TABLE2["N1"], "N", f"{prefix_desc}load force at end 1 (downward)", 0.0, 1e4),
+        ParamSpec("N2", float, TABLE2["N2"], "N", f"{prefix_desc}load force at end 2 (downward)", 0.0, 1e4),
+        ParamSpec("g", float, TABLE2["g"], "m/s^2", "gravitational acceleration", 0.0, 100.0),
+    )
+
+
+def _check_geometry(v: Mapping[str, Any]) -> str | None:
+    if not v["l"] < v["L"]:
+        return f"l = {v['l']} m must be smaller than L = {v['L']} m (magnets inside the load points)"
+    return None
+
+
+def _check_hurwitz(v: Mapping[str, Any]) -> str | None:
+    k1, k2, k3 = v["k1"], v["k2"], v["k3"]
+    # Routh-Hurwitz for s^3 + k1 s^2 + k2 s + k3
+    if not (k1 > 0 and k2 > 0 and k3 > 0 and k1 * k2 > k3):
+        return (
+            f"k1={k1:g}, k2={k2:g}, k3={k3:g} do not make s^3+k1 s^2+k2 s+k3 Hurwitz "
+            "(need k1, k2, k3 > 0 and k1*k2 > k3)"
+        )
+    return None
+
+
+def _check_bounds(v: Mapping[str, Any]) -> str | None:
+    for sym in ("m", "R", "K"):
+        lo, hi, init = v[f"{sym}_min"], v[f"{sym}_max"], v[f"{sym}_init"]
+        if not lo < hi:
+            return f"{sym}_min = {lo:g} must be below {sym}_max = {hi:g}"
+        if not lo <= init <= hi:
+            return f"{sym}_init = {init:g} lies outside [{sym}_min, {sym}_max] = [{lo:g}, {hi:g}]"
+    return None
+
+
+def _check_plant(v: Mapping[str, Any]) -> str | None:
+    r = _check_geometry(v)
+    if r:
+        return r
+    if not v["gap_min"] < v["gap0"] < v["gap_max"]:
+        return f"gap0 = {v['gap0']:g} m must lie inside (gap_min, gap_max) = ({v['gap_min']:g}, {v['gap_max']:g})"
+    if not v["mass_ramp_end"] >= v["mass_ramp_start"]:
+        return "mass_ramp_end must not precede mass_ramp_start"
+    return None
+
+
+def _check_reference(v: Mapping[str, Any]) -> str | None:
+    a2, a1, a0 = v["a2"], v["a1"], v["a0"]
+    if not (a2 > 0 and a1 > 0 and a0 > 0 and a2 * a1 > a0):
+        return f"reference model denominator s^3+{a2:g}s^2+{a1:g}s+{a0:g} is not Hurwitz"
+    return None
+
+
+_CONTROLLERS = ("adaptive", "adaptive_enhanced", "paper", "paper_fixed", "nonlinear_decoupling", "decentralized_pid")
+
+SCHEMA = Schema(
+    groups={
+        "plant_sim": _geometry("true ")
+        + (
+            ParamSpec("m", float, TABLE2["m"], "kg", "true mass of the suspended module", 0.1, 1e4),
+            ParamSpec("R", float, TABLE2["R"], "ohm", "true coil resistance", 0.01, 1e4),
+            ParamSpec("K", float, TABLE2["K"], "N*m^2/A^2", "true force coefficient, F = K i^2/delta^2", 1e-7, 1.0),
+            ParamSpec("gap0", float, 0.008, "m", "initial hover gap of both magnets", 1e-4, 0.1),
+            ParamSpec("gap_min", float, 1e-4, "m", "rail contact: a gap or delta at or below this is a failure", 0.0, 0.01),
+            ParamSpec("gap_max", float, 0.030, "m", "a gap above this is a failure (plate dropped)", 0.001, 1.0),
+            ParamSpec("dt", float, 1e-3, "s", "control / sample period (zero-order hold)", 1e-5, 0.1, read_only=True),
+            ParamSpec("substeps", int, 10, "", "RK4 sub-steps per sample period", 1, 1000, read_only=True),
+            ParamSpec("mass_delta", float, 0.0, "kg", "added mass at O (unknown to the controllers)", -1e3, 1e3),
+            ParamSpec("mass_ramp_start", float, 20.0, "s", "time the added mass starts ramping in", 0.0, 1e6),
+            ParamSpec("mass_ramp_end", float, 40.0, "s", "time the added mass is fully on", 0.0, 1e6),
+            ParamSpec("noise_scale", float, 0.0, "", "measurement noise X: uniform +-X*[1e-3 m, 1e-3 m/s, 1e-2 A] (paper Eq. 47)", 0.0, 1e3),
+            ParamSpec("measure_velocity", bool, True, "", "the sensors also deliver the gap rates"),
+            ParamSpec("perturbation", str, "none", "", "additive input perturbation waveform", choices=("none", "uniform", "sine")),
+            ParamSpec("perturbation_amplitude", float, 0.0, "V", "perturbation amplitude (uniform: +-a, sine: a)", 0.0, 1e4),
+            ParamSpec("perturbation_frequency", float, 50.0, "Hz", "sine perturbation frequency", 0.0, 1e5),
+            ParamSpec("seed", int, 1, "", "seed of the noise and perturbation generators", 0, 2**31 - 1),
+            ParamSpec("command_timeout", float, 0.02, "s", "hold the last command at most this long, then apply 0 V (watchdog)", 1e-4, 10.0),
+        ),
+        "reference": (
+            ParamSpec("b0", float, 0.25, "s^-3", "reference model numerator, M(s) = b0/(s^3+a2 s^2+a1 s+a0) (Eq. 46)", 1e-9, 1e9),
+            ParamSpec("a2", float, 2.0, "s^-1", "reference model denominator coefficient", 1e-9, 1e9),
+            ParamSpec("a1", float, 1.25, "s^-2", "reference model denominator coefficient", 1e-9, 1e9),
+            ParamSpec("a0", float, 0.25, "s^-3", "reference model denominator coefficient", 1e-9, 1e9),
+            ParamSpec("initial", float, 0.008, "m", "command before the steps, both magnets", 1e-4, 0.1),
+            ParamSpec("target_1", float, 0.005, "m", "command of magnet 1 after its step", 1e-4, 0.1),
+            ParamSpec("target_2", float, 0.005, "m", "command of magnet 2 after its step", 1e-4, 0.1),
+            ParamSpec("step_time_1", float, 1.0, "s", "time of the step of magnet 1", 0.0, 1e6),
+            ParamSpec("step_time_2", float, 10.0, "s", "time of the step of magnet 2", 0.0, 1e6),
+            ParamSpec("dt", float, 1e-3, "s", "sample period", 1e-5, 0.1, read_only=True),
+        ),
+        "estimator": (
+            ParamSpec("type", str, "kf", "", "state estimator: kf (Kalman filter on the plant model) or none (pass-through)", choices=("kf", "none")),
+            ParamSpec("sigma_gap", float, 1e-5, "m", "gap sensor noise standard deviation assumed by the filter", 1e-9, 1.0),
+            ParamSpec("sigma_rate", float, 1e-3, "m/s", "gap-rate sensor noise standard deviation assumed by the filter", 1e-9, 100.0),
+            ParamSpec("sigma_current", float, 1e-3, "A", "current sensor noise standard deviation assumed by the filter", 1e-9, 100.0),
+            ParamSpec("sigma_accel", float, 0.05, "m/s^2", "process noise: unmodelled acceleration standard deviation", 1e-9, 1e3),
+            ParamSpec("sigma_voltage", float, 1.0, "V", "process noise: unmodelled input voltage standard deviation", 1e-9, 1e4),
+            ParamSpec("dt", float, 1e-3, "s", "sample period", 1e-5, 0.1, read_only=True),
+        )
+        + _geometry("model ")
+        + (
+            ParamSpec("m", float, TABLE2["m"], "kg", "model mass used by the filter", 0.1, 1e4),
+            ParamSpec("R", float, TABLE2["R"], "ohm", "model coil resistance used by the filter", 0.01, 1e4),
+            ParamSpec("K", float, TABLE2["K"], "N*m^2/A^2", "model force coefficient used by the filter", 1e-7, 1.0),
+        ),
+        "controller": (
+            ParamSpec("type", str, "adaptive", "", "control law", choices=_CONTROLLERS),
+            ParamSpec("dt", float, 1e-3, "s", "control period", 1e-5, 0.1, read_only=True),
+            ParamSpec("k1", float, 70.0, "s^-1", "error dynamics s^3+k1 s^2+k2 s+k3 (coefficient of e'')", 0.0, 1e6),
+            ParamSpec("k2", float, 1600.0, "s^-2", "error dynamics coefficient of e'", 0.0, 1e9),
+            ParamSpec("k3", float, 12000.0, "s^-3", "error dynamics coefficient of e", 0.0, 1e12),
+        )
+        + _geometry("model ")
+        + (
+            ParamSpec("m_init", float, 10.0, "kg", "initial mass estimate (paper: 10)", 0.1, 1e4),
+            ParamSpec("R_init", float, 15.0, "ohm", "initial resistance estimate (paper: 15)", 0.01, 1e4),
+            ParamSpec("K_init", float, 3.0618e-4, "N*m^2/A^2", "initial force-coefficient estimate (notes 3: 0.7 K)", 1e-7, 1.0),
+            ParamSpec("m_nominal", float, TABLE2["m"], "kg", "fixed mass of nonlinear_decoupling / decentralized_pid", 0.1, 1e4),
+            ParamSpec("R_nominal", float, TABLE2["R"], "ohm", "fixed resistance of nonlinear_decoupling / decentralized_pid", 0.01, 1e4),
+            ParamSpec("K_nominal", float, TABLE2["K"], "N*m^2/A^2", "fixed force coefficient of nonlinear_decoupling / decentralized_pid", 1e-7, 1.0),
+            ParamSpec("m_min", float, 5.0, "kg", "lower bound of the mass estimate", 0.1, 1e4),
+            ParamSpec("m_max", float, 50.0, "kg", "upper bound of the mass estimate", 0.1, 1e4),
+            ParamSpec("R_min", float, 5.0, "ohm", "lower bound of the resistance estimate", 0.01, 1e4),
+            ParamSpec("R_max", float, 60.0, "ohm", "upper bound of the resistance estimate", 0.01, 1e4),
+            ParamSpec("K_min", float, 1e-4, "N*m^2/A^2", "lower bound of the force-coefficient estimate", 1e-7, 1.0),
+            ParamSpec("K_max", float, 2e-3, "N*m^2/A^2", "upper bound of the force-coefficient estimate", 1e-7, 1.0),
+            ParamSpec("P0_m", float, 1.0, "", "initial covariance of 1/m (scaled by its initial value)", 0.0, 1e12),
+            ParamSpec("P0_R", float, 1.0, "", "initial covariance of R (scaled)", 0.0, 1e12),
+            ParamSpec("P0_K", float, 0.1, "", "initial covariance of K (scaled)", 0.0, 1e12),
+            ParamSpec("q_m", float, 10.0, "s^-1", "random-walk rate of the scaled 1/m (tracks load changes)", 0.0, 1e9),
+            ParamSpec("q_R", float, 0.0, "s^-1", "random-walk rate of the scaled R", 0.0, 1e9),
+            ParamSpec("q_K", float, 0.0, "s^-1", "random-walk rate of the scaled K", 0.0, 1e9),
+            ParamSpec("hover_init", bool, True, "", "initialise the estimates from the measured hover before start (notes 6 A2 iv)"),
+            ParamSpec("w", float, 50.0, "", "leakage weight of Eq. 48 (adaptive_enhanced)", 0.0, 1e9),
+            ParamSpec("R0", float, 10.0, "s^-1", "dead zone of Eq. 48: adapt only while ||dP/dt|| > R0 (adaptive_enhanced, deadzone=pdot)", 0.0, 1e12),
+            ParamSpec("deadzone", str, "pdot", "", "dead-zone rule of adaptive_enhanced", choices=("pdot", "error", "off")),
+            ParamSpec("e0", float, 5e-6, "m", "dead zone on ||e_c|| (deadzone=error): noise bound", 0.0, 1.0),
+            ParamSpec("gap_floor", float, 5e-4, "m", "measured gaps are floored at this inside the control law", 1e-6, 0.01),
+            ParamSpec("pid_kp", float, 850.3, "A/m", "decentralized_pid proportional gain (gap to current)", 0.0, 1e9),
+            ParamSpec("pid_kd", float, 8.76, "A*s/m", "decentralized_pid derivative gain", 0.0, 1e9),
+            ParamSpec("pid_ki", float, 4672.0, "A/(m*s)", "decentralized_pid integral gain", 0.0, 1e12),
+            ParamSpec("pid_kc", float, 87.5, "V/A", "decentralized_pid inner current-loop gain", 0.0, 1e9),
+            ParamSpec("max_age", float, 0.005, "s", "never act on a measurement older than this", 1e-4, 10.0),
+            ParamSpec("voltage_limit", float, 1e4, "V", "commands are clipped to +-this before publishing", 0.0, 1e6),
+        ),
+    },
+    checks={
+        "plant_sim": (_check_plant,),
+        "reference": (_check_reference,),
+        "estimator": (_check_geometry,),
+        "controller": (_check_geometry, _check_hurwitz, _check_bounds),
+    },
+)
+
+
+def default_config() -> dict[str, dict[str, Any]]:
+    """All groups at their schema defaults."""
+    return {g: SCHEMA.defaults(g) for g in SCHEMA.groups}
+
+
+def _read_yaml(path: Path) -> Any:
+    import yaml
+
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+
+
+def _flatten(prefix: str, tree: Mapping[str, Any]) -> dict[str, Any]:
+    """ROS params files nest dotted names: {a: {b: 1}} -> {'a.b': 1}."""
+    out: dict[str, Any] = {}
+    for k, v in tree.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            out.update(_flatten(key + ".", v))
+        else:
+            out[key] = v
+    return out
+
+
+def params_from_tree(tree: Any, source: str) -> dict[str, dict[str, Any]]:
+    """Extract ``{group: {name: value}}`` from a parsed ROS 2 params file.
+
+    Accepts node keys with or without a leading slash or namespace
+    (``controller``, ``/controller``, ``/dem/controller``) and the wildcard
+    ``/**`` (applied to every group, for the names the group knows).
+    """
+    if tree is None:
+        return {}
+    if not isinstance(tree, Mapping):
+        raise ConfigError(f"{source}: expected a mapping of node names to 'ros__parameters'")
+    out: dict[str, dict[str, Any]] = {}
+    wildcard: dict[str, Any] = {}
+    for node_key, body in tree.items():
+        if not isinstance(body, Mapping) or "ros__parameters" not in body:
+            raise ConfigError(f"{source}: entry {node_key!r} has no 'ros__parameters' mapping")
+        params = body["ros__parameters"]
+        if not isinstance(params, Mapping):
+            raise ConfigError(f"{source}: {node_key}.ros__parameters must be a mapping")
+        flat = _flatten("", params)
+        name = str(node_key).rstrip("/").split("/")[-1]
+        if name in ("**", "*"):
+            wildcard.update(flat)
+            continue
+        if name not in SCHEMA.groups:
+            raise ConfigError(f"{source}: unknown node {node_key!r}; known: {', '.join(SCHEMA.groups)}")
+        out.setdefault(name, {}).update(flat)
+    for group in SCHEMA.groups:
+        known = {p.name for p in SCHEMA.groups[group]}
+        for k, v in wildcard.items():
+            if k in known:
+                out.setdefault(group, {}).setdefault(k, v)
+    return out
+
+
+def load_params_file(path: str | Path, base: Mapping[str, Mapping[str, Any]] | None = None) -> dict[str, dict[str, Any]]:
+    """Load and validate a ROS 2 params file on top of ``base`` (default: schema defaults)."""
+    path = Path(path)
+    overrides = params_from_tree(_read_yaml(path), str(path))
+    return apply_overrides(base or default_config(), overrides, str(path))
+
+
+def apply_overrides(
+    base: Mapping[str, Mapping[str, Any]],
+    overrides: Mapping[str, Mapping[str, Any]],
+    source: str = "overrides",
+) -> dict[str, dict[str, Any]]:
+    """Return a validated copy of ``base`` with ``overrides`` applied, group by group."""
+    cfg = {g: dict(v) for g, v in base.items()}
+    for group, values in overrides.items():
+        if group not in SCHEMA.groups:
+            raise ConfigError(f"{source}: unknown group {group!r}; known: {', '.join(SCHEMA.groups)}")
+        for name in values:
+            SCHEMA.spec(group, name)  # unknown names fail with the known list
+        try:
+            cfg[group] = SCHEMA.merged(group, cfg[group], values)
+        except ConfigError as exc:
+            raise ConfigError(f"{source}: {exc}") from None
+    for group in SCHEMA.groups:
+        cfg[group] = SCHEMA.validate_group(group, cfg[group])
+    return cfg
+
+
+def parse_assignment(text: str, default_group: str = "controller") -> tuple[str, str, Any]:
+    """Parse ``k1=60`` or ``plant_sim.m=16`` (YAML-typed value) into (group, name, value)."""
+    import yaml
+
+    if "=" not in text:
+        raise ConfigError(f"{text!r}: expected NAME=VALUE, e.g. k1=60 or plant_sim.m=16")
+    key, raw = text.split("=", 1)
+    group, _, name = key.strip().rpartition(".")
+    group = group or default_group
+    if group not in SCHEMA.groups:
+        raise ConfigError(f"{text!r}: unknown group {group!r}; known: {', '.join(SCHEMA.groups)}")
+    try:
+        value = yaml.safe_load(raw)
+    except yaml.YAMLError:
+        value = raw
+    spec = SCHEMA.spec(group, name)
+    return group, name, spec.coerce(value, f"{group}.{name}")
+
+
+def iter_specs() -> Iterable[tuple[str, ParamSpec]]:
+    for g, specs in SCHEMA.groups.items():
+        for p in specs:
+            yield g, p

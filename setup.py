@@ -1,0 +1,49 @@
+"""ament_python package that also installs with plain pip.
+
+Under a sourced ROS 2 (colcon build), every node gets its own console script
+so that ``ros2 run dem_ros controller`` works. A plain ``pip install`` gets only
+the namespaced ``dem-ros`` CLI, never bare names such as ``controller`` on PATH.
+"""
+import os
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "dem_ros"
+NODES = ("plant_sim", "estimator", "controller", "reference", "recorder")
+
+scripts = ["dem-ros = dem_ros.tools.cli:main"]
+if os.environ.get("AMENT_PREFIX_PATH") or os.environ.get("DEM_ROS_NODE_SCRIPTS"):
+    scripts += [f"{n} = dem_ros.nodes.{n}:main" for n in NODES]
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["tests", "tests.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/launch", glob("launch/*.launch.py")),
+    ],
+    package_data={"dem_ros": ["data/*.yaml"]},
+    python_requires=">=3.10",
+    install_requires=[
+        "numpy>=1.24",
+        "scipy>=1.10",
+        "numba>=0.58",
+        "PyYAML>=6",
+        "matplotlib>=3.7",
+        "cyclonedds>=0.10.5",
+        "rosbags>=0.10",
+        "mcap>=1.1",
+    ],
+    extras_require={"test": ["pytest>=7", "sympy>=1.12", "control>=0.10"]},
+    zip_safe=True,
+    maintainer="dem_ros maintainers",
+    maintainer_email="dem-ros@example.com",
+    description="Adaptive control of a double-electromagnet maglev suspension as a ROS 2 package.",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={"console_scripts": scripts},
+)

@@ -1,0 +1,408 @@
+"""A small MCAP reader that survives truncation.
+
+Complete files are read through their summary (footer -> summary section:
+schemas, channels, statistics, chunk indexes, metadata indexes). A file
+without a valid footer (writer killed) is scanned record by record from the
+start; the scan stops at the first record that runs past the end of the file
+or has an unknown opcode, and says where. Every complete chunk before that
+point is readable, because a chunk record is written in one piece.
+
+Record layout (mcap.dev/spec): ``opcode u8 | length u64 | content``; strings
+are ``u32 length + UTF-8``, maps are ``u32 byte length + pairs``.
+"""
+
+from __future__ import annotations
+
+import mmap
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+from .errors import BagError
+
+__all__ = ["MAGIC", "Schema", "Channel", "ChunkInfo", "Truncation", "McapFile"]
+
+MAGIC = b"\x89MCAP0\r\n"
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 5, 6
+OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_ATTACHMENT, OP_ATTACHMENT_INDEX = 7, 8, 9, 10
+OP_STATISTICS, OP_METADATA, OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = 11, 12, 13, 14, 15
+
+_U16 = struct.Struct("<H")
+_U32 = struct.Struct("<I")
+_U64 = struct.Struct("<Q")
+_REC = struct.Struct("<BQ")
+_MSG = struct.Struct("<HIQQ")
+_CHUNK_HEAD = struct.Struct("<QQQI")
+_STATS = struct.Struct("<QHIIIIQQ")
+
+
+@dataclass(frozen=True)
+class Schema:
+    id: int
+    name: str
+    encoding: str
+    data: bytes
+
+
+@dataclass(frozen=True)
+class Channel:
+    id: int
+    schema_id: int
+    topic: str
+    message_encoding: str
+    metadata: dict[str, str]
+
+
+@dataclass
+class ChunkInfo:
+    """One chunk: file offset, record length, log-time range (ns), compression."""
+
+    offset: int
+    length: int
+    start_ns: int
+    end_ns: int
+    compression: str
+    compressed_size: int
+    uncompressed_size: int
+    counts: dict[int, int] = field(default_factory=dict)  # channel id -> messages (scan only)
+
+
+@dataclass(frozen=True)
+class Truncation:
+    """Where a file without a valid footer stops being readable."""
+
+    offset: int  # byte offset of the first unreadable byte
+    file_size: int
+    reason: str
+
+
+class _Buf:
+    """Cursor over a bytes-like object."""
+
+    __slots__ = ("b", "p")
+
+    def __init__(self, b: bytes | memoryview, p: int = 0) -> None:
+        self.b, self.p = b, p
+
+    def u16(self) -> int:
+        (v,) = _U16.unpack_from(self.b, self.p)
+        self.p += 2
+        return int(v)
+
+    def u32(self) -> int:
+        (v,) = _U32.unpack_from(self.b, self.p)
+        self.p += 4
+        return int(v)
+
+    def u64(self) -> int:
+        (v,) = _U64.unpack_from(self.b, self.p)
+        self.p += 8
+        return int(v)
+
+    def raw(self, n: int) -> bytes:
+        if self.p + n > len(self.b):
+            raise struct.error("field runs past end of record")
+        v = bytes(self.b[self.p:self.p + n])
+        self.p += n
+        return v
+
+    def string(self) -> str:
+        return self.raw(self.u32()).decode("utf-8")
+
+    def str_map(self) -> dict[str, str]:
+        n = self.u32()
+        end = self.p + n
+        out = {}
+        while self.p < end:
+            k = self.string()
+            out[k] = self.string()
+        return out
+
+
+def parse_schema(b: memoryview) -> Schema:
+    c = _Buf(b)
+    sid, name, enc = c.u16(), c.string(), c.string()
+    return Schema(sid, name, enc, c.raw(c.u32()))
+
+
+def parse_channel(b: memoryview) -> Channel:
+    c = _Buf(b)
+    cid, sid, topic, enc = c.u16(), c.u16(), c.string(), c.string()
+    return Channel(cid, sid, topic, enc, c.str_map())
+
+
+def parse_metadata(b: memoryview) -> tuple[str, dict[str, str]]:
+    c = _Buf(b)
+    return c.string(), c.str_map()
+
+
+def decompress(compression: str, data: bytes | memoryview, size: int) -> bytes | memoryview:
+    """Chunk payload; ``size`` is the uncompressed size from the chunk header."""
+    if compression == "":
+        return data
+    if compression == "zstd":
+        try:
+            import zstandard
+        except ImportError:  # pragma: no cover - zstandard is a dependency
+            raise BagError("chunk is zstd-compressed but the 'zstandard' package is missing") from None
+        return zstandard.ZstdDecompressor().decompress(bytes(data), max_output_size=size)
+    if compression == "lz4":
+        try:
+            import lz4.frame
+        except ImportError:  # pragma: no cover
+            raise BagError("chunk is lz4-compressed but the 'lz4' package is missing") from None
+        return lz4.frame.decompress(bytes(data))
+    raise BagError(f"unsupported chunk compression {compression!r}")
+
+
+class McapFile:
+    """Random access to one MCAP file (memory-mapped).
+
+    Attributes after opening: ``profile``, ``library``, ``schemas`` (id ->
+    :class:`Schema`), ``channels`` (id -> :class:`Channel`), ``chunks`` (in
+    file order), ``metadata`` (list of (name, dict) in file order),
+    ``statistics`` (dict or None), ``has_summary``, ``truncation`` (None for a
+    complete file), ``loose_messages`` (offsets of Message records outside
+    chunks).
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        try:
+            self._f = self.path.open("rb")
+        except OSError as exc:
+            raise BagError(f"cannot open {self.path}: {exc.strerror}") from None
+        self.size = self.path.stat().st_size
+        if self.size < len(MAGIC) + 9:
+            self._f.close()
+            if self.size == 0:
+                raise BagError(f"{self.path} is empty (0 bytes): not an MCAP file")
+            raise BagError(f"{self.path} is too short ({self.size} bytes) to be an MCAP file")
+        self._mm = mmap.mmap(self._f.fileno(), 0, access=mmap.ACCESS_READ)
+        self.buf = memoryview(self._mm)
+        if bytes(self.buf[:8]) != MAGIC:
+            self.close()
+            raise BagError(f"{self.path} is not an MCAP file (bad magic {bytes(self.buf[:8])!r})")
+        self.schemas: dict[int, Schema] = {}
+        self.channels: dict[int, Channel] = {}
+        self.chunks: list[ChunkInfo] = []
+        self.metadata: list[tuple[str, dict[str, str]]] = []
+        self.statistics: dict[str, object] | None = None
+        self.has_summary = False
+        self.truncation: Truncation | None = None
+        self.loose_messages: list[int] = []
+        self.profile = self.library = ""
+        try:
+            self._read_header()
+            if not self._read_summary():
+                self._scan()
+        except BagError:
+            self.close()
+            raise
+        except (struct.error, UnicodeDecodeError, ValueError) as exc:
+            self.close()
+            raise BagError(f"{self.path}: malformed MCAP record ({exc})") from None
+
+    # -- opening ---------------------------------------------------------
+    def _record(self, pos: int) -> tuple[int, int, int]:
+        """(opcode, content start, content end) of the record at ``pos``."""
+        op, ln = _REC.unpack_from(self.buf, pos)
+        return op, pos + 9, pos + 9 + ln
+
+    def _read_header(self) -> None:
+        op, s, e = self._record(8)
+        if op != OP_HEADER or e > self.size:
+            raise BagError(f"{self.path}: MCAP header record missing or cut off")
+        c = _Buf(self.buf[s:e])
+        self.profile, self.library = c.string(), c.string()
+        self.data_start = e
+
+    def _read_summary(self) -> bool:
+        """Use footer + summary if the file is complete; False if it is not."""
+        if self.size < 8 + 9 + 29 + 8 or bytes(self.buf[-8:]) != MAGIC:
+            return False
+        fpos = self.size - 8 - 29
+        op, s, e = self._record(fpos)
+        if op != OP_FOOTER or e != self.size - 8:
+            return False
+        summary_start, _summary_offset_start = _U64.unpack_from(self.buf, s)[0], _U64.unpack_from(self.buf, s + 8)[0]
+        if summary_start == 0 or not self.data_start <= summary_start <= fpos:
+            return False
+        pos = summary_start
+        chunk_index: list[ChunkInfo] = []
+        meta_index: list[tuple[int, int]] = []
+        while pos < fpos:
+            op, s, e = self._record(pos)
+            if e > fpos:
+                return False
+            b = self.buf[s:e]
+            if op == OP_SCHEMA:
+                sc = parse_schema(b)
+                self.schemas[sc.id] = sc
+            elif op == OP_CHANNEL:
+                ch = parse_channel(b)
+                self.channels[ch.id] = ch
+            elif op == OP_STATISTICS:
+                self.statistics = self._parse_stats(b)
+            elif op == OP_CHUNK_INDEX:
+                c = _Buf(b)
+                start, end, off, ln = c.u64(), c.u64(), c.u64(), c.u64()
+                n_idx = c.u32()  # message index offsets map, skipped
+                c.p += n_idx
+                c.u64()  # message index length
+                comp = c.string()
+                chunk_index.append(ChunkInfo(off, ln, start, end, comp, c.u64(), c.u64()))
+            elif op == OP_METADATA_INDEX:
+                c = _Buf(b)
+                meta_index.append((c.u64(), c.u64()))
+            pos = e
+        if not chunk_index and self.statistics and self.statistics["message_count"]:
+            return False  # unchunked file: messages must be found by scanning
+        self.chunks = sorted(chunk_index, key=lambda ch: ch.offset)
+        for off, _ln in meta_index:
+            op, s, e = self._record(off)
+            if op == OP_METADATA:
+                self.metadata.append(parse_metadata(self.buf[s:e]))
+        self.has_summary = True
+        return True
+
+    @staticmethod
+    def _parse_stats(b: memoryview) -> dict[str, object]:
+        (msgs, n_schema, n_chan, n_att, n_meta, n_chunk, t0, t1) = _STATS.unpack_from(b, 0)
+        c = _Buf(b, _STATS.size)
+        n = c.u32()
+        end = c.p + n
+        counts = {}
+        while c.p < end:
+            cid = c.u16()
+            counts[cid] = c.u64()
+        return dict(message_count=msgs, schema_count=n_schema, channel_count=n_chan,
+                    attachment_count=n_att, metadata_count=n_meta, chunk_count=n_chunk,
+                    message_start_time=t0, message_end_time=t1, channel_message_counts=counts)
+
+    def _scan(self) -> None:
+        """Walk the data section record by record (file without usable summary)."""
+        pos = self.data_start
+        stop: Truncation | None = None
+        while pos < self.size:
+            if pos + 9 > self.size:
+                stop = Truncation(pos, self.size, "record header cut off")
+                break
+            op, s, e = self._record(pos)
+            if op == 0 or op > 0x0F:
+                if bytes(self.buf[pos:pos + 8]) == MAGIC and pos + 8 == self.size:
+                    break
+                stop = Truncation(pos, self.size, f"unknown opcode 0x{op:02x} (garbage or partial write)")
+                break
+            if e > self.size:
+                stop = Truncation(pos, self.size, f"record (opcode 0x{op:02x}, {e - s} bytes) cut off")
+                break
+            b = self.buf[s:e]
+            if op == OP_FOOTER:
+                break
+            elif op == OP_SCHEMA:
+                sc = parse_schema(b)
+                self.schemas[sc.id] = sc
+            elif op == OP_CHANNEL:
+                ch = parse_channel(b)
+                self.channels[ch.id] = ch
+            elif op == OP_METADATA:
+                self.metadata.append(parse_metadata(b))
+            elif op == OP_MESSAGE:
+                self.loose_messages.append(pos)
+            elif op == OP_CHUNK:
+                start, end, usize, _crc = _CHUNK_HEAD.unpack_from(b, 0)
+                c = _Buf(b, _CHUNK_HEAD.size)
+                comp = c.string()
+                clen = c.u64()
+                info = ChunkInfo(pos, e - pos, start, end, comp, clen, usize)
+                try:
+                    data = decompress(comp, b[c.p:c.p + clen], usize)
+                except BagError:
+                    raise
+                except Exception as exc:  # corrupt compressed payload
+                    stop = Truncation(pos, self.size, f"chunk at offset {pos} does not decompress ({exc})")
+                    break
+                for op2, s2, e2 in _records(data):
+                    if op2 == OP_MESSAGE:
+                        cid = _U16.unpack_from(data, s2)[0]
+                        info.counts[cid] = info.counts.get(cid, 0) + 1
+                    elif op2 == OP_SCHEMA:
+                        sc = parse_schema(memoryview(data)[s2:e2])
+                        self.schemas[sc.id] = sc
+                    elif op2 == OP_CHANNEL:
+                        ch = parse_channel(memoryview(data)[s2:e2])
+                        self.channels[ch.id] = ch
+                self.chunks.append(info)
+            pos = e
+        self.truncation = stop if stop is not None else (
+            None if self._ends_with_footer() else Truncation(pos, self.size, "no footer")
+        )
+
+    def _ends_with_footer(self) -> bool:
+        return bytes(self.buf[-8:]) == MAGIC and self.size > 8 + 9
+
+    # -- reading ---------------------------------------------------------
+    def chunk_data(self, ch: ChunkInfo) -> bytes | memoryview:
+        op, s, e = self._record(ch.offset)
+        if op != OP_CHUNK:
+            raise BagError(f"{self.path}: no chunk record at offset {ch.offset} (index is wrong)")
+        b = self.buf[s:e]
+        c = _Buf(b, _CHUNK_HEAD.size)
+        comp = c.string()
+        clen = c.u64()
+        try:
+            return decompress(comp, b[c.p:c.p + clen], ch.uncompressed_size)
+        except BagError:
+            raise
+        except Exception as exc:
+            raise BagError(f"{self.path}: chunk at offset {ch.offset} does not decompress ({exc})") from None
+
+    def file_size_unread(self) -> int:
+        """Bytes after the truncation point (0 for a complete file)."""
+        return 0 if self.truncation is None else self.size - self.truncation.offset
+
+    def loose_channel_ids(self) -> Iterator[int]:
+        """Channel id of each Message record outside chunks (unchunked files)."""
+        for off in self.loose_messages:
+            yield _U16.unpack_from(self.buf, off + 9)[0]
+
+    def iter_raw(self, channel_ids: set[int] | None = None) -> Iterator[tuple[int, int, int, memoryview]]:
+        """Yield ``(channel_id, log_time_ns, publish_time_ns, data)`` in file order."""
+        unpack = _MSG.unpack_from
+        for off in self.loose_messages:
+            _op, s, e = self._record(off)
+            cid, _seq, lt, pt = unpack(self.buf, s)
+            if channel_ids is None or cid in channel_ids:
+                yield cid, lt, pt, self.buf[s + 22:e]
+        for ch in self.chunks:
+            if channel_ids is not None and ch.counts and not (channel_ids & ch.counts.keys()):
+                continue
+            data = memoryview(self.chunk_data(ch))
+            for op, s, e in _records(data):
+                if op == OP_MESSAGE:
+                    cid, _seq, lt, pt = unpack(data, s)
+                    if channel_ids is None or cid in channel_ids:
+                        yield cid, lt, pt, data[s + 22:e]
+
+    def close(self) -> None:
+        try:
+            self.buf.release()
+            self._mm.close()
+        except (AttributeError, BufferError):
+            pass
+        self._f.close()
+
+
+def _records(data: bytes | memoryview) -> Iterator[tuple[int, int, int]]:
+    """(opcode, content start, content end) for the records inside a chunk."""
+    pos, n = 0, len(data)
+    unpack = _REC.unpack_from
+    while pos + 9 <= n:
+        op, ln = unpack(data, pos)
+        s = pos + 9
+        pos = s + ln
+        if pos > n:
+            raise BagError(f"record inside chunk runs past the chunk end ({pos} > {n})")
+        yield op, s, pos

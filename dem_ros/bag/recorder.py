@@ -1,0 +1,210 @@
+"""The middleware-free core of the recorder node.
+
+A recorder node subscribes to the contract topics and, in each callback,
+calls :meth:`Recorder.on_message` with the receive time and the serialized
+(CDR) message. ``on_message`` only appends to a bounded queue (O(1), no I/O);
+a writer thread drains the queue into a :class:`~dem_ros.bag.BagWriter`. If
+the queue is full, the message is dropped and counted; counters are written
+into the bag's ``custom_data`` (``dem_ros.recorder_counters``) on close, so a
+drop is never silent.
+
+Threading: ``on_message`` may be called from any one thread (or several:
+the per-topic counters are then approximate, the bag is not). ``close()`` is
+idempotent and may be called from a signal handler (see
+:func:`finalize_on_signals`).
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from types import FrameType
+from typing import Any, Callable, Iterable
+
+from dem_ros.contract import Topic
+
+from .errors import BagError
+from .writer import DEFAULT_CHUNK_SIZE, BagWriter
+
+__all__ = ["Recorder", "TopicCounters", "finalize_on_signals"]
+
+
+@dataclass
+class TopicCounters:
+    """Per-topic message counts: received = written + dropped + still queued."""
+
+    received: int = 0
+    written: int = 0
+    dropped: int = 0
+
+
+class Recorder:
+    """Record CDR messages of the given topics into a bag directory.
+
+    Args:
+        bag_dir: bag directory to create (see :class:`BagWriter`).
+        topics: contract topics to record (name, ROS type, QoS).
+        metadata: run metadata (config, scenario, controller, transport, version).
+        queue_size: maximum number of messages waiting for the writer thread.
+        compression, chunk_size: passed to :class:`BagWriter`.
+        poll_s: writer thread sleep (s) when the queue is empty.
+    """
+
+    def __init__(
+        self,
+        bag_dir: Path | str,
+        topics: Iterable[Topic],
+        metadata: dict[str, Any] | None = None,
+        *,
+        queue_size: int = 50_000,
+        compression: str = "zstd",
+        chunk_size: int = DEFAULT_CHUNK_SIZE,
+        poll_s: float = 0.005,
+    ) -> None:
+        if queue_size < 1:
+            raise BagError(f"queue_size must be >= 1, got {queue_size}")
+        self.topics = list(topics)
+        if not self.topics:
+            raise BagError("Recorder needs at least one topic")
+        self._writer = BagWriter(bag_dir, compression=compression, chunk_size=chunk_size, metadata=metadata)
+        for t in self.topics:
+            self._writer.add_topic(t.name, t.type, t.qos)
+        self.path = self._writer.path
+        self.queue_size = queue_size
+        self.poll_s = poll_s
+        self._counters = {t.name: TopicCounters() for t in self.topics}
+        self._queue: deque[tuple[str, int, bytes]] = deque()
+        self.max_queue_depth = 0
+        self.error: BaseException | None = None
+        self._closing = False
+        self._stop = threading.Event()
+        self._close_lock = threading.Lock()
+        self._thread = threading.Thread(target=self._run, name="dem_ros-bag-writer", daemon=True)
+        self._thread.start()
+
+    # -- callback side ---------------------------------------------------
+    def on_message(self, topic_name: str, recv_time_ns: int, cdr_bytes: bytes) -> bool:
+        """Queue one message; returns False if it was dropped (queue full or closed).
+
+        Raises:
+            BagError: ``topic_name`` is not one of the recorded topics.
+        """
+        c = self._counters.get(topic_name)
+        if c is None:
+            raise BagError(f"Recorder got a message on {topic_name!r}, which it does not record")
+        c.received += 1
+        q = self._queue
+        if self._closing or self.error is not None or len(q) >= self.queue_size:
+            c.dropped += 1
+            return False
+        q.append((topic_name, recv_time_ns, cdr_bytes))
+        return True
+
+    # -- writer thread ---------------------------------------------------
+    def _run(self) -> None:
+        q, w, counters = self._queue, self._writer, self._counters
+        while True:
+            depth = len(q)
+            if depth > self.max_queue_depth:
+                self.max_queue_depth = depth
+            if not depth:
+                if self._stop.is_set():
+                    return
+                time.sleep(self.poll_s)
+                continue
+            try:
+                for _ in range(depth):
+                    topic, t, data = q.popleft()
+                    w.write(topic, t, data)
+                    counters[topic].written += 1
+            except BaseException as exc:  # disk full, etc.: stop writing, count the rest as dropped
+                self.error = exc
+                while q:
+                    counters[q.popleft()[0]].dropped += 1
+                return
+
+    # -- status ----------------------------------------------------------
+    def counters(self) -> dict[str, TopicCounters]:
+        """Snapshot of the per-topic counters."""
+        return {k: TopicCounters(**asdict(v)) for k, v in self._counters.items()}
+
+    @property
+    def queue_depth(self) -> int:
+        return len(self._queue)
+
+    @property
+    def closed(self) -> bool:
+        return self._writer.closed
+
+    # -- closing ---------------------------------------------------------
+    def close(self) -> dict[str, TopicCounters]:
+        """Drain the queue, finalize the bag, return the final counters. Idempotent.
+
+        Raises:
+            BagError: the writer thread failed (the bag is still finalized).
+        """
+        if not self._close_lock.acquire(blocking=False):
+            return self.counters()  # re-entered (signal during close) or concurrent close
+        try:
+            if not self._writer.closed:
+                self._closing = True
+                self._stop.set()
+                self._thread.join()
+                counts = {k: asdict(v) for k, v in self._counters.items()}
+                self._writer.set_custom_data("dem_ros.recorder_counters", json.dumps(counts, sort_keys=True))
+                self._writer.close()
+        finally:
+            self._close_lock.release()
+        if self.error is not None:
+            raise BagError(f"bag writer for {self.path} failed: {self.error!r}") from self.error
+        return self.counters()
+
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def finalize_on_signals(
+    recorder: Recorder | BagWriter,
+    signals: Iterable[int] = (signal.SIGINT, signal.SIGTERM),
+    *,
+    then: Callable[[int], None] | None = None,
+) -> Callable[[], None]:
+    """Install handlers that finalize ``recorder`` on SIGINT/SIGTERM.
+
+    The handler closes the recorder (queue drained, summary and
+    ``metadata.yaml`` written), then calls ``then(signum)`` if given, else
+    exits with status ``128 + signum`` (``SystemExit`` in the main thread, so
+    ``finally`` blocks run). Must be called from the main thread. Returns a
+    function that restores the previous handlers.
+
+    With a :class:`BagWriter` (no writer thread) the handler may interrupt a
+    ``write`` in progress; prefer a :class:`Recorder`.
+    """
+    sigs = list(signals)
+
+    def handler(signum: int, _frame: FrameType | None) -> None:
+        try:
+            recorder.close()
+        except BagError as exc:
+            print(f"dem_ros.bag: {exc}", file=sys.stderr)
+        if then is not None:
+            then(signum)
+        else:
+            raise SystemExit(128 + signum)
+
+    previous = {s: signal.signal(s, handler) for s in sigs}
+
+    def restore() -> None:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+    return restore

@@ -1,0 +1,274 @@
+"""Controllers: one interface, selectable by name.
+
+==========================  =====================================================
+name                        what it is
+==========================  =====================================================
+``adaptive`` (default)      corrected adaptive design "A2" (notes 6)
+``adaptive_enhanced``       A2 + corrected leakage ``w`` and dead zone ``R0`` (Eq. 48, "A2e")
+``paper``                   the adaptive law exactly as printed (Eq. 36, "A0"); it fails
+``paper_fixed``             minimal errata fixes to the paper's 8-theta law ("A1")
+``nonlinear_decoupling``    CE feedback linearisation with fixed nominal parameters
+``decentralized_pid``       one cascade PID per magnet with an inner current loop
+==========================  =====================================================
+
+Every controller has ``reset(meas0, u0)`` (start from a measured hover with the
+voltage that held it) and ``step(meas, ref) -> u`` where ``meas`` =
+[d1, d1', d2, d2', i1, i2] (m, m/s, A) and ``ref`` the 8-vector of
+:mod:`dem_ros.core.reference`; after a step, ``diag`` holds
+m_hat, R_hat, K_hat, e_c (2), e (2), adapting, fault.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from ..lti import AllPoleFilter
+from ..model import lie_terms, regressors, theta_jacobian, theta_of
+from ..params import SCHEMA, ConfigError
+from . import kernels as K
+
+__all__ = ["CONTROLLERS", "Controller", "CEController", "PIDController", "make_controller"]
+
+CONTROLLERS = {
+    "adaptive": K.MODE_ADAPTIVE,
+    "adaptive_enhanced": K.MODE_ENHANCED,
+    "paper": K.MODE_PAPER,
+    "paper_fixed": K.MODE_PAPER_FIX,
+    "nonlinear_decoupling": K.MODE_FIXED,
+    "decentralized_pid": -1,
+}
+DIAG_NAMES = ("m_hat", "R_hat", "K_hat", "ec_1", "ec_2", "e_1", "e_2", "adapting", "fault")
+
+
+class Controller:
+    """Common interface (see module docstring)."""
+
+    name: str
+    diag: np.ndarray
+
+    def reset(self, meas0: np.ndarray, u0: np.ndarray) -> None:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def step(self, meas: np.ndarray, ref: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def set_params(self, cfg: Mapping) -> None:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def estimates(self) -> dict | None:
+        """Physical estimates {m_kg, R_ohm, K} or None when the law has none."""
+        if not np.all(np.isfinite(self.diag[:3])):
+            return None
+        return {"m_kg": float(self.diag[0]), "R_ohm": float(self.diag[1]), "K": float(self.diag[2])}
+
+
+def _cp_vector(cfg: Mapping) -> np.ndarray:
+    cp = np.zeros(K.NCP)
+    L, l, I = cfg["L"], cfg["l"], cfg["I"]
+    cp[K.CP_K1], cp[K.CP_K2], cp[K.CP_K3] = cfg["k1"], cfg["k2"], cfg["k3"]
+    cp[K.CP_P] = (L + l) / (2 * L)
+    cp[K.CP_Q] = (L - l) / (2 * L)
+    cp[K.CP_CA] = L * l / I
+    cp[K.CP_CC] = L * L / I
+    cp[K.CP_N1], cp[K.CP_N2], cp[K.CP_G] = cfg["N1"], cfg["N2"], cfg["g"]
+    cp[K.CP_FLOOR] = cfg["gap_floor"]
+    cp[K.CP_TS] = cfg["dt"]
+    cp[K.CP_W] = cfg["w"]
+    cp[K.CP_R0] = cfg["R0"]
+    cp[K.CP_DZ] = {"pdot": K.DZ_PDOT, "error": K.DZ_ERROR, "off": K.DZ_OFF}[cfg["deadzone"]]
+    cp[K.CP_E0] = cfg["e0"]
+    cp[K.CP_MU_MIN] = 1.0 / cfg["m_max"]
+    cp[K.CP_MU_MAX] = 1.0 / cfg["m_min"]
+    cp[K.CP_R_MIN], cp[K.CP_R_MAX] = cfg["R_min"], cfg["R_max"]
+    cp[K.CP_K_MIN], cp[K.CP_K_MAX] = cfg["K_min"], cfg["K_max"]
+    cp[K.CP_QM], cp[K.CP_QR], cp[K.CP_QK] = cfg["q_m"], cfg["q_R"], cfg["q_K"]
+    cp[K.CP_ULIM] = cfg["voltage_limit"]
+    return cp
+
+
+def _theta(phi: np.ndarray, cp: np.ndarray) -> np.ndarray:
+    th = np.empty(8)
+    theta_of(np.asarray(phi, float), cp[K.CP_CA], cp[K.CP_CC], th)
+    return th
+
+
+def hover_regressors(cp: np.ndarray, meas0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(W3, W2) at the pre-start hover (x0, u0)."""
+    ab = np.empty(6)
+    lie_terms(max(meas0[0], cp[K.CP_FLOOR]), max(meas0[2], cp[K.CP_FLOOR]), meas0[4], meas0[5], cp[K.CP_P], cp[K.CP_Q], ab)
+    W3 = np.empty((8, 2))
+    W2 = np.empty((8, 2))
+    regressors(ab, np.asarray(u0, float), cp[K.CP_N1], cp[K.CP_N2], W3, W2)
+    return W3, W2
+
+
+class CEController(Controller):
+    """Certainty-equivalence feedback linearisation, fixed or adaptive (modes of :mod:`.kernels`)."""
+
+    def __init__(self, cfg: Mapping, name: str | None = None):
+        self.name = name or cfg["type"]
+        if self.name not in CONTROLLERS or self.name == "decentralized_pid":
+            raise ConfigError(f"controller.type: {self.name!r} is not a CE controller")
+        self.mode = CONTROLLERS[self.name]
+        self.cfg = SCHEMA.validate_group("controller", dict(cfg))
+        self.cp = _cp_vector(self.cfg)
+        self._filter()
+        self.diag = np.full(K.NDIAG, np.nan)
+        self.u = np.zeros(2)
+        self.reset(None, None)
+
+    def _filter(self) -> None:
+        c = self.cfg
+        self.F = AllPoleFilter([c["k3"], c["k2"], c["k1"]], 1.0, c["dt"])
+
+    # -- state ------------------------------------------------------------
+    def reset(self, meas0: np.ndarray | None, u0: np.ndarray | None) -> None:
+        """Fresh estimates and zero filters; with a measured hover (meas0, u0), hover-initialise A1/A2."""
+        c = self.cfg
+        cp = self.cp
+        self.Z = np.zeros((3, 18))
+        self.P = np.zeros((8, 8))
+        self.v = np.zeros(8)
+        self.v0 = np.zeros(8)
+        self.scale = np.ones(8)
+        if self.mode == K.MODE_FIXED:
+            self.theta = _theta([1 / c["m_nominal"], c["R_nominal"], c["K_nominal"]], cp)
+        else:
+            phi0 = np.array([1 / c["m_init"], c["R_init"], c["K_init"]])
+            th0 = _theta(phi0, cp)
+            if self.mode == K.MODE_PAPER:
+                self.theta = th0.copy()
+                self.v[:] = th0
+                self.P[:] = np.eye(8)
+            elif self.mode == K.MODE_PAPER_FIX:
+                A0 = phi0[0] + cp[K.CP_CA]
+                C0 = phi0[0] + cp[K.CP_CC]
+                self.scale[:] = [A0 * phi0[1] / 2, A0 * phi0[2], A0 * phi0[1] / 2, A0 * phi0[2], A0 / 2, A0 / 2, C0, C0]
+                self.v[:] = th0 / self.scale
+                self.P[:] = 1e4 * np.eye(8)
+                if meas0 is not None and c["hover_init"]:
+                    self._hover_init_a1(meas0, u0)
+                self.theta = self.scale * self.v
+            else:
+                self.scale[:3] = phi0
+                self.v[:3] = 1.0
+                self.P[:3, :3] = np.diag([c["P0_m"], c["P0_R"], c["P0_K"]])
+                if meas0 is not None and c["hover_init"]:
+                    self._hover_init_a2(meas0, u0)
+                phi = self.scale[:3] * self.v[:3]
+                self.theta = _theta(phi, cp)
+            self.v0[:] = self.v
+        self.u = np.zeros(2) if u0 is None else np.asarray(u0, float).copy()
+        self.diag = np.full(K.NDIAG, np.nan)
+        self._fill_estimates()
+
+    def _fill_estimates(self) -> None:
+        if self.mode in (K.MODE_ADAPTIVE, K.MODE_ENHANCED):
+            phi = self.scale[:3] * self.v[:3]
+            self.diag[:3] = [1 / phi[0], phi[1], phi[2]]
+        else:
+            K.physical_estimates(self.theta, self.diag)
+
+    def _hover_init_a2(self, meas0: np.ndarray, u0: np.ndarray) -> None:
+        """Notes 6 A2 (iv): 3 Gauss-Newton steps on W3^T theta = 0 and k1 (W2^T theta + g) = 0.
+
+        Minimum-P0^{-1}-norm steps in the scaled coordinates: R_hat = u0/i0 exactly and
+        K_hat i0^2/delta0^2 = N + m_hat g/2.
+        """
+        cp = self.cp
+        W3, W2 = hover_regressors(cp, meas0, u0)
+        k1 = cp[K.CP_K1]
+        P0 = self.P[:3, :3].copy()
+        for _ in range(3):
+            phi = self.scale[:3] * self.v[:3]
+            th = _theta(phi, cp)
+            J = np.empty((8, 3))
+            theta_jacobian(phi, cp[K.CP_CA], J)
+            r = np.concatenate([W3.T @ th, k1 * (W2.T @ th + cp[K.CP_G])])
+            Jr = np.vstack([W3.T @ J, k1 * (W2.T @ J)]) * self.scale[:3]
+            S = Jr @ P0 @ Jr.T
+            self.v[:3] -= P0 @ Jr.T @ np.linalg.pinv(S, rcond=1e-10) @ r
+            lo = np.array([cp[K.CP_MU_MIN], cp[K.CP_R_MIN], cp[K.CP_K_MIN]])
+            hi = np.array([cp[K.CP_MU_MAX], cp[K.CP_R_MAX], cp[K.CP_K_MAX]])
+            self.v[:3] = np.clip(self.scale[:3] * self.v[:3], lo, hi) / self.scale[:3]
+
+    def _hover_init_a1(self, meas0: np.ndarray, u0: np.ndarray) -> None:
+        """Notes 6 A1: minimum-norm correction so that W_p^T theta = -k1 g; then P = 1e5 (I - proj)."""
+        cp = self.cp
+        W3, W2 = hover_regressors(cp, meas0, u0)
+        k1 = cp[K.CP_K1]
+        Xh = (W3 + k1 * W2) * self.scale[:, None]
+        P0 = self.P
+        target = -k1 * cp[K.CP_G] * np.ones(2)
+        self.v += P0 @ Xh @ np.linalg.pinv(Xh.T @ P0 @ Xh, rcond=1e-10) @ (target - Xh.T @ self.v)
+        proj = Xh @ np.linalg.pinv(Xh.T @ Xh, rcond=1e-10) @ Xh.T
+        self.P[:] = 1e5 * (np.eye(8) - proj)
+
+    # -- loop -------------------------------------------------------------
+    def step(self, meas: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        K.ce_step(self.mode, self.cp, self.theta, self.v, self.scale, self.v0, self.P, self.Z,
+                  self.F.Ad, self.F.Bd, meas, ref, self.u, self.diag)
+        return self.u
+
+    def set_params(self, cfg: Mapping) -> None:
+        """Apply a validated live change at the next step (gains, leakage, dead zone, limits).
+
+        Changing k1..k3 re-discretises F(s); its states are kept (a transient in e_c follows).
+        Initial estimates and nominal parameters take effect at the next ``reset``.
+        """
+        new = SCHEMA.validate_group("controller", dict(cfg))
+        gains_changed = any(new[k] != self.cfg[k] for k in ("k1", "k2", "k3", "dt"))
+        self.cfg = new
+        self.cp[:] = _cp_vector(new)
+        if gains_changed:
+            self._filter()
+        if self.mode == K.MODE_FIXED:
+            self.theta[:] = _theta([1 / new["m_nominal"], new["R_nominal"], new["K_nominal"]], self.cp)
+
+    def kernel_args(self) -> tuple:
+        return (self.mode, self.cp, self.theta, self.v, self.scale, self.v0, self.P, self.Z, self.F.Ad, self.F.Bd)
+
+
+class PIDController(Controller):
+    """Decentralised cascade PID on the nominal single-magnet model (coupling ignored)."""
+
+    def __init__(self, cfg: Mapping):
+        self.name = "decentralized_pid"
+        self.cfg = SCHEMA.validate_group("controller", dict(cfg))
+        self.cp = np.zeros(K.NPID)
+        self._fill()
+        self.integ = np.zeros(2)
+        self.u = np.zeros(2)
+        self.diag = np.full(K.NDIAG, np.nan)
+
+    def _fill(self) -> None:
+        c = self.cfg
+        F0 = c["N1"] + c["m_nominal"] * c["g"] / 2
+        self.cp[:] = [c["pid_kp"], c["pid_kd"], c["pid_ki"], c["pid_kc"], c["R_nominal"],
+                      np.sqrt(F0 / c["K_nominal"]), c["dt"], c["voltage_limit"]]
+
+    def reset(self, meas0: np.ndarray | None, u0: np.ndarray | None) -> None:
+        self.integ[:] = 0.0
+        self.u = np.zeros(2) if u0 is None else np.asarray(u0, float).copy()
+
+    def step(self, meas: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        K.pid_step(self.cp, self.integ, meas, ref, self.u, self.diag)
+        return self.u
+
+    def set_params(self, cfg: Mapping) -> None:
+        self.cfg = SCHEMA.validate_group("controller", dict(cfg))
+        self._fill()
+
+
+def make_controller(cfg: Mapping, name: str | None = None) -> Controller:
+    """Build the controller ``name`` (default ``cfg['type']``) from a ``controller`` group."""
+    name = name or cfg["type"]
+    if name not in CONTROLLERS:
+        raise ConfigError(f"controller.type: got {name!r}, expected one of {', '.join(CONTROLLERS)}")
+    c = dict(cfg)
+    c["type"] = name
+    if name == "decentralized_pid":
+        return PIDController(c)
+    return CEController(c, name)

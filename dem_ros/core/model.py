@@ -1,0 +1,227 @@
+r"""DEM plant model: dynamics, Lie derivatives and the linear parameterisation.
+
+State ``x = [d1, d1', d2, d2', i1, i2]`` (m, m/s, m, m/s, A, A), input
+``u = [u1, u2]`` (V), output ``y = [d1, d2]`` (m). Positive down. With
+
+    P = (L+l)/(2L),  Q = (L-l)/(2L)                              (Eq. 7)
+    delta1 = P d1 + Q d2,  delta2 = Q d1 + P d2                    (Eq. 6)
+    A = 1/m + Ll/I, B = 1/m - Ll/I, C = 1/m + L^2/I, D = 1/m - L^2/I (Eq. 4)
+    F_j = K i_j^2 / delta_j^2                                      (Eq. 5, 8)
+
+the corrected dynamics are (notes section 1; errata 1-3)::
+
+    d1'' = -A F1 - B F2 + C N1 + D N2 + g                           (Eq. 3a)
+    d2'' = -B F1 - A F2 + D N1 + C N2 + g                           (Eq. 3b)
+    i_j' = (delta_j / 2K)(u_j - R i_j) + i_j delta_j' / delta_j      (from u = R i + d(2K i/delta)/dt)
+
+With a_j = i_j^2/delta_j, b_j = i_j/delta_j, q_j = b_j^2 the output has
+relative degree (3, 3) and (notes 1 a-b)::
+
+    y'   = [d1', d2']
+    y''  = L_f^2 h = W2^T theta + g
+    y''' = L_f^3 h + L_g L_f^2 h u = W3^T theta
+
+with theta = [AR/2, -AK, BR/2, -BK, -A/2, -B/2, C, D] (Eq. 44). The paper's
+tracking-error regressor (Eq. 45, corrected) is ``W_p = W3 + k1 W2`` so that
+``e''' + k1 e'' + k2 e' + k3 e = W_p^T (theta - theta_hat)``.
+
+All functions here are pure and compiled with numba (``cache=True``); they are
+called from the simulators and from the controller classes alike.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = [
+    "PlantParams",
+    "plant_vector",
+    "derived",
+    "dynamics",
+    "rk4",
+    "theta_of",
+    "theta_jacobian",
+    "lie_terms",
+    "regressors",
+    "hover_current",
+    "hover_state",
+]
+
+# Layout of the plant parameter vector ``p`` used by the kernels.
+IP, IQ, IA, IB, IC, ID, IK, IR, IN1, IN2, IG = range(11)
+NPP = 11
+
+
+def derived(L: float, l: float, m: float, I: float) -> tuple[float, float, float, float, float, float]:
+    """(P, Q, A, B, C, D) of Eqs. 4 and 7."""
+    return (
+        (L + l) / (2 * L),
+        (L - l) / (2 * L),
+        1 / m + L * l / I,
+        1 / m - L * l / I,
+        1 / m + L * L / I,
+        1 / m - L * L / I,
+    )
+
+
+def plant_vector(cfg: dict, m: float | None = None) -> np.ndarray:
+    """Kernel parameter vector from a ``plant_sim``-like dict (L, l, I, m, K, R, N1, N2, g)."""
+    mass = cfg["m"] if m is None else m
+    P, Q, A, B, C, D = derived(cfg["L"], cfg["l"], mass, cfg["I"])
+    return np.array([P, Q, A, B, C, D, cfg["K"], cfg["R"], cfg["N1"], cfg["N2"], cfg["g"]])
+
+
+class PlantParams:
+    """Convenience wrapper: named physical parameters and their kernel vector."""
+
+    def __init__(self, cfg: dict):
+        self.cfg = dict(cfg)
+        self.vector = plant_vector(cfg)
+
+    def with_mass(self, m: float) -> np.ndarray:
+        return plant_vector(self.cfg, m)
+
+
+@njit(cache=True)
+def set_mass(p: np.ndarray, m: float, L: float, l: float, I: float) -> None:
+    """Update A, B, C, D of ``p`` in place for mass ``m`` (added mass at O)."""
+    p[IA] = 1.0 / m + L * l / I
+    p[IB] = 1.0 / m - L * l / I
+    p[IC] = 1.0 / m + L * L / I
+    p[ID] = 1.0 / m - L * L / I
+
+
+@njit(cache=True)
+def dynamics(x: np.ndarray, u: np.ndarray, p: np.ndarray, dx: np.ndarray) -> None:
+    """dx = f(x) + G(x) u, written into ``dx`` (shape (6,))."""
+    P, Q, A, B, C, D, K, R = p[IP], p[IQ], p[IA], p[IB], p[IC], p[ID], p[IK], p[IR]
+    d1 = P * x[0] + Q * x[2]
+    d2 = Q * x[0] + P * x[2]
+    dd1 = P * x[1] + Q * x[3]
+    dd2 = Q * x[1] + P * x[3]
+    F1 = K * x[4] * x[4] / (d1 * d1)
+    F2 = K * x[5] * x[5] / (d2 * d2)
+    load = p[IG]
+    dx[0] = x[1]
+    dx[1] = -A * F1 - B * F2 + C * p[IN1] + D * p[IN2] + load
+    dx[2] = x[3]
+    dx[3] = -B * F1 - A * F2 + D * p[IN1] + C * p[IN2] + load
+    dx[4] = d1 / (2.0 * K) * (u[0] - R * x[4]) + x[4] * dd1 / d1
+    dx[5] = d2 / (2.0 * K) * (u[1] - R * x[5]) + x[5] * dd2 / d2
+
+
+@njit(cache=True)
+def rk4(x: np.ndarray, u: np.ndarray, p: np.ndarray, T: float, n: int) -> None:
+    """Advance ``x`` in place over ``T`` seconds with ``n`` RK4 sub-steps, ``u`` held (ZOH)."""
+    h = T / n
+    k1 = np.empty(6)
+    k2 = np.empty(6)
+    k3 = np.empty(6)
+    k4 = np.empty(6)
+    xt = np.empty(6)
+    for _ in range(n):
+        dynamics(x, u, p, k1)
+        for j in range(6):
+            xt[j] = x[j] + 0.5 * h * k1[j]
+        dynamics(xt, u, p, k2)
+        for j in range(6):
+            xt[j] = x[j] + 0.5 * h * k2[j]
+        dynamics(xt, u, p, k3)
+        for j in range(6):
+            xt[j] = x[j] + h * k3[j]
+        dynamics(xt, u, p, k4)
+        for j in range(6):
+            x[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+
+
+@njit(cache=True)
+def theta_of(phi: np.ndarray, cA: float, cC: float, theta: np.ndarray) -> None:
+    """theta(phi) for phi = (1/m, R, K) (notes 6, A2 i); cA = Ll/I, cC = L^2/I."""
+    mu, R, K = phi[0], phi[1], phi[2]
+    Ap = mu + cA
+    Bp = mu - cA
+    theta[0] = Ap * R / 2
+    theta[1] = -Ap * K
+    theta[2] = Bp * R / 2
+    theta[3] = -Bp * K
+    theta[4] = -Ap / 2
+    theta[5] = -Bp / 2
+    theta[6] = mu + cC
+    theta[7] = mu - cC
+
+
+@njit(cache=True)
+def theta_jacobian(phi: np.ndarray, cA: float, J: np.ndarray) -> None:
+    """J = d theta / d phi, shape (8, 3)."""
+    mu, R, K = phi[0], phi[1], phi[2]
+    Ap = mu + cA
+    Bp = mu - cA
+    J[:, :] = 0.0
+    J[0, 0] = R / 2
+    J[1, 0] = -K
+    J[2, 0] = R / 2
+    J[3, 0] = -K
+    J[4, 0] = -0.5
+    J[5, 0] = -0.5
+    J[6, 0] = 1.0
+    J[7, 0] = 1.0
+    J[0, 1] = Ap / 2
+    J[2, 1] = Bp / 2
+    J[1, 2] = -Ap
+    J[3, 2] = -Bp
+
+
+@njit(cache=True)
+def lie_terms(d1: float, d2: float, i1: float, i2: float, P: float, Q: float, ab: np.ndarray) -> None:
+    """ab = [a1, a2, b1, b2, q1, q2] from gaps and currents (delta from Eq. 6)."""
+    de1 = P * d1 + Q * d2
+    de2 = Q * d1 + P * d2
+    b1 = i1 / de1
+    b2 = i2 / de2
+    ab[0] = i1 * b1
+    ab[1] = i2 * b2
+    ab[2] = b1
+    ab[3] = b2
+    ab[4] = b1 * b1
+    ab[5] = b2 * b2
+
+
+@njit(cache=True)
+def regressors(ab: np.ndarray, u: np.ndarray, N1: float, N2: float, W3: np.ndarray, W2: np.ndarray) -> None:
+    """W3 (8x2): y''' = W3^T theta;  W2 (8x2): y'' - g = W2^T theta (notes 1)."""
+    a1, a2, b1, b2, q1, q2 = ab[0], ab[1], ab[2], ab[3], ab[4], ab[5]
+    W3[:, :] = 0.0
+    W2[:, :] = 0.0
+    W3[0, 0] = 2 * a1
+    W3[0, 1] = 2 * a2
+    W3[2, 0] = 2 * a2
+    W3[2, 1] = 2 * a1
+    W3[4, 0] = 2 * b1 * u[0]
+    W3[4, 1] = 2 * b2 * u[1]
+    W3[5, 0] = 2 * b2 * u[1]
+    W3[5, 1] = 2 * b1 * u[0]
+    W2[1, 0] = q1
+    W2[1, 1] = q2
+    W2[3, 0] = q2
+    W2[3, 1] = q1
+    W2[6, 0] = N1
+    W2[6, 1] = N2
+    W2[7, 0] = N2
+    W2[7, 1] = N1
+
+
+def hover_current(cfg: dict, gap: float, m: float | None = None) -> float:
+    """Coil current that holds a symmetric hover at ``gap``: K i^2/gap^2 = N + m g/2."""
+    mass = cfg["m"] if m is None else m
+    if abs(cfg["N1"] - cfg["N2"]) > 1e-12:
+        raise ValueError("symmetric hover needs N1 == N2")
+    F0 = cfg["N1"] + mass * cfg["g"] / 2
+    return float(gap * np.sqrt(F0 / cfg["K"]))
+
+
+def hover_state(cfg: dict, gap: float) -> tuple[np.ndarray, np.ndarray]:
+    """(x0, u0): exact symmetric equilibrium at ``gap`` and the voltage that holds it."""
+    i0 = hover_current(cfg, gap)
+    x0 = np.array([gap, 0.0, gap, 0.0, i0, i0])
+    return x0, np.array([cfg["R"] * i0, cfg["R"] * i0])

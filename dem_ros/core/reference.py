@@ -1,0 +1,94 @@
+r"""Reference generator: command schedule r(t) filtered by the reference model M(s).
+
+    M(s) = b0 / (s^3 + a2 s^2 + a1 s + a0)          (Eq. 46: 0.25/((s+1)(s+0.5)^2))
+
+per output, discretised exactly (ZOH, :mod:`dem_ros.core.lti`). The state of
+each model is [y_d, y_d', y_d''] and the jerk is y_d''' = -a0 y_d - a1 y_d'
+- a2 y_d'' + b0 r. The default schedule is the staggered steps of notes
+section 7: r1 goes 8 -> 5 mm at t = 1 s, r2 goes 8 -> 5 mm at t = 10 s.
+
+Output layout (shape (8,)): ``[y1, y2, y1', y2', y1'', y2'', y1''', y2''']``
+(m, m/s, m/s^2, m/s^3), the same as the ``/dem/reference`` topic.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+from numba import njit
+
+from .lti import AllPoleFilter
+
+__all__ = ["ReferenceModel", "command", "reference_trajectory"]
+
+
+def command(cfg: Mapping, t: np.ndarray | float) -> np.ndarray:
+    """Command r(t) (m), shape (..., 2): staggered steps of the ``reference`` group."""
+    t = np.asarray(t, dtype=float)
+    r1 = np.where(t >= cfg["step_time_1"], cfg["target_1"], cfg["initial"])
+    r2 = np.where(t >= cfg["step_time_2"], cfg["target_2"], cfg["initial"])
+    return np.stack([r1, r2], axis=-1)
+
+
+@njit(cache=True)
+def _ref_step(z: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, c: np.ndarray, b0: float, r: np.ndarray, out: np.ndarray) -> None:
+    """Write the reference for the current sample into ``out`` and advance ``z`` (3 x 2)."""
+    for j in range(2):
+        out[j] = z[0, j]
+        out[2 + j] = z[1, j]
+        out[4 + j] = z[2, j]
+        out[6 + j] = -c[0] * z[0, j] - c[1] * z[1, j] - c[2] * z[2, j] + b0 * r[j]
+    tmp = np.empty(3)
+    for j in range(2):
+        for i in range(3):
+            tmp[i] = Ad[i, 0] * z[0, j] + Ad[i, 1] * z[1, j] + Ad[i, 2] * z[2, j] + Bd[i] * r[j]
+        for i in range(3):
+            z[i, j] = tmp[i]
+
+
+@njit(cache=True)
+def _ref_run(z: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, c: np.ndarray, b0: float, r: np.ndarray, out: np.ndarray) -> None:
+    for k in range(r.shape[0]):
+        _ref_step(z, Ad, Bd, c, b0, r[k], out[k])
+
+
+class ReferenceModel:
+    """Two reference models M(s) started in steady state at ``cfg['initial']``."""
+
+    def __init__(self, cfg: Mapping):
+        self.cfg = dict(cfg)
+        self.filter = AllPoleFilter([cfg["a0"], cfg["a1"], cfg["a2"]], cfg["b0"], cfg["dt"])
+        self.reset()
+
+    def reset(self, initial: float | None = None) -> None:
+        y0 = self.cfg["initial"] if initial is None else initial
+        self.z = np.zeros((3, 2))
+        self.z[0, :] = y0 * self.filter.dc_gain
+        self.k = 0
+
+    def step(self, r: np.ndarray) -> np.ndarray:
+        """Reference for the current sample given the held command ``r`` (2,); advances one period."""
+        out = np.empty(8)
+        _ref_step(self.z, self.filter.Ad, self.filter.Bd, self.filter.c, self.filter.gain, np.asarray(r, float), out)
+        self.k += 1
+        return out
+
+    def step_at(self, t: float) -> np.ndarray:
+        """Reference for time ``t`` using the configured schedule (one period per call)."""
+        return self.step(command(self.cfg, t))
+
+    def run(self, r: np.ndarray) -> np.ndarray:
+        """Reference for a whole command sequence ``r`` (N, 2) -> (N, 8)."""
+        r = np.ascontiguousarray(r, dtype=float)
+        out = np.empty((r.shape[0], 8))
+        _ref_run(self.z, self.filter.Ad, self.filter.Bd, self.filter.c, self.filter.gain, r, out)
+        self.k += r.shape[0]
+        return out
+
+
+def reference_trajectory(cfg: Mapping, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(r, yd): command (n, 2) and reference (n, 8) at t_k = k dt, k = 0..n-1."""
+    t = np.arange(n) * cfg["dt"]
+    r = command(cfg, t)
+    return r, ReferenceModel(cfg).run(r)

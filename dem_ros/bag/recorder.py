@@ -118,6 +118,7 @@ class Recorder:
                     return
                 time.sleep(self.poll_s)
                 continue
+            topic = ""
             try:
                 for _ in range(depth):
                     topic, t, data = q.popleft()
@@ -125,9 +126,14 @@ class Recorder:
                     counters[topic].written += 1
             except BaseException as exc:  # disk full, etc.: stop writing, count the rest as dropped
                 self.error = exc
-                while q:
-                    counters[q.popleft()[0]].dropped += 1
+                counters[topic].dropped += 1
+                self._drain_as_dropped()
                 return
+
+    def _drain_as_dropped(self) -> None:
+        q = self._queue
+        while q:
+            self._counters[q.popleft()[0]].dropped += 1
 
     # -- status ----------------------------------------------------------
     def counters(self) -> dict[str, TopicCounters]:
@@ -156,6 +162,7 @@ class Recorder:
                 self._closing = True
                 self._stop.set()
                 self._thread.join()
+                self._drain_as_dropped()  # raced in after a writer failure
                 counts = {k: asdict(v) for k, v in self._counters.items()}
                 self._writer.set_custom_data("dem_ros.recorder_counters", json.dumps(counts, sort_keys=True))
                 self._writer.close()

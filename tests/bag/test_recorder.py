@@ -1,0 +1,85 @@
+"""Recorder: off-thread writing, counters, bounded queue with counted drops."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from dem_ros.bag import BagError, BagReader, Recorder, check
+from dem_ros.bag.bench import joint_state_cdr
+from dem_ros.contract import COMMAND, MEASUREMENT, RUN_INFO
+
+MSG = joint_state_cdr(["magnet_1", "magnet_2"], [0.01, 0.02], [], [1.0, 2.0])
+
+
+def test_counters_and_bag_agree(tmp_path: Path) -> None:
+    """received == written for every topic when the writer keeps up; bag holds them all."""
+    with Recorder(tmp_path / "r", [MEASUREMENT, COMMAND, RUN_INFO], {"scenario": "S2"}) as rec:
+        for k in range(2000):
+            assert rec.on_message(MEASUREMENT.name, k * 10**6, MSG)
+            assert rec.on_message(COMMAND.name, k * 10**6 + 1, MSG)
+    c = rec.counters()
+    assert c[MEASUREMENT.name].received == c[MEASUREMENT.name].written == 2000
+    assert c[RUN_INFO.name].received == 0
+    assert all(v.dropped == 0 for v in c.values())
+    with BagReader(tmp_path / "r") as r:
+        assert r.topics[MEASUREMENT.name].count == 2000 and r.topics[COMMAND.name].count == 2000
+        assert r.run_metadata() == {"scenario": "S2"}
+    rec.close()  # idempotent
+
+
+def test_full_queue_drops_are_counted_and_persisted(tmp_path: Path) -> None:
+    """A stalled writer: drops counted per topic, saved in custom_data, warned by check."""
+    rec = Recorder(tmp_path / "slow", [MEASUREMENT], queue_size=10, poll_s=0.001)
+    real_write = rec._writer.write
+
+    def slow_write(*a: object, **kw: object) -> None:
+        time.sleep(0.002)
+        real_write(*a, **kw)
+
+    rec._writer.write = slow_write  # type: ignore[method-assign]
+    accepted = sum(rec.on_message(MEASUREMENT.name, k, MSG) for k in range(500))
+    c = rec.close()[MEASUREMENT.name]
+    assert c.received == 500
+    assert c.dropped > 0 and c.dropped == 500 - accepted
+    assert c.written + c.dropped == c.received
+    meta = yaml.safe_load((tmp_path / "slow" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    saved = json.loads(meta["custom_data"]["dem_ros.recorder_counters"])[MEASUREMENT.name]
+    assert saved == {"received": 500, "written": c.written, "dropped": c.dropped}
+    rep = check(tmp_path / "slow")
+    assert any("recorder dropped" in w for w in rep.warnings)
+    assert rep.topics[0].count == c.written
+
+
+def test_unknown_topic_and_after_close(tmp_path: Path) -> None:
+    """A topic outside the list is an error; messages after close are dropped, not lost silently."""
+    rec = Recorder(tmp_path / "u", [MEASUREMENT])
+    with pytest.raises(BagError, match="does not record"):
+        rec.on_message("/other", 0, MSG)
+    rec.close()
+    assert rec.on_message(MEASUREMENT.name, 0, MSG) is False
+    assert rec.counters()[MEASUREMENT.name].dropped == 1
+    with pytest.raises(BagError):
+        Recorder(tmp_path / "e", [])
+
+
+def test_writer_failure_surfaces_on_close(tmp_path: Path) -> None:
+    """A write error in the thread stops writing, counts the rest as dropped, raises on close."""
+    rec = Recorder(tmp_path / "f", [MEASUREMENT])
+
+    def broken(*a: object, **kw: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    rec._writer.write = broken  # type: ignore[method-assign]
+    for k in range(50):
+        rec.on_message(MEASUREMENT.name, k, MSG)
+    time.sleep(0.05)
+    with pytest.raises(BagError, match="No space left"):
+        rec.close()
+    c = rec.counters()[MEASUREMENT.name]
+    assert c.written == 0 and c.dropped == 50
+    assert check(tmp_path / "f").complete  # still finalized

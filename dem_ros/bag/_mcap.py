@@ -181,9 +181,10 @@ class McapFile:
             raise BagError(f"{self.path} is too short ({self.size} bytes) to be an MCAP file")
         self._mm = mmap.mmap(self._f.fileno(), 0, access=mmap.ACCESS_READ)
         self.buf = memoryview(self._mm)
-        if bytes(self.buf[:8]) != MAGIC:
+        head = bytes(self.buf[:8])
+        if head != MAGIC:
             self.close()
-            raise BagError(f"{self.path} is not an MCAP file (bad magic {bytes(self.buf[:8])!r})")
+            raise BagError(f"{self.path} is not an MCAP file (starts with {head!r}, not the MCAP magic)")
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, Channel] = {}
         self.chunks: list[ChunkInfo] = []

@@ -1,0 +1,140 @@
+"""A parameter client over the rcl_interfaces services, on plain DDS.
+
+Talks to any ROS 2 node (rclpy, rclcpp or our DDS nodes) the way an
+rmw_cyclonedds client does: request on ``rq/<node>/<srv>Request`` with the
+(guid, seq) header, reply picked from ``rr/<node>/<srv>Reply`` by guid.
+"""
+
+from __future__ import annotations
+
+import random
+import time
+from typing import Any
+
+from cyclonedds.core import ReadCondition, WaitSet
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+from cyclonedds._clayer import ddspy_take, ddspy_write
+
+from .. import paramvalue as pv
+from ..api import TransportError
+from . import msgs, wire
+from .node import _ANY, QOS_SERVICES, Participant
+
+__all__ = ["call_service", "param_set", "param_get", "param_list"]
+
+
+def _node_fqn(node_name: str) -> str:
+    n = node_name.strip()
+    if not n:
+        raise TransportError("empty node name")
+    return n if n.startswith("/") else "/" + n
+
+
+def call_service(node_name: str, srv: str, request: Any, *, domain_id: int | None = None,
+                 timeout_s: float = 2.0) -> Any:
+    """Call ``<node>/<srv>`` (one of msgs.SERVICES) and return the response message.
+
+    Raises TransportError when no server answers within ``timeout_s``.
+    """
+    fqn = _node_fqn(node_name)
+    srv_type, req_cls, rep_cls = msgs.SERVICES[srv]
+    p = Participant.get(domain_id)
+    rq, rr = wire.service_topics(fqn + "/" + srv)
+    guid = random.getrandbits(63) | 1
+    ud = f"clientid={guid:x}.{random.getrandbits(32):x};"
+    distro = p.settings.distro
+    writer = DataWriter(p.dp, p.topic(rq, req_cls),
+                        qos=wire.dds_qos(QOS_SERVICES, wire.user_data_for_endpoint(srv_type + "_Request", distro, ud)))
+    reader = DataReader(p.dp, p.topic(rr, rep_cls),
+                        qos=wire.dds_qos(QOS_SERVICES, wire.user_data_for_endpoint(srv_type + "_Response", distro, ud)))
+    ws = WaitSet(p.dp)
+    cond = ReadCondition(reader, _ANY)
+    ws.attach(cond)
+    deadline = time.monotonic() + timeout_s
+    try:
+        while not (writer.get_matched_subscriptions() and reader.get_matched_publications()):
+            if time.monotonic() > deadline:
+                raise TransportError(
+                    f"no parameter service {fqn}/{srv} on ROS_DOMAIN_ID={p.settings.domain_id} "
+                    f"within {timeout_s:g} s (is the node running?)"
+                )
+            time.sleep(0.005)
+        request.guid = guid
+        request.seq = 1
+        data = request.serialize()
+        ddspy_write(writer._ref, data + b"\0" * (-len(data) % 4))
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TransportError(f"{fqn}/{srv}: no reply within {timeout_s:g} s")
+            ws.wait(int(min(left, 0.2) * 1e9))
+            got = ddspy_take(reader._ref, _ANY, 16)
+            if isinstance(got, int):
+                continue
+            for raw, info in got:
+                if info.valid_data:
+                    rep = rep_cls.deserialize(raw)
+                    if rep.guid == guid and rep.seq == 1:
+                        return rep
+    finally:
+        ws.detach(cond)
+        for e in (cond, reader, writer, ws):
+            try:
+                e.__del__()
+            except Exception:
+                pass
+        p.release_if_unused()
+
+
+def param_get(node_name: str, name: str, *, domain_id: int | None = None, timeout_s: float = 2.0) -> Any:
+    """Current value of parameter ``name`` of ``node_name``; TransportError if unreachable or undeclared."""
+    rep = call_service(node_name, "get_parameters", msgs.GetParameters_Request(names=[name]),
+                       domain_id=domain_id, timeout_s=timeout_s)
+    if not rep.values or rep.values[0].type == pv.NOT_SET:
+        raise TransportError(f"{_node_fqn(node_name)} has no parameter {name!r}")
+    return pv.from_value_msg(rep.values[0])
+
+
+def param_list(node_name: str, *, domain_id: int | None = None, timeout_s: float = 2.0) -> list[str]:
+    """Names of the parameters of ``node_name``."""
+    rep = call_service(node_name, "list_parameters", msgs.ListParameters_Request(prefixes=[], depth=0),
+                       domain_id=domain_id, timeout_s=timeout_s)
+    return list(rep.result.names)
+
+
+def param_set(node_name: str, name: str, value: Any, *, domain_id: int | None = None,
+              timeout_s: float = 2.0) -> tuple[bool, str]:
+    """Set one parameter; ``(True, "")`` or ``(False, reason)``.
+
+    The node's declared type is asked first so that ``60`` is sent as a double to
+    a double parameter (rclpy rejects an integer for a double). Unreachable
+    nodes give ``(False, reason)`` rather than an exception.
+    """
+    t0 = time.monotonic()
+    try:
+        types = call_service(node_name, "get_parameter_types", msgs.GetParameterTypes_Request(names=[name]),
+                             domain_id=domain_id, timeout_s=timeout_s)
+        ptype = int(types.types[0]) if types.types else pv.NOT_SET
+        if ptype == pv.NOT_SET:
+            return False, f"{_node_fqn(node_name)} has no parameter {name!r}"
+        if isinstance(value, str) and ptype != pv.STRING:
+            import yaml
+
+            value = yaml.safe_load(value)
+        if ptype == pv.DOUBLE and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        try:
+            pval = pv.to_value_msg(msgs.ParameterValue, value)
+        except TypeError as exc:
+            return False, str(exc)
+        left = max(0.1, timeout_s - (time.monotonic() - t0))
+        rep = call_service(node_name, "set_parameters",
+                           msgs.SetParameters_Request(parameters=[msgs.Parameter(name=name, value=pval)]),
+                           domain_id=domain_id, timeout_s=left)
+    except TransportError as exc:
+        return False, str(exc)
+    if not rep.results:
+        return False, "empty reply"
+    r = rep.results[0]
+    return bool(r.successful), str(r.reason)

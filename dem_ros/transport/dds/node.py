@@ -1,0 +1,594 @@
+"""The rclpy-free node: Cyclone DDS (PyPI ``cyclonedds``) speaking ROS 2 on the wire.
+
+One DDS participant per process (shared by all nodes of the process, like an
+rclpy context), configured as rmw_cyclonedds configures it (see
+:mod:`.wire`). Each node has a wait set; :meth:`DdsNode.spin` waits on it
+until the next timer deadline and then, on the calling thread, takes the
+samples of every reader and runs the callbacks and due timers one at a time.
+
+Graph visibility: the participant publishes ``ros_discovery_info``
+(rmw_dds_common ParticipantEntitiesInfo: node name, namespace, reader and
+writer GIDs), so ``ros2 node list`` and ``ros2 topic info -v`` see the nodes.
+Parameters are served over the six ``rcl_interfaces`` services
+(``rq/<node>/<srv>Request`` / ``rr/<node>/<srv>Reply``) and changes are
+announced on ``/parameter_events``.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+from typing import Any, Callable, Mapping
+
+from cyclonedds.core import GuardCondition, InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+from cyclonedds.domain import Domain, DomainParticipant
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic as DdsTopic
+from cyclonedds._clayer import ddspy_take, ddspy_write
+
+from ... import contract
+from ...contract import QoS, Topic
+from ...core.params import SCHEMA, ConfigError
+from .. import paramvalue as pv
+from ..api import OnChange, RawCallback, TransportError
+from ..rosargs import RosArgs, initial_parameters, parse_ros_args
+from . import fastcdr, msgs, wire
+
+__all__ = ["DdsNode", "DdsPublisher", "DdsTimer", "Participant"]
+
+_ANY = SampleState.Any | ViewState.Any | InstanceState.Any
+_TAKE_N = 256
+#: rmw_qos_profile_services_default
+QOS_SERVICES = QoS(reliable=True, transient_local=False, depth=10)
+#: rcl's rosout QoS (Jazzy: transient local, depth 1000)
+QOS_ROSOUT = QoS(reliable=True, transient_local=True, depth=1000)
+#: the longest a blocking wait lasts, so that Python signal handlers run promptly
+_MAX_WAIT_NS = 200_000_000
+
+
+def _guid_bytes(entity: Any) -> bytes:
+    return entity.get_guid().bytes
+
+
+class Participant:
+    """The process-wide DDS participant plus the ``ros_discovery_info`` writer."""
+
+    _instance: "Participant | None" = None
+    _lock = threading.Lock()
+
+    def __init__(self, settings: wire.Settings):
+        from cyclonedds.qos import Policy, Qos
+
+        self.settings = settings
+        try:
+            self.domain = Domain(settings.domain_id, wire.domain_config(settings))
+            self.dp = DomainParticipant(settings.domain_id, qos=Qos(Policy.Userdata(b"enclave=/;")))
+        except Exception as exc:  # DDSException: bad CYCLONEDDS_URI, no interface, ...
+            raise TransportError(
+                f"cannot create a DDS participant in domain {settings.domain_id} "
+                f"(discovery {settings.discovery_range}): {exc}"
+            ) from None
+        self.gid = self._gid(_guid_bytes(self.dp))
+        self._topics: dict[str, DdsTopic] = {}
+        self._nodes: list["DdsNode"] = []
+        types = msgs.gid_types(settings.gid_size)
+        self._Gid = types["Gid"]
+        self._NEI = types["NodeEntitiesInfo"]
+        self._PEI = types["ParticipantEntitiesInfo"]
+        info_qos = QoS(reliable=True, transient_local=True, depth=1)
+        ud = wire.user_data_for_endpoint("rmw_dds_common/msg/ParticipantEntitiesInfo", settings.distro)
+        self._info_writer = DataWriter(
+            self.dp, self.topic("ros_discovery_info", self._PEI), qos=wire.dds_qos(info_qos, ud)
+        )
+
+    # -- process singleton ---------------------------------------------------------
+    @classmethod
+    def get(cls, domain_id: int | None = None) -> "Participant":
+        settings = wire.settings_from_env(domain_id)
+        with cls._lock:
+            inst = cls._instance
+            if inst is not None and inst.settings != settings:
+                raise TransportError(
+                    f"this process already has a DDS participant in domain {inst.settings.domain_id} "
+                    f"({inst.settings.distro}); one participant per process"
+                )
+            if inst is None:
+                inst = cls._instance = Participant(settings)
+            return inst
+
+    def _gid(self, guid16: bytes) -> bytes:
+        return guid16 + b"\0" * (self.settings.gid_size - len(guid16))
+
+    def gid_of(self, entity: Any) -> bytes:
+        """The ROS GID of a DDS entity (its GUID, zero-padded to the distro's GID size)."""
+        return self._gid(_guid_bytes(entity))
+
+    def topic(self, name: str, cls: type) -> DdsTopic:
+        t = self._topics.get(name)
+        if t is None:
+            t = self._topics[name] = DdsTopic(self.dp, name, cls)
+        elif t.data_type is not cls:
+            raise TransportError(f"DDS topic {name!r} already exists with type {t.data_type.__name__}")
+        return t
+
+    # -- graph ---------------------------------------------------------------------
+    def add_node(self, node: "DdsNode") -> None:
+        self._nodes.append(node)
+
+    def remove_node(self, node: "DdsNode") -> None:
+        if node in self._nodes:
+            self._nodes.remove(node)
+            self.publish_graph()
+        if not self._nodes:
+            with Participant._lock:
+                if Participant._instance is self:
+                    Participant._instance = None
+            try:
+                self.dp.__del__()  # dds_delete: all readers, writers and topics with it
+                self.domain.__del__()
+            except Exception:
+                pass
+
+    def release_if_unused(self) -> None:
+        """Delete the participant when no node uses it (after a one-shot client call)."""
+        if not self._nodes:
+            self.remove_node(None)  # type: ignore[arg-type]
+
+    def publish_graph(self) -> None:
+        """Publish ParticipantEntitiesInfo naming every node and its endpoint GIDs."""
+        g = self._Gid
+        infos = [
+            self._NEI(
+                node_namespace=n.namespace,
+                node_name=n.name,
+                reader_gid_seq=[g(data=list(x)) for x in n._reader_gids],
+                writer_gid_seq=[g(data=list(x)) for x in n._writer_gids],
+            )
+            for n in self._nodes
+        ]
+        self._info_writer.write(self._PEI(gid=g(data=list(self.gid)), node_entities_info_seq=infos))
+
+
+class DdsPublisher:
+    """Writes messages of one topic; :meth:`publish_raw` sends ready CDR bytes."""
+
+    def __init__(self, writer: DataWriter, cls: type):
+        self._writer = writer
+        self._cls = cls
+        self._ref = writer._ref
+        self._encode = fastcdr.ENCODERS.get(cls)
+
+    def publish(self, msg: Any) -> None:
+        data = self._encode(msg) if self._encode is not None and type(msg) is self._cls else msg.serialize()
+        # Cyclone expects the payload padded to a multiple of 4 (as DataWriter.write does)
+        pad = -len(data) % 4
+        if pad:
+            data += b"\0" * pad
+        ret = ddspy_write(self._ref, data)
+        if ret < 0:
+            raise TransportError(f"DDS write failed on {self._writer.topic.name} (code {ret})")
+
+    def publish_raw(self, data: bytes) -> None:
+        """Send serialized CDR (with encapsulation header), e.g. a sample from a bag."""
+        pad = -len(data) % 4
+        ret = ddspy_write(self._ref, bytes(data) + b"\0" * pad if pad else bytes(data))
+        if ret < 0:
+            raise TransportError(f"DDS write failed on {self._writer.topic.name} (code {ret})")
+
+    @property
+    def subscription_count(self) -> int:
+        return len(self._writer.get_matched_subscriptions())
+
+
+class DdsTimer:
+    """A periodic callback scheduled against absolute deadlines on the monotonic clock.
+
+    Attributes:
+        period_ns: period (ns).
+        next_ns: next deadline, ``time.monotonic_ns()`` scale (ns).
+        fired: number of calls so far.
+        overruns: number of deadlines skipped because a call came too late
+            (the timer then resumes at the next future deadline, never bursts).
+    """
+
+    def __init__(self, period_s: float, callback: Callable[[], None]):
+        if not period_s > 0:
+            raise ValueError(f"timer period must be positive, got {period_s!r} s")
+        self.period_ns = int(round(period_s * 1e9))
+        self.callback = callback
+        self.next_ns = time.monotonic_ns() + self.period_ns
+        self.fired = 0
+        self.overruns = 0
+        self.cancelled = False
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+    def _run(self, now: int) -> None:
+        self.fired += 1
+        self.next_ns += self.period_ns
+        self.callback()
+        now = time.monotonic_ns()
+        if self.next_ns <= now:  # we are late by at least one whole period: skip, count
+            missed = (now - self.next_ns) // self.period_ns + 1
+            self.overruns += int(missed)
+            self.next_ns += int(missed) * self.period_ns
+
+
+class _Logger:
+    _LEVELS = {"DEBUG": 10, "INFO": 20, "WARN": 30, "ERROR": 40, "FATAL": 50}
+
+    def __init__(self, node: "DdsNode"):
+        self._node = node
+        self._rosout: DdsPublisher | None = None
+
+    def _log(self, level: str, text: str) -> None:
+        t = time.time_ns()
+        sys.stderr.write(f"[{level}] [{t // 10**9}.{t % 10**9:09d}] [{self._node.logger_name}]: {text}\n")
+        sys.stderr.flush()
+        if self._rosout is not None:
+            try:
+                self._rosout.publish(msgs.Log(
+                    stamp=msgs.Time(sec=t // 10**9, nanosec=t % 10**9), level=self._LEVELS[level],
+                    name=self._node.logger_name, msg=text, file="", function="", line=0,
+                ))
+            except Exception:  # logging must never raise
+                pass
+
+    def debug(self, msg: str) -> None:
+        pass
+
+    def info(self, msg: str) -> None:
+        self._log("INFO", msg)
+
+    def warn(self, msg: str) -> None:
+        self._log("WARN", msg)
+
+    warning = warn
+
+    def error(self, msg: str) -> None:
+        self._log("ERROR", msg)
+
+
+class DdsNode:
+    """A ROS 2 node on plain Cyclone DDS. Create it with :func:`dem_ros.transport.make_node`."""
+
+    transport = "dds"
+
+    def __init__(self, name: str, args: list[str] | None = None, *, domain_id: int | None = None):
+        self._ros_args: RosArgs = parse_ros_args(args)
+        self.name = self._ros_args.node_name or name
+        self.namespace = self._ros_args.namespace or "/"
+        self._p = Participant.get(domain_id)
+        self._reader_gids: list[bytes] = []
+        self._writer_gids: list[bytes] = []
+        self._readers: list[tuple[Any, Callable[[bytes, Any], None]]] = []
+        self._timers: list[DdsTimer] = []
+        self._pending_replies: list[tuple[int, Any, bytes, str]] = []
+        self._shutdown = False
+        self._spin_lock = threading.Lock()
+        self._ws = WaitSet(self._p.dp)
+        self._guard = GuardCondition(self._p.dp)
+        self._ws.attach(self._guard)
+        self._group: str | None = None
+        self._values: dict[str, Any] = {}
+        self._on_change: OnChange | None = None
+        self._specs: dict[str, Any] = {}
+        self._p.add_node(self)
+        self.logger = _Logger(self)
+        self._p.publish_graph()
+        self._rosout_pub = self._make_writer("/rosout", "rcl_interfaces/msg/Log", QOS_ROSOUT)
+        self.logger._rosout = self._rosout_pub
+        self._events_pub = self.publisher(contract.PARAMETER_EVENTS)
+        self._csid = 0
+
+    # -- names -----------------------------------------------------------------------
+    @property
+    def fully_qualified_name(self) -> str:
+        return self.namespace.rstrip("/") + "/" + self.name
+
+    @property
+    def logger_name(self) -> str:
+        return self.fully_qualified_name.lstrip("/").replace("/", ".")
+
+    def resolve(self, topic_name: str) -> str:
+        """Absolute topic name after ``-r from:=to`` remaps (relative names join the namespace)."""
+        full = topic_name if topic_name.startswith("/") else self.namespace.rstrip("/") + "/" + topic_name
+        return self._ros_args.remaps.get(full, full)
+
+    @property
+    def settings(self) -> wire.Settings:
+        return self._p.settings
+
+    # -- endpoints ---------------------------------------------------------------------
+    def _make_writer(self, ros_name: str, ros_type: str, qos: QoS, dds_name: str | None = None,
+                     cls: type | None = None, extra_ud: str = "") -> DdsPublisher:
+        cls = cls or msgs.message_class(ros_type)
+        dds_name = dds_name or wire.topic_name(self.resolve(ros_name))
+        ud = wire.user_data_for_endpoint(ros_type, self._p.settings.distro, extra_ud)
+        w = DataWriter(self._p.dp, self._p.topic(dds_name, cls), qos=wire.dds_qos(qos, ud))
+        self._writer_gids.append(self._p.gid_of(w))
+        self._p.publish_graph()
+        return DdsPublisher(w, cls)
+
+    def _make_reader(self, dds_name: str, ros_type: str, cls: type, qos: QoS,
+                     handler: Callable[[bytes, Any], None], extra_ud: str = "") -> DataReader:
+        ud = wire.user_data_for_endpoint(ros_type, self._p.settings.distro, extra_ud)
+        r = DataReader(self._p.dp, self._p.topic(dds_name, cls), qos=wire.dds_qos(qos, ud))
+        cond = ReadCondition(r, _ANY)
+        self._ws.attach(cond)
+        self._readers.append((r, handler, cond))  # type: ignore[arg-type]
+        self._reader_gids.append(self._p.gid_of(r))
+        self._p.publish_graph()
+        return r
+
+    def publisher(self, topic: Topic) -> DdsPublisher:
+        return self._make_writer(topic.name, topic.type, topic.qos)
+
+    def subscribe(self, topic: Topic, callback: Callable[[Any], None]) -> None:
+        cls = msgs.message_class(topic.type)
+        deser = fastcdr.DECODERS.get(cls, cls.deserialize)
+        self._make_reader(wire.topic_name(self.resolve(topic.name)), topic.type, cls, topic.qos,
+                          lambda data, info: callback(deser(data)))
+
+    def subscribe_raw(self, topic: Topic, callback: RawCallback) -> None:
+        """Deliver the CDR bytes as received (no decode): what rosbag2 stores."""
+        cls = msgs.message_class(topic.type)
+        self._make_reader(wire.topic_name(self.resolve(topic.name)), topic.type, cls, topic.qos,
+                          lambda data, info: callback(data))
+
+    def timer(self, period_s: float, callback: Callable[[], None]) -> DdsTimer:
+        t = DdsTimer(period_s, callback)
+        self._timers.append(t)
+        return t
+
+    def now_ns(self) -> int:
+        return time.time_ns()
+
+    def msg(self, type_name: str) -> type:
+        return msgs.message_class(type_name)
+
+    # -- dispatch ------------------------------------------------------------------------
+    def spin_once(self, timeout_s: float | None = 0.1) -> None:
+        """Wait for data, a timer deadline or ``timeout_s``; then run what is ready."""
+        with self._spin_lock:
+            if self._shutdown:
+                return
+            now = time.monotonic_ns()
+            limit = now + (_MAX_WAIT_NS if timeout_s is None else max(0, int(timeout_s * 1e9)))
+            timers = [t for t in self._timers if not t.cancelled]
+            deadline = min([limit] + [t.next_ns for t in timers])
+            if self._pending_replies:
+                deadline = min(deadline, now + 5_000_000)
+            wait = deadline - now
+            if wait > 0:
+                self._ws.wait(min(wait, _MAX_WAIT_NS))
+            if self._shutdown:
+                return
+            for reader, handler, cond in self._readers:
+                while True:
+                    got = ddspy_take(reader._ref, _ANY, _TAKE_N)
+                    if isinstance(got, int) or not got:
+                        break
+                    for data, info in got:
+                        if info.valid_data:
+                            self._call(handler, data, info)
+                    if len(got) < _TAKE_N:
+                        break
+            now = time.monotonic_ns()
+            for t in timers:
+                if not t.cancelled and t.next_ns <= now and not self._shutdown:
+                    try:
+                        t._run(now)
+                    except (KeyboardInterrupt, SystemExit):
+                        raise
+            if self._pending_replies:
+                self._flush_replies()
+
+    def _call(self, handler: Callable[[bytes, Any], None], data: bytes, info: Any) -> None:
+        handler(data, info)
+
+    def spin(self) -> None:
+        """Dispatch until :meth:`shutdown` (waits are bounded so signals are handled)."""
+        while not self._shutdown:
+            self.spin_once(None)
+
+    def shutdown(self) -> None:
+        """Stop spinning, leave the graph, release the participant with the last node; idempotent."""
+        if self._shutdown:
+            return
+        self._shutdown = True
+        try:
+            self._guard.set(True)
+        except Exception:
+            pass
+        # wait for a spin_once in another thread to finish before deleting entities
+        if self._spin_lock.acquire(timeout=1.0):
+            self._spin_lock.release()
+        self._readers.clear()
+        self._timers.clear()
+        self._p.remove_node(self)
+
+    @property
+    def is_shutdown(self) -> bool:
+        return self._shutdown
+
+    # -- parameters ----------------------------------------------------------------------
+    def declare_parameters(self, group: str, on_change: OnChange | None = None) -> dict[str, Any]:
+        """Declare the schema group as ROS parameters; serve the rcl_interfaces services.
+
+        Start values: schema defaults <- ``--params-file`` <- ``-p``, validated
+        (ConfigError on a bad file or value). Returns the validated dict.
+        """
+        if self._group is not None:
+            raise TransportError(f"{self.fully_qualified_name}: parameters already declared (group {self._group!r})")
+        values = initial_parameters(group, self._ros_args, self.name)
+        self._group = group
+        self._specs = {p.name: p for p in SCHEMA.groups[group]}
+        self._values = values
+        self._on_change = on_change
+        for srv, (srv_type, req_cls, rep_cls) in msgs.SERVICES.items():
+            self._serve(srv, srv_type, req_cls, rep_cls)
+        self._announce(new=list(values))
+        return dict(values)
+
+    @property
+    def parameters(self) -> dict[str, Any]:
+        """Current parameter values (a copy)."""
+        return dict(self._values)
+
+    def set_parameters(self, changes: Mapping[str, Any]) -> str | None:
+        """Apply ``changes`` atomically, as an external client would; ``None`` or the rejection reason."""
+        return self._try_set(dict(changes))
+
+    def _try_set(self, changes: dict[str, Any]) -> str | None:
+        if self._group is None:
+            return "no parameters declared"
+        for name, value in changes.items():
+            spec = self._specs.get(name)
+            if spec is None:
+                return f"parameter '{name}' is not declared by {self.fully_qualified_name}"
+            if spec.read_only:
+                return f"parameter '{name}' cannot be set because it is read-only"
+            if value is None:
+                return f"parameter '{name}' cannot be undeclared"
+        try:
+            new = SCHEMA.merged(self._group, self._values, changes)
+        except ConfigError as exc:
+            return str(exc)
+        if self._on_change is not None:
+            try:
+                reason = self._on_change(dict(new))
+            except Exception as exc:  # a broken callback rejects, never kills the node
+                reason = f"on_change raised {type(exc).__name__}: {exc}"
+            if reason:
+                return str(reason)
+        self._values = new
+        self._announce(changed=list(changes))
+        return None
+
+    def _param_msg(self, name: str) -> Any:
+        spec = self._specs[name]
+        return msgs.Parameter(name=name, value=pv.to_value_msg(msgs.ParameterValue, self._values[name], pv.spec_type(spec)))
+
+    def _announce(self, new: list[str] = (), changed: list[str] = ()) -> None:  # type: ignore[assignment]
+        t = time.time_ns()
+        self._events_pub.publish(msgs.ParameterEvent(
+            stamp=msgs.Time(sec=t // 10**9, nanosec=t % 10**9),
+            node=self.fully_qualified_name,
+            new_parameters=[self._param_msg(n) for n in new],
+            changed_parameters=[self._param_msg(n) for n in changed],
+            deleted_parameters=[],
+        ))
+
+    def _serve(self, srv: str, srv_type: str, req_cls: type, rep_cls: type) -> None:
+        rq, rr = wire.service_topics(self.fully_qualified_name + "/" + srv)
+        self._csid += 1
+        gid = self._p.gid
+        csid = ".".join(f"{b:x}" for b in gid[:12]) + f".{self._csid:x}"
+        ud = f"serviceid={csid};"
+        writer = self._make_writer("", srv_type + "_Response", QOS_SERVICES, dds_name=rr, cls=rep_cls, extra_ud=ud)
+        compute = getattr(self, "_srv_" + srv)
+        reader_box: list[DataReader] = []
+
+        def handle(data: bytes, info: Any) -> None:
+            req = req_cls.deserialize(data)
+            rep = rep_cls(guid=req.guid, seq=req.seq)
+            compute(req, rep)
+            payload = rep.serialize()
+            payload += b"\0" * (-len(payload) % 4)
+            clientid = _user_data_key(reader_box[0], info.publication_handle, "clientid")
+            self._pending_replies.append((time.monotonic_ns() + 100_000_000, writer, payload, clientid))
+            self._flush_replies()
+
+        reader_box.append(self._make_reader(rq, srv_type + "_Request", req_cls, QOS_SERVICES, handle, extra_ud=ud))
+
+    def _flush_replies(self) -> None:
+        """Send replies whose client reader is matched (rmw_cyclonedds waits up to 100 ms for that)."""
+        now = time.monotonic_ns()
+        keep = []
+        for deadline, pub, payload, clientid in self._pending_replies:
+            if not clientid or now >= deadline or _has_reader_with(pub._writer, clientid):
+                ddspy_write(pub._ref, payload)
+            else:
+                keep.append((deadline, pub, payload, clientid))
+        self._pending_replies = keep
+
+    def _srv_get_parameters(self, req: Any, rep: Any) -> None:
+        rep.values = [
+            pv.to_value_msg(msgs.ParameterValue, self._values[n], pv.spec_type(self._specs[n]))
+            if n in self._values else msgs.ParameterValue()
+            for n in req.names
+        ]
+
+    def _srv_get_parameter_types(self, req: Any, rep: Any) -> None:
+        rep.types = [pv.spec_type(self._specs[n]) if n in self._specs else pv.NOT_SET for n in req.names]
+
+    def _srv_list_parameters(self, req: Any, rep: Any) -> None:
+        names = sorted(self._specs)
+        if req.prefixes:
+            names = [n for n in names if any(n == p or n.startswith(p + ".") for p in req.prefixes)]
+        rep.result = msgs.ListParametersResult(names=names, prefixes=[])
+
+    def _srv_describe_parameters(self, req: Any, rep: Any) -> None:
+        out = []
+        for n in req.names:
+            if n in self._specs:
+                out.append(pv.describe(self._specs[n], msgs.ParameterDescriptor, msgs.FloatingPointRange, msgs.IntegerRange))
+            else:
+                out.append(msgs.ParameterDescriptor(name=n))
+        rep.descriptors = out
+
+    def _srv_set_parameters(self, req: Any, rep: Any) -> None:
+        # like rclpy: each parameter is set on its own (use set_parameters_atomically for several)
+        results = []
+        for p in req.parameters:
+            reason = self._try_set({p.name: pv.from_value_msg(p.value)})
+            results.append(msgs.SetParametersResult(successful=reason is None, reason=reason or ""))
+        rep.results = results
+
+    def _srv_set_parameters_atomically(self, req: Any, rep: Any) -> None:
+        reason = self._try_set({p.name: pv.from_value_msg(p.value) for p in req.parameters})
+        rep.result = msgs.SetParametersResult(successful=reason is None, reason=reason or "")
+
+
+def _user_data(qos: Any) -> bytes:
+    from cyclonedds.qos import Policy
+
+    try:
+        return bytes(qos[Policy.Userdata].data)
+    except Exception:
+        return b""
+
+
+def _parse_user_data(ud: bytes) -> dict[str, str]:
+    out = {}
+    for item in ud.decode(errors="replace").split(";"):
+        k, sep, v = item.partition("=")
+        if sep:
+            out[k] = v
+    return out
+
+
+def _user_data_key(reader: DataReader, pub_handle: int, key: str) -> str:
+    try:
+        ep = reader.get_matched_publication_data(pub_handle)
+    except Exception:
+        return ""
+    if ep is None:
+        return ""
+    return _parse_user_data(_user_data(ep.qos)).get(key, "")
+
+
+def _has_reader_with(writer: DataWriter, clientid: str) -> bool:
+    for h in writer.get_matched_subscriptions():
+        try:
+            ep = writer.get_matched_subscription_data(h)
+        except Exception:
+            continue
+        if ep is not None and _parse_user_data(_user_data(ep.qos)).get("clientid") == clientid:
+            return True
+    return False

@@ -1,0 +1,198 @@
+"""The rclpy implementation of the dem_ros node interface (ROS 2 Humble and Jazzy).
+
+A thin wrapper: rclpy publishers/subscriptions/timers with the contract QoS,
+parameters declared from the schema with a ParameterDescriptor (description,
+FloatingPointRange/IntegerRange, read_only), and one
+``add_on_set_parameters_callback`` that validates every change against the
+whole group (``SCHEMA.merged``) and then asks the node's ``on_change``.
+rclpy itself serves the parameter services, publishes ``/parameter_events``
+and ``/rosout``, and parses ``--ros-args`` (remaps, params files).
+
+Start values are computed by :func:`dem_ros.transport.rosargs.initial_parameters`
+(the same code as the DDS transport) and declared with ``ignore_override=True``,
+so a bad params file fails with the ConfigError message in both transports.
+
+Only importable where ``import rclpy`` works.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any, Callable, Mapping
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosidl_runtime_py.utilities import get_message
+
+from ..contract import QoS, Topic
+from ..core.params import SCHEMA, ConfigError
+from . import paramvalue as pv
+from .api import OnChange, RawCallback, TransportError
+from .rosargs import initial_parameters, parse_ros_args
+
+__all__ = ["RclpyNode", "to_qos_profile"]
+
+
+def to_qos_profile(q: QoS) -> QoSProfile:
+    """contract.QoS -> rclpy QoSProfile."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=q.depth,
+        reliability=ReliabilityPolicy.RELIABLE if q.reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if q.transient_local else DurabilityPolicy.VOLATILE,
+    )
+
+
+class _Logger:
+    def __init__(self, logger: Any):
+        self._l = logger
+
+    def info(self, msg: str) -> None:
+        self._l.info(msg)
+
+    def warn(self, msg: str) -> None:
+        self._l.warning(msg)
+
+    warning = warn
+
+    def error(self, msg: str) -> None:
+        self._l.error(msg)
+
+
+class RclpyNode:
+    """A dem_ros node backed by ``rclpy.node.Node`` and a SingleThreadedExecutor."""
+
+    transport = "rclpy"
+
+    def __init__(self, name: str, args: list[str] | None = None):
+        argv = list(args) if args is not None else []
+        self._ros_args = parse_ros_args(argv)  # ConfigError on bad --ros-args / missing file
+        self._owns_context = not rclpy.ok()
+        if self._owns_context:
+            try:
+                rclpy.init(args=[sys.argv[0] if sys.argv else "dem_ros", *argv])
+            except Exception as exc:  # rclpy's RCLError on arguments rcl cannot parse
+                raise TransportError(f"rclpy.init failed: {exc}") from None
+        self._node = rclpy.create_node(name)
+        self.name = self._node.get_name()
+        self.namespace = self._node.get_namespace()
+        self.logger = _Logger(self._node.get_logger())
+        self._executor = SingleThreadedExecutor()
+        self._executor.add_node(self._node)
+        self._shutdown = False
+        self._group: str | None = None
+        self._values: dict[str, Any] = {}
+        self._on_change: OnChange | None = None
+
+    @property
+    def fully_qualified_name(self) -> str:
+        return self._node.get_fully_qualified_name()
+
+    @property
+    def ros_node(self) -> Any:
+        """The underlying ``rclpy.node.Node`` (escape hatch; keep node logic transport-neutral)."""
+        return self._node
+
+    def publisher(self, topic: Topic) -> Any:
+        return self._node.create_publisher(get_message(topic.type), topic.name, to_qos_profile(topic.qos))
+
+    def subscribe(self, topic: Topic, callback: Callable[[Any], None]) -> None:
+        self._node.create_subscription(get_message(topic.type), topic.name, callback, to_qos_profile(topic.qos))
+
+    def subscribe_raw(self, topic: Topic, callback: RawCallback) -> None:
+        """rclpy hands over the serialized CDR (``raw=True``), no decode."""
+        self._node.create_subscription(
+            get_message(topic.type), topic.name, callback, to_qos_profile(topic.qos), raw=True
+        )
+
+    def timer(self, period_s: float, callback: Callable[[], None]) -> Any:
+        return self._node.create_timer(period_s, callback)
+
+    def now_ns(self) -> int:
+        return int(self._node.get_clock().now().nanoseconds)
+
+    def msg(self, type_name: str) -> type:
+        return get_message(type_name)
+
+    # -- parameters ------------------------------------------------------------------
+    def declare_parameters(self, group: str, on_change: OnChange | None = None) -> dict[str, Any]:
+        if self._group is not None:
+            raise TransportError(f"{self.fully_qualified_name}: parameters already declared (group {self._group!r})")
+        values = initial_parameters(group, self._ros_args, self.name)
+        for spec in SCHEMA.groups[group]:
+            descriptor = pv.describe(spec, ParameterDescriptor, FloatingPointRange, IntegerRange)
+            self._node.declare_parameter(spec.name, values[spec.name], descriptor, ignore_override=True)
+        self._group = group
+        self._values = values
+        self._on_change = on_change
+        # registered after declaring: rclpy runs on-set callbacks on declaration too
+        self._node.add_on_set_parameters_callback(self._on_set)
+        return dict(values)
+
+    @property
+    def parameters(self) -> dict[str, Any]:
+        return dict(self._values)
+
+    def set_parameters(self, changes: Mapping[str, Any]) -> str | None:
+        """Apply ``changes`` atomically through rclpy; ``None`` or the rejection reason."""
+        from rclpy.parameter import Parameter
+
+        result = self._node.set_parameters_atomically([Parameter(k, value=v) for k, v in changes.items()])
+        return None if result.successful else result.reason
+
+    def _on_set(self, params: list[Any]) -> SetParametersResult:
+        assert self._group is not None
+        mine = {p.name: p.value for p in params if p.name in self._values}
+        if not mine:
+            return SetParametersResult(successful=True)
+        try:
+            new = SCHEMA.merged(self._group, self._values, mine)
+        except ConfigError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        if self._on_change is not None:
+            try:
+                reason = self._on_change(dict(new))
+            except Exception as exc:
+                reason = f"on_change raised {type(exc).__name__}: {exc}"
+            if reason:
+                return SetParametersResult(successful=False, reason=str(reason))
+        self._values = new
+        return SetParametersResult(successful=True)
+
+    # -- dispatch ----------------------------------------------------------------------
+    def spin_once(self, timeout_s: float | None = 0.1) -> None:
+        try:
+            self._executor.spin_once(timeout_sec=timeout_s)
+        except ExternalShutdownException:
+            self._shutdown = True
+
+    def spin(self) -> None:
+        """Spin in bounded steps so Python signal handlers (SIGTERM) run promptly."""
+        while not self._shutdown and rclpy.ok():
+            self.spin_once(0.2)
+
+    def shutdown(self) -> None:
+        if self._shutdown and self._node is None:
+            return
+        self._shutdown = True
+        node = self._node
+        try:
+            self._executor.remove_node(node)
+            node.destroy_node()
+        except Exception:
+            pass
+        if self._owns_context:
+            try:
+                rclpy.try_shutdown()
+            except AttributeError:  # very old rclpy
+                if rclpy.ok():
+                    rclpy.shutdown()
+            except Exception:
+                pass
+        self._node = None  # type: ignore[assignment]
+
+    @property
+    def is_shutdown(self) -> bool:
+        return self._shutdown

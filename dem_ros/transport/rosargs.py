@@ -1,0 +1,135 @@
+"""ROS 2 command-line arguments (``--ros-args ...``), parsed the way rcl does.
+
+Supported inside ``--ros-args`` (until ``--`` or the end):
+    ``--params-file FILE``, ``-p/--param name:=value`` (value parsed as YAML,
+    optionally ``node:name:=value``), ``-r/--remap [node:]from:=to`` with
+    ``__node``/``__name`` and ``__ns`` as in rcl, plus topic remaps;
+    ``--log-level``, ``-e/--enclave``, ``--disable-rosout-logs``, ``--enable-*``
+    and ``--disable-*`` flags are accepted and ignored. Anything else is an error.
+
+The parameter start values of a node are computed once, here, for both
+transports: schema defaults, then each params file in order, then ``-p``
+overrides, validated as a whole by :mod:`dem_ros.core.params`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+from ..core.params import SCHEMA, ConfigError, apply_overrides, default_config, params_from_tree
+
+__all__ = ["RosArgs", "parse_ros_args", "initial_parameters"]
+
+
+@dataclass
+class RosArgs:
+    """What ``--ros-args`` asked for."""
+
+    node_name: str | None = None
+    namespace: str | None = None
+    params_files: list[str] = field(default_factory=list)
+    params: list[tuple[str | None, str, Any]] = field(default_factory=list)  # (node or None, name, value)
+    remaps: dict[str, str] = field(default_factory=dict)  # topic remaps, absolute names
+    user_args: list[str] = field(default_factory=list)
+
+
+_FLAGS_WITH_VALUE = {"--log-level", "-e", "--enclave", "--log-config-file", "--external-log-config"}
+_FLAGS = {"--disable-rosout-logs", "--enable-rosout-logs", "--disable-stdout-logs", "--enable-stdout-logs",
+          "--disable-external-lib-logs", "--enable-external-lib-logs", "--log-file-name"}
+
+
+def _yaml_value(raw: str) -> Any:
+    import yaml
+
+    try:
+        return yaml.safe_load(raw)
+    except yaml.YAMLError:
+        return raw
+
+
+def parse_ros_args(args: Sequence[str] | None) -> RosArgs:
+    """Parse a full argv tail; arguments outside ``--ros-args`` end up in ``user_args``."""
+    out = RosArgs()
+    if not args:
+        return out
+    it = iter(list(args))
+    in_ros = False
+    for a in it:
+        if a == "--ros-args":
+            in_ros = True
+            continue
+        if not in_ros:
+            out.user_args.append(a)
+            continue
+        if a == "--":
+            in_ros = False
+            continue
+        try:
+            if a == "--params-file":
+                path = next(it)
+                if not Path(path).is_file():
+                    raise ConfigError(f"--params-file {path}: no such file")
+                out.params_files.append(path)
+            elif a in ("-p", "--param"):
+                rule = next(it)
+                key, sep, raw = rule.partition(":=")
+                if not sep or not key:
+                    raise ConfigError(f"-p {rule!r}: expected name:=value")
+                node, _, name = key.rpartition(":")
+                out.params.append((node or None, name, _yaml_value(raw)))
+            elif a in ("-r", "--remap"):
+                rule = next(it)
+                key, sep, to = rule.partition(":=")
+                if not sep or not key or not to:
+                    raise ConfigError(f"-r {rule!r}: expected from:=to")
+                if key.count(":") and not key.startswith("/"):
+                    key = key.split(":", 1)[1]  # node-targeted remap; we have one node per process
+                if key in ("__node", "__name"):
+                    out.node_name = to
+                elif key == "__ns":
+                    out.namespace = to if to.startswith("/") else "/" + to
+                else:
+                    out.remaps["/" + key.lstrip("/")] = "/" + to.lstrip("/")
+            elif a in _FLAGS_WITH_VALUE:
+                next(it)
+            elif a in _FLAGS or a.startswith("--enable-") or a.startswith("--disable-"):
+                pass
+            elif a.startswith("--log-level="):
+                pass
+            else:
+                raise ConfigError(f"unknown ROS argument {a!r} after --ros-args")
+        except StopIteration:
+            raise ConfigError(f"ROS argument {a!r} needs a value") from None
+    return out
+
+
+def _read_params_file(path: str) -> Any:
+    import yaml
+
+    try:
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+
+
+def initial_parameters(group: str, ros_args: RosArgs, node_name: str | None = None) -> dict[str, Any]:
+    """Schema defaults <- params files <- ``-p`` overrides, validated; raises ConfigError."""
+    if group not in SCHEMA.groups:
+        raise ConfigError(f"unknown parameter group {group!r}; known: {', '.join(SCHEMA.groups)}")
+    cfg = default_config()
+    for path in ros_args.params_files:
+        cfg = apply_overrides(cfg, params_from_tree(_read_params_file(path), path), path)
+    cli = {
+        name: value
+        for node, name, value in ros_args.params
+        if node is None or node.rstrip("/").split("/")[-1] in (group, node_name)
+    }
+    if cli:
+        cfg = apply_overrides(cfg, {group: cli}, "-p")
+    return dict(cfg[group])

@@ -27,7 +27,9 @@ from __future__ import annotations
 
 import json
 import os
+import struct
 import time
+import zlib
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -78,6 +80,162 @@ class _DirectStream:
                 self.fd = -1
 
 
+_U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
+_MSG_HEAD = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log time, publish time
+MAGIC = b"\x89MCAP0\r\n"
+
+
+def _s(text: str) -> bytes:
+    b = text.encode("utf-8")
+    return _U32.pack(len(b)) + b
+
+
+def _map(d: dict[str, str]) -> bytes:
+    body = b"".join(_s(k) + _s(v) for k, v in d.items())
+    return _U32.pack(len(body)) + body
+
+
+def _rec(op: int, content: bytes) -> bytes:
+    return bytes((op,)) + _U64.pack(len(content)) + content
+
+
+class _McapWriter:
+    """Minimal chunked MCAP writer (mcap.dev/spec), ~1 us per message.
+
+    Schemas, channels and metadata go to the data section at once (so a
+    truncated file still names its topics); messages are packed into the
+    current chunk, which is compressed and written - chunk, then its message
+    indexes - in one ``write`` when full. ``finish`` writes DataEnd, the
+    summary (schemas, channels, statistics, chunk and metadata indexes),
+    summary offsets and the footer with the summary CRC.
+    """
+
+    def __init__(self, stream: _DirectStream, compression: str, chunk_size: int, library: str) -> None:
+        self.s = stream
+        self.compression = "" if compression == "none" else compression
+        if compression == "zstd":
+            import zstandard
+
+            self._compress = zstandard.ZstdCompressor(level=3).compress
+        elif compression == "lz4":
+            import lz4.frame
+
+            self._compress = lz4.frame.compress
+        else:
+            self._compress = bytes
+        self.chunk_size = chunk_size
+        self.schemas: list[bytes] = []
+        self.channels: list[bytes] = []
+        self.chunk_indexes: list[bytes] = []
+        self.metadata_indexes: list[bytes] = []
+        self.channel_counts: dict[int, int] = {}
+        self.n_messages = 0
+        self.t_min = 2**64 - 1
+        self.t_max = 0
+        self._buf = bytearray()
+        self._index: dict[int, list[int]] = {}
+        self._c_min = 2**64 - 1
+        self._c_max = 0
+        stream.write(MAGIC + _rec(0x01, _s("ros2") + _s(library)))
+
+    def add_schema(self, name: str, encoding: str, data: bytes) -> int:
+        sid = len(self.schemas) + 1
+        rec = _rec(0x03, _U16.pack(sid) + _s(name) + _s(encoding) + _U32.pack(len(data)) + data)
+        self.schemas.append(rec)
+        self.s.write(rec)
+        return sid
+
+    def add_channel(self, topic: str, encoding: str, schema_id: int, metadata: dict[str, str]) -> int:
+        cid = len(self.channels) + 1
+        rec = _rec(0x04, _U16.pack(cid) + _U16.pack(schema_id) + _s(topic) + _s(encoding) + _map(metadata))
+        self.channels.append(rec)
+        self.channel_counts[cid] = 0
+        self.s.write(rec)
+        return cid
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        rec = _rec(0x0C, _s(name) + _map(data))
+        self.metadata_indexes.append(_rec(0x0D, _U64.pack(self.s.tell()) + _U64.pack(len(rec)) + _s(name)))
+        self.s.write(rec)
+
+    def add_message(self, cid: int, log_time: int, data: bytes, publish_time: int) -> bool:
+        """Append to the current chunk; True if that completed and wrote a chunk."""
+        buf = self._buf
+        idx = self._index.get(cid)
+        if idx is None:
+            idx = self._index[cid] = []
+        idx.append(log_time)
+        idx.append(len(buf))
+        buf += _MSG_HEAD.pack(0x05, 22 + len(data), cid, 0, log_time, publish_time)
+        buf += data
+        if log_time < self._c_min:
+            self._c_min = log_time
+        if log_time > self._c_max:
+            self._c_max = log_time
+        self.channel_counts[cid] += 1
+        self.n_messages += 1
+        if len(buf) >= self.chunk_size:
+            self.finish_chunk()
+            return True
+        return False
+
+    def finish_chunk(self) -> None:
+        if not self._buf:
+            return
+        raw = bytes(self._buf)
+        comp = self._compress(raw)
+        start, end = self._c_min, self._c_max
+        chunk = _rec(0x06, struct.pack("<QQQI", start, end, len(raw), zlib.crc32(raw))
+                     + _s(self.compression) + _U64.pack(len(comp)) + comp)
+        chunk_off = self.s.tell()
+        out = [chunk]
+        offsets = []
+        pos = chunk_off + len(chunk)
+        for cid, flat in self._index.items():
+            rec = _rec(0x07, _U16.pack(cid) + _U32.pack(8 * len(flat)) + struct.pack(f"<{len(flat)}Q", *flat))
+            offsets.append(_U16.pack(cid) + _U64.pack(pos))
+            pos += len(rec)
+            out.append(rec)
+        idx_len = pos - chunk_off - len(chunk)
+        off_map = b"".join(offsets)
+        self.chunk_indexes.append(_rec(0x08, struct.pack("<QQQQ", start, end, chunk_off, len(chunk))
+                                       + _U32.pack(len(off_map)) + off_map + _U64.pack(idx_len)
+                                       + _s(self.compression) + _U64.pack(len(comp)) + _U64.pack(len(raw))))
+        self.s.write(b"".join(out))
+        self.t_min = min(self.t_min, start)
+        self.t_max = max(self.t_max, end)
+        self._buf = bytearray()
+        self._index = {}
+        self._c_min, self._c_max = 2**64 - 1, 0
+
+    def finish(self) -> None:
+        self.finish_chunk()
+        self.s.write(_rec(0x0F, _U32.pack(0)))
+        summary_start = self.s.tell()
+        counts = b"".join(_U16.pack(c) + _U64.pack(n) for c, n in sorted(self.channel_counts.items()))
+        stats = _rec(0x0B, struct.pack(
+            "<QHIIIIQQ", self.n_messages, len(self.schemas), len(self.channels), 0,
+            len(self.metadata_indexes), len(self.chunk_indexes),
+            self.t_min if self.n_messages else 0, self.t_max if self.n_messages else 0,
+        ) + _U32.pack(len(counts)) + counts)
+        groups = [(0x03, self.schemas), (0x04, self.channels), (0x0B, [stats]),
+                  (0x08, self.chunk_indexes), (0x0D, self.metadata_indexes)]
+        body = bytearray()
+        offsets = bytearray()
+        for op, recs in groups:
+            if not recs:
+                continue
+            g0 = len(body)
+            for r in recs:
+                body += r
+            offsets += _rec(0x0E, bytes((op,)) + _U64.pack(summary_start + g0) + _U64.pack(len(body) - g0))
+        offset_start = summary_start + len(body)
+        body += offsets
+        footer_head = bytes((0x02,)) + _U64.pack(20) + _U64.pack(summary_start) + _U64.pack(offset_start)
+        crc = zlib.crc32(footer_head, zlib.crc32(body))
+        self.s.write(bytes(body) + footer_head + _U32.pack(crc) + MAGIC)
+
+
 class BagWriter:
     """Write a rosbag2 MCAP bag directory from CDR-serialized messages.
 
@@ -107,8 +265,6 @@ class BagWriter:
         flush_interval_s: float = 1.0,
         metadata_refresh_s: float = 5.0,
     ) -> None:
-        from mcap.writer import CompressionType, Writer
-
         if compression not in COMPRESSIONS:
             raise BagError(f"compression must be one of {COMPRESSIONS}, got {compression!r}")
         if chunk_size < 1024:
@@ -131,9 +287,7 @@ class BagWriter:
             self.custom_data["dem_ros.run_info"] = json.dumps(self.run_metadata, sort_keys=True)
 
         self._stream = _DirectStream(self.path / self.mcap_name)
-        ctype = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
-        self._mcap = Writer(self._stream, chunk_size=chunk_size, compression=ctype[compression])
-        self._mcap.start(profile="ros2", library=f"dem_ros-{__version__}")
+        self._mcap = _McapWriter(self._stream, compression, chunk_size, f"dem_ros-{__version__}")
         self._mcap.add_metadata("dem_ros", dict(self.custom_data))
         self._topics: dict[str, dict[str, Any]] = {}
         self._channel: dict[str, int] = {}
@@ -157,9 +311,9 @@ class BagWriter:
         text = _rosfmt.msgdef(type_name)
         rihs = _rosfmt.type_hash(type_name)
         if type_name not in self._schema:
-            self._schema[type_name] = self._mcap.register_schema(type_name, "ros2msg", text.encode())
+            self._schema[type_name] = self._mcap.add_schema(type_name, "ros2msg", text.encode())
         qos_string = _rosfmt.qos_to_v8_string(qos)
-        self._channel[name] = self._mcap.register_channel(
+        self._channel[name] = self._mcap.add_channel(
             name, "cdr", self._schema[type_name],
             {"offered_qos_profiles": qos_string, "topic_type_hash": rihs},
         )
@@ -191,8 +345,7 @@ class BagWriter:
         if self._closed:
             self._check_open()
         t = int(log_time_ns)
-        before = self._stream.writes
-        self._mcap.add_message(cid, t, cdr_bytes, t if publish_time_ns is None else int(publish_time_ns))
+        chunk_written = self._mcap.add_message(cid, t, cdr_bytes, t if publish_time_ns is None else int(publish_time_ns))
         self._topics[topic]["count"] += 1
         self._count += 1
         if t < self._start:
@@ -200,7 +353,7 @@ class BagWriter:
         if t > self._end:
             self._end = t
         now = time.monotonic()
-        if self._stream.writes != before:  # a chunk was just written
+        if chunk_written:
             self._chunk_open_since = None
             self._after_chunk(now)
         elif self._chunk_open_since is None:
@@ -211,7 +364,7 @@ class BagWriter:
     def flush(self) -> None:
         """Write the chunk in progress now (smaller chunks compress less well)."""
         self._check_open()
-        self._mcap.flush()
+        self._mcap.finish_chunk()
         self._chunk_open_since = None
         self._after_chunk(time.monotonic())
 

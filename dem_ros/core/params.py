@@ -22,6 +22,7 @@ and what is allowed.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
@@ -35,6 +36,9 @@ __all__ = [
     "load_params_file",
     "default_config",
 ]
+
+
+_FLOAT_RE = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 
 
 class ConfigError(ValueError):
@@ -91,6 +95,8 @@ class ParamSpec:
                 raise bad
             value = int(value)
         elif self.type is float:
+            if isinstance(value, str) and _FLOAT_RE.fullmatch(value.strip()):
+                value = float(value)  # YAML 1.1 reads 1e-05 as a string; rcl reads it as a double
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise bad
             value = float(value)

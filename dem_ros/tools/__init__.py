@@ -1,0 +1,1 @@
+"""User-facing tools: the ``dem-ros`` CLI, report, benchmarks, launcher, replay."""

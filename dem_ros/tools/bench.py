@@ -1,0 +1,149 @@
+"""``dem-ros bench``: speed measured by commands, not by timed tests.
+
+``bench sim``: the 100 s S1 scenario at 1 kHz control with 0.1 ms RK4 sub-steps:
+single-run wall time and x real time, the controller's per-call step time as
+the nodes call it (p50, p99), batch throughput, and the same closed loop run
+by scipy's ``solve_ivp`` (what a Python user would otherwise write: the plant
+as a numpy right-hand side, integrated sample by sample under the same ZOH
+controller) with the speed ratio and the largest trajectory difference.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+
+import numpy as np
+
+__all__ = ["run", "bench_sim", "machine"]
+
+
+def machine() -> dict:
+    cpu = platform.processor() or ""
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()}
+
+
+def _peer(cfg, duration: float, ref_arrays):
+    """The same loop with scipy.integrate.solve_ivp (RK45, tight tolerances) per 1 ms interval."""
+    from scipy.integrate import solve_ivp
+
+    from ..core.controllers import make_controller
+    from ..core.model import derived, hover_state
+
+    pc = cfg["plant_sim"]
+    P, Q, A, B, C, D = derived(pc["L"], pc["l"], pc["m"], pc["I"])
+    K, R, N1, N2, g = pc["K"], pc["R"], pc["N1"], pc["N2"], pc["g"]
+
+    def f(t, x, u):
+        d1 = P * x[0] + Q * x[2]
+        d2 = Q * x[0] + P * x[2]
+        F1 = K * x[4] ** 2 / d1**2
+        F2 = K * x[5] ** 2 / d2**2
+        return np.array([
+            x[1], -A * F1 - B * F2 + C * N1 + D * N2 + g,
+            x[3], -B * F1 - A * F2 + D * N1 + C * N2 + g,
+            d1 / (2 * K) * (u[0] - R * x[4]) + x[4] * (P * x[1] + Q * x[3]) / d1,
+            d2 / (2 * K) * (u[1] - R * x[5]) + x[5] * (Q * x[1] + P * x[3]) / d2,
+        ])
+
+    _, ref = ref_arrays
+    dt = pc["dt"]
+    n = int(round(duration / dt))
+    x, u0 = hover_state(pc, pc["gap0"])
+    ctrl = make_controller(cfg["controller"], "adaptive")
+    ctrl.reset(x.copy(), u0)
+    X = np.zeros((n, 6))
+    t0 = time.perf_counter()
+    for k in range(n):
+        X[k] = x
+        u = ctrl.step(x.copy(), ref[k]).copy()
+        sol = solve_ivp(f, (0.0, dt), x, args=(u,), method="RK45", rtol=1e-10, atol=1e-13)
+        x = sol.y[:, -1]
+    return X, time.perf_counter() - t0
+
+
+def bench_sim(batch: int = 64, peer_duration: float = 5.0) -> dict:
+    from ..core.controllers import make_controller
+    from ..core.model import hover_state
+    from ..core.scenarios import get_scenario
+    from ..core.simulate import prepare, simulate, simulate_batch
+
+    cfg = get_scenario("S1").config()
+    simulate(cfg, controller="adaptive", estimator="none", duration=1.0)  # compile / load the cache
+    walls = []
+    for _ in range(3):
+        res = simulate(cfg, controller="adaptive", estimator="none", duration=100.0)
+        walls.append(res.wall_time)
+    wall = min(walls)
+    out = {"machine": machine(), "scenario": "S1", "duration_s": 100.0, "control_rate_hz": 1000, "plant_substep_s": 1e-4}
+    out["single_run_wall_s"] = wall
+    out["realtime_factor"] = 100.0 / wall
+
+    # controller step as the nodes call it (Python -> compiled kernel)
+    pc = cfg["plant_sim"]
+    x0, u0 = hover_state(pc, pc["gap0"])
+    _, ref = prepare(cfg, 20.0)[1:3]
+    ctrl = make_controller(cfg["controller"], "adaptive")
+    ctrl.reset(x0.copy(), u0)
+    xs = res.x[:20000]
+    times = np.empty(len(xs))
+    for k in range(len(xs)):
+        t = time.perf_counter_ns()
+        ctrl.step(xs[k], ref[k])
+        times[k] = time.perf_counter_ns() - t
+    out["controller_step_us"] = {"p50": float(np.percentile(times, 50) / 1e3), "p99": float(np.percentile(times, 99) / 1e3)}
+
+    offsets = np.linspace(0.0, 3.0, batch)
+    simulate_batch(cfg, offsets[:2], controller="adaptive", duration=1.0)  # compile
+    t = time.perf_counter()
+    simulate_batch(cfg, offsets, controller="adaptive", duration=100.0)
+    bw = time.perf_counter() - t
+    out["batch"] = {"plants": batch, "wall_s": bw}
+    out["batch_runs_per_s"] = batch / bw
+
+    ours = simulate(cfg, controller="adaptive", estimator="none", duration=peer_duration)
+    Xp, pw = _peer(cfg, peer_duration, prepare(cfg, peer_duration)[1:3])
+    diff = np.max(np.abs(Xp[:, [0, 2]] - ours.x[:, [0, 2]])) * 1e6
+    rt_peer = peer_duration / pw
+    out["peer"] = {
+        "name": "scipy.integrate.solve_ivp (RK45, rtol 1e-10, atol 1e-13) per 1 ms ZOH interval",
+        "simulated_s": peer_duration,
+        "realtime_factor": rt_peer,
+        "speedup": out["realtime_factor"] / rt_peer,
+        "max_abs_diff_um": float(diff),
+    }
+    return out
+
+
+def _print_sim(r: dict) -> None:
+    m = r["machine"]
+    print(f"dem-ros bench sim on {m['cpu']} ({m['cores']} cores), Python {m['python']}")
+    print(f"  S1, 100 s, 1 kHz control, 0.1 ms RK4: {r['single_run_wall_s']:.3f} s wall = {r['realtime_factor']:.0f}x real time")
+    c = r["controller_step_us"]
+    print(f"  controller step (adaptive, per call from Python): p50 {c['p50']:.1f} us, p99 {c['p99']:.1f} us")
+    print(f"  batch: {r['batch']['plants']} plants x 100 s in {r['batch']['wall_s']:.1f} s = {r['batch_runs_per_s']:.2f} runs/s")
+    p = r["peer"]
+    print(f"  peer {p['name']}: {p['realtime_factor']:.2f}x real time over {p['simulated_s']:g} s;"
+          f" ours is {p['speedup']:.0f}x faster; max |gap difference| {p['max_abs_diff_um']:.2e} um")
+
+
+def run(what: str, args) -> dict:
+    if what == "sim":
+        r = bench_sim(args.batch, args.peer_duration)
+        _print_sim(r)
+        return r
+    if what == "loop":
+        from .launcher import bench_loop
+
+        return bench_loop(args)
+    from .launcher import bench_record
+
+    return bench_record(args)

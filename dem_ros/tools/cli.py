@@ -1,0 +1,251 @@
+"""The ``dem-ros`` command line (one namespaced entry point for users without ROS).
+
+    dem-ros sim       offline closed-loop run of one scenario and controller
+    dem-ros report    controller x scenario matrix, figures and a markdown report
+    dem-ros bench     sim | loop | record benchmarks
+    dem-ros launch    the node graph, each node its own process, recorded to a bag
+    dem-ros node      run one node (plant_sim, estimator, controller, reference, recorder)
+    dem-ros replay    metrics, plots and what-if re-runs from a bag
+    dem-ros bag       check a bag
+    dem-ros param     get/set a parameter of a running node
+    dem-ros config    print the parameter schema or the default params file
+
+Bad input ends with a one-line error and exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+__all__ = ["main"]
+
+
+class UsageError(Exception):
+    """A user-facing error: printed as one line, exit status 2."""
+
+
+def _load_config(args) -> tuple[dict, Any]:
+    """Scenario (+ optional params file + --set assignments) -> (config, scenario)."""
+    from ..core.params import apply_overrides, load_params_file, parse_assignment
+    from ..core.scenarios import get_scenario
+
+    sc = get_scenario(args.scenario)
+    base = load_params_file(args.params) if getattr(args, "params", None) else None
+    cfg = sc.config(base)
+    sets: dict[str, dict[str, Any]] = {}
+    for text in getattr(args, "set", None) or []:
+        g, n, v = parse_assignment(text)
+        sets.setdefault(g, {})[n] = v
+    if sets:
+        cfg = apply_overrides(cfg, sets, "--set")
+    return cfg, sc
+
+
+def _fmt_pair(v: list[float], nd: int = 2) -> str:
+    return " / ".join("nan" if x != x else f"{x:.{nd}f}" for x in v)
+
+
+def print_metrics(m: dict[str, Any], file=sys.stdout) -> None:
+    rows = [
+        ("scenario", m["scenario"]),
+        ("controller", m["controller"]),
+        ("estimator", m["estimator"]),
+        ("failed", f"yes, at t = {m['fail_time_s']:.3f} s" if m["failed"] else "no"),
+        ("RMS error e1 / e2 [um]", _fmt_pair(m["rms_error_um"])),
+        ("max error e1 / e2 [um]", _fmt_pair(m["max_error_um"])),
+        ("RMS error after 40 s [um]", _fmt_pair(m["rms_error_after_40s_um"])),
+        ("peak |u| [V]", f"{m['peak_voltage_v']:.2f}"),
+        ("peak |i| [A]", f"{m.get('peak_current_a', float('nan')):.3f}"),
+    ]
+    fe = m.get("final_estimates")
+    if fe:
+        rows.append(("final m_hat / R_hat / K_hat", f"{fe['m_kg']:.3f} kg / {fe['R_ohm']:.4f} ohm / {fe['K']:.4e} N m^2/A^2"))
+    rows.append(("wall time [s]", f"{m['wall_time_s']:.2f}"))
+    w = max(len(k) for k, _ in rows)
+    for k, v in rows:
+        print(f"  {k:<{w}}  {v}", file=file)
+
+
+def cmd_sim(args) -> int:
+    from ..core.simulate import simulate
+
+    cfg, sc = _load_config(args)
+    duration = args.duration if args.duration is not None else sc.duration
+    res = simulate(cfg, controller=args.controller, estimator=args.estimator, duration=duration,
+                   seed=args.seed, delay=args.delay, scenario=sc.name)
+    m = res.metrics()
+    print(f"dem-ros sim: {sc.name} ({sc.description}), {duration:g} s")
+    print_metrics(m)
+    if args.json:
+        Path(args.json).write_text(json.dumps(m, indent=2) + "\n")
+        print(f"  metrics written to {args.json}")
+    if args.plot:
+        from .plots import plot_run
+
+        files = plot_run(res, Path(args.plot))
+        print(f"  {len(files)} figures written to {args.plot}")
+    if args.record:
+        from .offline_bag import record_result
+
+        path = record_result(res, Path(args.record))
+        print(f"  bag written to {path}")
+    return 0
+
+
+def cmd_report(args) -> int:
+    from .report import make_report
+
+    path = make_report(Path(args.out), duration=args.duration, jobs=args.jobs)
+    print(f"report written to {path}")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from . import bench
+
+    result = bench.run(args.what, args)
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+        print(f"written to {args.json}")
+    return 0
+
+
+def cmd_config(args) -> int:
+    from ..core.params import SCHEMA
+
+    if args.what == "schema":
+        for g, specs in SCHEMA.groups.items():
+            print(f"[{g}]")
+            for p in specs:
+                ro = " (read-only)" if p.read_only else ""
+                print(f"  {p.name:<24} {p.type.__name__:<5} default {p.default!r:<12} {p.allowed()}{ro}  -- {p.description}")
+        return 0
+    from .params_file import render_params_file
+
+    sys.stdout.write(render_params_file())
+    return 0
+
+
+def _delegate(module: str, func: str):
+    def run(args) -> int:
+        import importlib
+
+        try:
+            mod = importlib.import_module(f"dem_ros.tools.{module}")
+        except ModuleNotFoundError as exc:
+            raise UsageError(f"'{args.command}' is not available in this build ({exc.name} missing)") from None
+        return getattr(mod, func)(args)
+
+    return run
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from ..core.controllers import CONTROLLERS
+
+    p = argparse.ArgumentParser(prog="dem-ros", description="DEM maglev adaptive control: simulation, ROS 2 graph, recording and analysis.")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("sim", help="offline closed-loop simulation of one scenario")
+    s.add_argument("--scenario", default="S1", help="scenario name from config/scenarios.yaml (default S1)")
+    s.add_argument("--controller", default=None, choices=sorted(CONTROLLERS), help="control law (default: config, 'adaptive')")
+    s.add_argument("--estimator", default=None, choices=["kf", "none"], help="state estimator (default: config, 'kf')")
+    s.add_argument("--duration", type=float, default=None, help="seconds (default: the scenario's, 100)")
+    s.add_argument("--seed", type=int, default=None, help="seed of noise and perturbation (default: config)")
+    s.add_argument("--delay", type=int, default=0, help="command delay in samples (graph timing model: 0)")
+    s.add_argument("--params", default=None, help="ROS 2 params file to load on top of the defaults")
+    s.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE", help="override a parameter, e.g. k1=60 or plant_sim.m=16")
+    s.add_argument("--json", default=None, help="write the metrics as JSON")
+    s.add_argument("--plot", default=None, metavar="DIR", help="write figures (PNG) to DIR")
+    s.add_argument("--record", default=None, metavar="DIR", help="also write the run as a rosbag2 MCAP bag under DIR")
+    s.set_defaults(func=cmd_sim)
+
+    r = sub.add_parser("report", help="controller x scenario matrix with figures and a markdown report")
+    r.add_argument("--out", default="report", help="output directory (default ./report)")
+    r.add_argument("--duration", type=float, default=None, help="override every scenario's duration (s)")
+    r.add_argument("--jobs", type=int, default=None, help="parallel processes (default: cores)")
+    r.set_defaults(func=cmd_report)
+
+    b = sub.add_parser("bench", help="benchmarks: sim | loop | record")
+    b.add_argument("what", choices=["sim", "loop", "record"])
+    b.add_argument("--json", default=None, help="write the figures as JSON")
+    b.add_argument("--batch", type=int, default=64, help="bench sim: plants in the batch (default 64)")
+    b.add_argument("--peer-duration", type=float, default=5.0, help="bench sim: seconds simulated by the peer (default 5)")
+    b.add_argument("--duration", type=float, default=None, help="bench loop/record: seconds (default 60 / 10)")
+    b.add_argument("--transport", default="dds", choices=["auto", "rclpy", "dds"])
+    b.set_defaults(func=cmd_bench)
+
+    c = sub.add_parser("config", help="print the parameter schema or a params file of the defaults")
+    c.add_argument("what", choices=["schema", "params"])
+    c.set_defaults(func=cmd_config)
+
+    lg = sub.add_parser("launch", help="run the node graph (each node its own process), record a bag, print a summary")
+    lg.add_argument("--scenario", default="S1")
+    lg.add_argument("--controller", default=None, choices=sorted(CONTROLLERS))
+    lg.add_argument("--estimator", default=None, choices=["kf", "none"])
+    lg.add_argument("--duration", type=float, default=None, help="seconds (default: the scenario's)")
+    lg.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
+    lg.add_argument("--params", default=None, help="ROS 2 params file")
+    lg.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE")
+    lg.add_argument("--bag-dir", default="bags", help="where the run's bag goes (default ./bags)")
+    lg.add_argument("--no-record", action="store_true", help="do not record a bag")
+    lg.add_argument("--json", default=None, help="write the summary as JSON")
+    lg.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID for this run")
+    lg.set_defaults(func=_delegate("launcher", "cmd_launch"))
+
+    nd = sub.add_parser("node", help="run one node of the graph")
+    nd.add_argument("name", choices=["plant_sim", "estimator", "controller", "reference", "recorder"])
+    nd.add_argument("ros_args", nargs=argparse.REMAINDER, help="--ros-args ... (params file, remaps)")
+    nd.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
+    nd.set_defaults(func=_delegate("launcher", "cmd_node"))
+
+    rp = sub.add_parser("replay", help="metrics, figures and what-if re-runs from a recorded bag")
+    rp.add_argument("bag")
+    rp.add_argument("--json", default=None)
+    rp.add_argument("--plot", default=None, metavar="DIR")
+    rp.add_argument("--controller", default=None, choices=sorted(CONTROLLERS), help="what-if: re-run this controller on the recorded measurements")
+    rp.add_argument("--set", action="append", metavar="NAME=VALUE", help="what-if: change a controller parameter")
+    rp.add_argument("--publish", action="store_true", help="play the bag back onto the graph at its recorded rate")
+    rp.set_defaults(func=_delegate("replay", "cmd_replay"))
+
+    bg = sub.add_parser("bag", help="inspect bags")
+    bg.add_argument("action", choices=["check", "info"])
+    bg.add_argument("bag")
+    bg.set_defaults(func=_delegate("replay", "cmd_bag"))
+
+    pm = sub.add_parser("param", help="get or set a parameter of a running node (DDS parameter services)")
+    pm.add_argument("action", choices=["get", "set"])
+    pm.add_argument("node")
+    pm.add_argument("name")
+    pm.add_argument("value", nargs="?")
+    pm.add_argument("--domain-id", type=int, default=None)
+    pm.set_defaults(func=_delegate("launcher", "cmd_param"))
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from ..core.params import ConfigError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (ConfigError, UsageError) as exc:
+        print(f"dem-ros {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"dem-ros {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # package errors from the bag layer etc.
+        name = type(exc).__name__
+        if name.endswith("Error") and type(exc).__module__.startswith("dem_ros"):
+            print(f"dem-ros {args.command}: error: {exc}", file=sys.stderr)
+            return 2
+        raise
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

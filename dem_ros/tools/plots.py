@@ -1,0 +1,104 @@
+"""Figures of a run (PNG, matplotlib Agg): tracking, error, inputs, estimates, mass."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+__all__ = ["plot_run", "figure", "save"]
+
+
+def figure(rows: int = 1, cols: int = 1, h: float = 3.0):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(rows, cols, figsize=(8, h * rows), squeeze=False, sharex=True)
+    return fig, axes[:, 0] if cols == 1 else axes
+
+
+def save(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _finite(a: np.ndarray) -> bool:
+    return a.size > 0 and bool(np.isfinite(a).any())
+
+
+def plot_signals(t, x, ref, u, diag, mass, out: Path, title: str, fail_time=None) -> list[Path]:
+    """The standard set of figures from plain arrays (used for runs and for bags)."""
+    files = []
+    fig, ax = figure(2, 1)
+    for j in range(2):
+        ax[j].plot(t, x[:, 2 * j] * 1e3, label=f"gap d{j + 1}")
+        ax[j].plot(t, ref[:, j] * 1e3, "--", label=f"reference y_m{j + 1}")
+        ax[j].set_ylabel("mm")
+        ax[j].legend(loc="upper right")
+        if fail_time is not None:
+            ax[j].axvline(fail_time, color="r", lw=0.8)
+    ax[0].set_title(f"{title}: tracking")
+    ax[-1].set_xlabel("t [s]")
+    files.append(save(fig, out / "tracking.png"))
+
+    fig, ax = figure(1, 1)
+    e = (x[:, [0, 2]] - ref[:, :2]) * 1e6
+    ax[0].plot(t, e[:, 0], label="e1")
+    ax[0].plot(t, e[:, 1], label="e2")
+    ax[0].set_ylabel("e = d - y_m [um]")
+    ax[0].set_xlabel("t [s]")
+    ax[0].set_title(f"{title}: tracking error")
+    ax[0].legend()
+    files.append(save(fig, out / "error.png"))
+
+    fig, ax = figure(2, 1)
+    ax[0].plot(t, u)
+    ax[0].set_ylabel("u [V]")
+    ax[0].legend(["u1", "u2"])
+    ax[1].plot(t, x[:, 4:6])
+    ax[1].set_ylabel("i [A]")
+    ax[1].legend(["i1", "i2"])
+    ax[1].set_xlabel("t [s]")
+    ax[0].set_title(f"{title}: coil voltages and currents")
+    files.append(save(fig, out / "inputs.png"))
+
+    if diag is not None and _finite(diag[:, :3]):
+        fig, ax = figure(3, 1, 2.2)
+        labels = ["m_hat [kg]", "R_hat [ohm]", "K_hat [N m^2/A^2]"]
+        for j in range(3):
+            ax[j].plot(t, diag[:, j])
+            ax[j].set_ylabel(labels[j])
+        if mass is not None:
+            ax[0].plot(t, mass, "--", label="true m")
+            ax[0].legend()
+        ax[0].set_title(f"{title}: parameter estimates")
+        ax[-1].set_xlabel("t [s]")
+        files.append(save(fig, out / "estimates.png"))
+    if mass is not None and np.ptp(mass) > 0:
+        fig, ax = figure(1, 1)
+        ax[0].plot(t, mass)
+        ax[0].set_ylabel("m [kg]")
+        ax[0].set_xlabel("t [s]")
+        ax[0].set_title(f"{title}: mass of the plate")
+        files.append(save(fig, out / "mass.png"))
+    return files
+
+
+def plot_run(res, out: Path) -> list[Path]:
+    """All standard figures of a :class:`~dem_ros.core.simulate.SimResult` into ``out``."""
+    title = f"{res.scenario} / {res.controller} / estimator {res.estimator}"
+    return plot_signals(res.t, res.x, res.ref, res.u, res.diag, res.mass, Path(out), title, res.fail_time)
+
+
+def overlay(ax, t: np.ndarray, series: Iterable[tuple[str, np.ndarray]], scale: float = 1.0) -> None:
+    for label, y in series:
+        ax.plot(t[: len(y)], y * scale, label=label)
+    ax.legend(loc="upper right", fontsize=8)

@@ -65,7 +65,7 @@ def spawn():
                 f.close()
 
 
-def wait_line(proc, prefix: str, timeout: float = 15.0) -> str:
+def _wait_line(proc, prefix: str, timeout: float = 15.0) -> str:
     """Read the child's stdout until a line starting with ``prefix`` (fails on exit or timeout)."""
     import selectors
     import time
@@ -82,3 +82,9 @@ def wait_line(proc, prefix: str, timeout: float = 15.0) -> str:
                 return line[len(prefix):].strip()
     err = proc.stderr.read() if proc.poll() is not None else ""
     raise AssertionError(f"child never printed {prefix!r} (rc={proc.poll()}): {err[-2000:]}")
+
+
+@pytest.fixture
+def wait_line():
+    """wait_line(proc, prefix, timeout=15) -> rest of the first stdout line starting with prefix."""
+    return _wait_line

@@ -60,7 +60,7 @@ def listener(n: int, tag: str) -> None:
         lat_us = [x / 1000 for x in lat[len(lat) // 10:]]  # drop the first 10 % (warm-up)
         lat_us.sort()
         out.update(p50_us=lat_us[len(lat_us) // 2], p99_us=lat_us[int(len(lat_us) * 0.99)], max_us=lat_us[-1])
-    print(json.dumps(out), flush=True)
+    print("STATS " + json.dumps(out), flush=True)
 
 
 def params(args: list) -> int:

@@ -70,6 +70,12 @@ TRUTH = Topic(
     ("recorder",),
     "noise-free plant state, same layout as /dem/measurement; name also carries 'mass' (position: m [kg])",
 )
+APPLIED = Topic(
+    "/dem/applied_voltage", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "plant_sim | hardware driver",
+    ("estimator", "controller", "recorder"),
+    "effort: coil voltages u1, u2 [V] actually held over the sample interval that ends at the stamp "
+    "(at the first sample: the pre-start hover voltage); published just before the measurement of that stamp",
+)
 ESTIMATE = Topic(
     "/dem/state_estimate", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "estimator",
     ("controller", "recorder"),
@@ -107,4 +113,4 @@ PARAMETER_EVENTS = Topic(
     "standard ROS 2 parameter change events",
 )
 
-TOPICS = (MEASUREMENT, TRUTH, ESTIMATE, REFERENCE, COMMAND, CONTROLLER_STATE, DIAGNOSTICS, RUN_INFO, PARAMETER_EVENTS)
+TOPICS = (MEASUREMENT, TRUTH, APPLIED, ESTIMATE, REFERENCE, COMMAND, CONTROLLER_STATE, DIAGNOSTICS, RUN_INFO, PARAMETER_EVENTS)

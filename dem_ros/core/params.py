@@ -256,6 +256,9 @@ SCHEMA = Schema(
             ParamSpec("perturbation_frequency", float, 50.0, "Hz", "sine perturbation frequency", 0.0, 1e5),
             ParamSpec("seed", int, 1, "", "seed of the noise and perturbation generators", 0, 2**31 - 1),
             ParamSpec("command_timeout", float, 0.02, "s", "hold the last command at most this long, then apply 0 V (watchdog)", 1e-4, 10.0),
+            ParamSpec("duration", float, 0.0, "s", "graph: stop after this much simulated time (0: run until stopped)", 0.0, 1e7),
+            ParamSpec("start_delay", float, 3.0, "s", "graph: wait at least this long after start-up before t = 0 (discovery)", 0.0, 600.0),
+            ParamSpec("min_subscribers", int, 2, "", "graph: wait (up to 30 s) until this many readers match /dem/measurement (estimator, reference)", 0, 100),
         ),
         "reference": (
             ParamSpec("b0", float, 0.25, "s^-3", "reference model numerator, M(s) = b0/(s^3+a2 s^2+a1 s+a0) (Eq. 46)", 1e-9, 1e9),

@@ -1,0 +1,41 @@
+"""Load (or compile) every numba kernel before a node joins the 1 kHz loop.
+
+numba compiles on the first call (seconds) or loads its on-disk cache (about a
+second); either would make the first samples of a run stale. Nodes call
+:func:`warm_up` before they subscribe, so the plant starts the clock only once
+every kernel is resident.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .params import default_config
+
+__all__ = ["warm_up"]
+
+
+def warm_up() -> None:
+    from .controllers import make_controller
+    from .estimator import KalmanEstimator
+    from .model import hover_state, plant_vector, rk4
+    from .reference import ReferenceModel
+
+    cfg = default_config()
+    x0, u0 = hover_state(cfg["plant_sim"], 0.008)
+    ref = np.array([0.008, 0.008, 0, 0, 0, 0, 0, 0], float)
+    for name in ("adaptive", "adaptive_enhanced", "paper", "paper_fixed", "nonlinear_decoupling", "decentralized_pid"):
+        c = make_controller(cfg["controller"], name)
+        c.reset(x0.copy(), u0)
+        c.step(x0.copy(), ref)
+    est = KalmanEstimator(cfg["estimator"])
+    est.step(x0, u0)
+    est.step(x0, u0)
+    ReferenceModel(cfg["reference"]).step(np.array([0.008, 0.008]))
+    x = x0.copy()
+    rk4(x, u0, plant_vector(cfg["plant_sim"]), 1e-3, 2)
+    from .plant import DemPlant
+
+    plant = DemPlant(cfg["plant_sim"], 0.01)
+    plant.measurement()
+    plant.advance(plant.u0)

@@ -1,0 +1,10 @@
+"""The ROS 2 nodes of the dem_ros graph, one per file, each a thin adapter over the core.
+
+``plant_sim``   simulated DEM (swap in a hardware driver honouring the same topics)
+``estimator``   EKF on the plant model (or pass-through)
+``controller``  the control laws of :mod:`dem_ros.core.controllers`
+``reference``   the reference model M(s) driven by the command schedule
+``recorder``    records every topic of the contract to a rosbag2 MCAP bag
+
+Every node has ``main(args=None)`` (console script / ``dem-ros node NAME``).
+"""

@@ -1,0 +1,88 @@
+"""Message <-> array conversion and loop statistics shared by the nodes (no control math)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..contract import MAGNETS
+
+__all__ = ["stamp_ns", "set_stamp", "joint_state", "named_vector", "meas_array", "LatencyStats", "diag_array"]
+
+
+def stamp_ns(msg: Any) -> int:
+    s = msg.header.stamp
+    return int(s.sec) * 1_000_000_000 + int(s.nanosec)
+
+
+def set_stamp(msg: Any, t_ns: int) -> None:
+    msg.header.stamp.sec = int(t_ns // 1_000_000_000)
+    msg.header.stamp.nanosec = int(t_ns % 1_000_000_000)
+
+
+def joint_state(cls: type, t_ns: int, position=(), velocity=(), effort=(), names: Sequence[str] = MAGNETS) -> Any:
+    """A per-magnet JointState (gaps [m], rates [m/s], currents [A] or voltages [V] in effort)."""
+    m = cls()
+    set_stamp(m, t_ns)
+    m.header.frame_id = "dem"
+    m.name = list(names)
+    m.position = [float(v) for v in position]
+    m.velocity = [float(v) for v in velocity]
+    m.effort = [float(v) for v in effort]
+    return m
+
+
+def named_vector(cls: type, t_ns: int, names: Sequence[str], values) -> Any:
+    """A named vector carried in JointState.position (contract convention)."""
+    return joint_state(cls, t_ns, position=values, names=names)
+
+
+def meas_array(msg: Any) -> tuple[np.ndarray, bool]:
+    """[d1, d1', d2, d2', i1, i2] from a measurement/estimate JointState; (array, velocity measured)."""
+    p = msg.position
+    v = msg.velocity
+    e = msg.effort
+    has_v = len(v) >= 2
+    z = np.array([p[0], v[0] if has_v else 0.0, p[1], v[1] if has_v else 0.0, e[0], e[1]], dtype=float)
+    return z, has_v
+
+
+class LatencyStats:
+    """Streaming latency samples (ns) kept in a preallocated ring for percentiles."""
+
+    def __init__(self, capacity: int = 1 << 18):
+        self.buf = np.zeros(capacity, dtype=np.int64)
+        self.n = 0
+
+    def add(self, ns: int) -> None:
+        self.buf[self.n % self.buf.size] = ns
+        self.n += 1
+
+    def summary_us(self) -> dict[str, float]:
+        m = min(self.n, self.buf.size)
+        if m == 0:
+            return {"p50": math.nan, "p99": math.nan, "max": math.nan}
+        a = self.buf[:m] / 1e3
+        return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)), "max": float(a.max())}
+
+
+def diag_array(cls_array: type, cls_status: type, cls_kv: type, t_ns: int, name: str, level: int, message: str, values: dict) -> Any:
+    """diagnostic_msgs/DiagnosticArray with one status of key/value pairs."""
+    arr = cls_array()
+    set_stamp(arr, t_ns)
+    st = cls_status()
+    st.level = bytes([level]) if isinstance(getattr(st, "level", b""), bytes) else level
+    st.name = name
+    st.message = message
+    st.hardware_id = "dem"
+    kvs = []
+    for k, v in values.items():
+        kv = cls_kv()
+        kv.key = str(k)
+        kv.value = str(v)
+        kvs.append(kv)
+    st.values = kvs
+    arr.status = [st]
+    return arr

@@ -1,0 +1,130 @@
+"""``controller``: the control laws of :mod:`dem_ros.core.controllers` at 1 kHz.
+
+Triggered by ``/dem/state_estimate``: it looks up the reference of the same
+stamp (published one period ahead), steps the law and publishes
+``/dem/command`` (coil voltages) and ``/dem/controller/state`` with the
+measurement's stamp. The first sample initialises the law from the measured
+hover and the pre-start voltage (``/dem/applied_voltage``).
+
+Safety: a sample older than ``max_age`` or with non-finite values is not acted
+on (no command; the plant's watchdog takes over) and is counted; a law that
+produces a non-finite voltage publishes nothing. Parameter changes (validated
+as a whole by the schema) take effect at the next step; changing ``type``
+swaps the law, restarted from the current sample.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from .. import contract
+from ..core.controllers import make_controller
+from ..core.warmup import warm_up
+from ..transport import Node, run_node
+from .common import diag_array, joint_state, meas_array, named_vector, stamp_ns
+
+__all__ = ["ControllerNode", "main"]
+
+
+class ControllerNode:
+    def __init__(self, node: Node):
+        self.node = node
+        self.cfg = node.declare_parameters("controller", self.on_change)
+        self.ctrl = make_controller(self.cfg)
+        self.started = False
+        self.ref = None
+        self.ref_stamp = -1
+        self.u_applied = None
+        self.counts = {"steps": 0, "stale": 0, "non_finite_input": 0, "non_finite_output": 0, "reference_mismatch": 0}
+        warm_up()  # kernels resident before we subscribe (no stale first samples)
+        self.JS = node.msg("sensor_msgs/msg/JointState")
+        self.D = (node.msg("diagnostic_msgs/msg/DiagnosticArray"), node.msg("diagnostic_msgs/msg/DiagnosticStatus"),
+                  node.msg("diagnostic_msgs/msg/KeyValue"))
+        self.pub_cmd = node.publisher(contract.COMMAND)
+        self.pub_state = node.publisher(contract.CONTROLLER_STATE)
+        self.pub_diag = node.publisher(contract.DIAGNOSTICS)
+        node.subscribe(contract.REFERENCE, self.on_reference)
+        node.subscribe(contract.APPLIED, self.on_applied)
+        node.subscribe(contract.ESTIMATE, self.on_estimate)
+        node.timer(1.0, self.publish_diag)
+        node.logger.info("ready")
+
+    # -- parameters ----------------------------------------------------------
+    def on_change(self, values) -> str | None:
+        if values["dt"] != self.cfg["dt"]:
+            return "dt is read-only"
+        if values["type"] != self.cfg["type"]:
+            self.ctrl = make_controller(values)
+            self.started = False  # re-initialised from the next sample
+        else:
+            self.ctrl.set_params(values)
+        self.cfg = dict(values)
+        self.node.logger.info("parameters applied from the next step")
+        return None
+
+    # -- inputs --------------------------------------------------------------
+    def on_reference(self, msg) -> None:
+        if len(msg.position) >= 8:
+            self.ref = np.array(msg.position[:8], dtype=float)
+            self.ref_stamp = stamp_ns(msg)
+
+    def on_applied(self, msg) -> None:
+        if len(msg.effort) >= 2:
+            self.u_applied = np.array(msg.effort[:2], dtype=float)
+
+    def on_estimate(self, msg) -> None:
+        t = stamp_ns(msg)
+        age = (self.node.now_ns() - t) * 1e-9
+        xh, _ = meas_array(msg)
+        fault = 0.0
+        if age > self.cfg["max_age"]:
+            self.counts["stale"] += 1
+            self._warn_every("stale", f"sample {age * 1e3:.2f} ms old (> max_age): not acted on")
+            return self._state(t, age, 1.0)
+        if not np.all(np.isfinite(xh)):
+            self.counts["non_finite_input"] += 1
+            self._warn_every("non_finite_input", "non-finite input: not acted on")
+            return self._state(t, age, 1.0)
+        ref = self.ref
+        if ref is None:  # first sample before any reference: hold the measured hover
+            ref = np.array([xh[0], xh[2], 0, 0, 0, 0, 0, 0], dtype=float)
+        if self.ref_stamp != t:
+            self.counts["reference_mismatch"] += 1
+        if not self.started:
+            u0 = self.u_applied if self.u_applied is not None else np.zeros(2)
+            self.ctrl.reset(xh.copy(), u0)
+            self.started = True
+        u = self.ctrl.step(xh, ref)
+        self.counts["steps"] += 1
+        if not np.all(np.isfinite(u)) or self.ctrl.diag[-1] > 0:
+            self.counts["non_finite_output"] += 1
+            self._warn_every("non_finite_output", "the law produced no valid voltage: no command sent")
+            return self._state(t, age, 1.0)
+        lim = self.cfg["voltage_limit"]
+        self.pub_cmd.publish(joint_state(self.JS, t, effort=np.clip(u, -lim, lim)))
+        self._state(t, age, fault)
+
+    def _state(self, t: int, age: float, fault: float) -> None:
+        d = self.ctrl.diag
+        self.pub_state.publish(named_vector(self.JS, t, contract.CONTROLLER_STATE_NAMES,
+                                            (d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7], age, fault)))
+
+    def _warn_every(self, key: str, text: str) -> None:
+        n = self.counts[key]
+        if n in (1, 10, 100, 1000) or n % 10000 == 0:
+            self.node.logger.warn(f"{text} ({n} so far)")
+
+    def publish_diag(self) -> None:
+        bad = self.counts["stale"] + self.counts["non_finite_input"] + self.counts["non_finite_output"]
+        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), "controller", 1 if bad else 0,
+                                         f"{self.ctrl.name}", {**self.counts, "law": self.ctrl.name}))
+
+
+def main(args=None) -> int:
+    return run_node("controller", ControllerNode, args=args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,72 @@
+"""``estimator``: the EKF of :mod:`dem_ros.core.estimator` between sensors and controller.
+
+On each ``/dem/measurement`` it takes the voltage applied over the last sample
+(``/dem/applied_voltage`` of the same stamp), runs one predict/update and
+publishes ``/dem/state_estimate`` with the measurement's stamp. Gap rates are
+used when the sensors deliver them (a non-empty ``velocity``). Non-finite
+sensor values are skipped by the update (counted); type ``none`` passes the
+measurement through.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from .. import contract
+from ..core.estimator import make_estimator
+from ..core.warmup import warm_up
+from ..transport import Node, run_node
+from .common import joint_state, meas_array, stamp_ns
+
+__all__ = ["EstimatorNode", "main"]
+
+
+class EstimatorNode:
+    def __init__(self, node: Node):
+        self.node = node
+        self.cfg = node.declare_parameters("estimator", self.on_change)
+        self.est = None
+        self.has_v: bool | None = None
+        self.u_prev = None
+        self.u_stamp = -1
+        self.bad = 0
+        warm_up()  # kernels resident before we subscribe (no stale first samples)
+        self.JS = node.msg("sensor_msgs/msg/JointState")
+        self.pub = node.publisher(contract.ESTIMATE)
+        node.subscribe(contract.APPLIED, self.on_applied)
+        node.subscribe(contract.MEASUREMENT, self.on_measurement)
+        node.logger.info("ready")
+
+    def on_change(self, values) -> str | None:
+        self.cfg = dict(values)
+        self.est = None  # rebuilt (and restarted) at the next measurement
+        return None
+
+    def on_applied(self, msg) -> None:
+        if len(msg.effort) >= 2:
+            self.u_prev = np.array(msg.effort[:2], dtype=float)
+            self.u_stamp = stamp_ns(msg)
+
+    def on_measurement(self, msg) -> None:
+        z, has_v = meas_array(msg)
+        if not np.all(np.isfinite(z)):
+            self.bad += 1
+            if self.bad in (1, 10, 100, 1000):
+                self.node.logger.warn(f"non-finite measurement ({self.bad} so far): skipped by the filter")
+        if self.est is None or has_v != self.has_v:
+            self.est = make_estimator(self.cfg, None, has_v)
+            self.has_v = has_v
+        u = self.u_prev if self.u_prev is not None else np.zeros(2)
+        xh = self.est.step(z, u)
+        self.pub.publish(joint_state(self.JS, stamp_ns(msg), position=(xh[0], xh[2]), velocity=(xh[1], xh[3]),
+                                     effort=(xh[4], xh[5])))
+
+
+def main(args=None) -> int:
+    return run_node("estimator", EstimatorNode, args=args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

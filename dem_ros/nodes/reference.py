@@ -1,0 +1,68 @@
+"""``reference``: the reference model M(s) (Eq. 46) driven by the command schedule.
+
+The schedule's t = 0 is the stamp of the first measurement. On measurement k it
+publishes the reference for sample k+1 (stamped t_k + T), one period ahead, so
+the controller has it when measurement k+1 arrives; on the first measurement it
+also publishes sample 0. Lost measurements are caught up sample by sample, so
+the sequence is the offline simulator's exactly.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from .. import contract
+from ..core.reference import ReferenceModel, command
+from ..core.warmup import warm_up
+from ..transport import Node, run_node
+from .common import named_vector, stamp_ns
+
+__all__ = ["ReferenceNode", "main"]
+
+
+class ReferenceNode:
+    def __init__(self, node: Node):
+        self.node = node
+        self.cfg = node.declare_parameters("reference", self.on_change)
+        self.model = ReferenceModel(self.cfg)
+        self.dt_ns = int(round(self.cfg["dt"] * 1e9))
+        self.epoch: int | None = None
+        self.next_k = 0
+        warm_up()  # kernels resident before we subscribe (no stale first samples)
+        self.JS = node.msg("sensor_msgs/msg/JointState")
+        self.pub = node.publisher(contract.REFERENCE)
+        node.subscribe(contract.MEASUREMENT, self.on_measurement)
+        node.logger.info("ready")
+
+    def on_change(self, values) -> str | None:
+        for key in ("a0", "a1", "a2", "b0"):
+            if values[key] != self.cfg[key]:
+                return "the reference model (a0, a1, a2, b0) cannot change during a run"
+        self.cfg = dict(values)  # schedule changes act from the next sample
+        return None
+
+    def _publish_upto(self, k_last: int) -> None:
+        while self.next_k <= k_last:
+            t = self.next_k * self.cfg["dt"]
+            r = command(self.cfg, t)
+            y = self.model.step(r)
+            self.pub.publish(named_vector(self.JS, self.epoch + self.next_k * self.dt_ns, contract.REFERENCE_NAMES,
+                                          np.concatenate([y, r])))
+            self.next_k += 1
+
+    def on_measurement(self, msg) -> None:
+        t = stamp_ns(msg)
+        if self.epoch is None:
+            self.epoch = t
+        k = int(round((t - self.epoch) / self.dt_ns))
+        self._publish_upto(k + 1)
+
+
+def main(args=None) -> int:
+    return run_node("reference", ReferenceNode, args=args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

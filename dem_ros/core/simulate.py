@@ -30,7 +30,7 @@ __all__ = ["SimResult", "simulate", "simulate_batch"]
 
 @njit(cache=True)
 def _closed_loop(
-    is_pid, mode, cp, theta, v, scale, v0, Pc, Z, Ad, Bd, pid_cp, integ,
+    is_pid, mode, cp, theta, v, scale, v0, Pc, Z, uh, Ad, Bd, pid_cp, integ,
     est_on, s, Pe, mask, pe, Te, qc, rm,
     x, pp, L, l, I, mass, noise, pert, ref, dt, nsub, gap_min, gap_max, delay, u0,
     X_log, U_log, D_log, log,
@@ -58,7 +58,7 @@ def _closed_loop(
         if is_pid:
             CK.pid_step(pid_cp, integ, xh, ref[k], u, diag)
         else:
-            CK.ce_step(mode, cp, theta, v, scale, v0, Pc, Z, Ad, Bd, xh, ref[k], u, diag)
+            CK.ce_step(mode, cp, theta, v, scale, v0, Pc, Z, uh, Ad, Bd, xh, ref[k], u, diag)
         # delay line: slot k % (delay+1) holds u_k; apply u_{k-delay}
         slot = k % (delay + 1)
         ubuf[slot, 0] = u[0]
@@ -158,10 +158,10 @@ def _controller_args(ctrl):
     if isinstance(ctrl, PIDController):
         dummy = np.zeros(8)
         return (True, 0, np.zeros(CK.NCP), dummy, dummy.copy(), dummy.copy(), dummy.copy(), np.zeros((8, 8)),
-                np.zeros((3, 18)), np.eye(3), np.zeros(3), ctrl.cp, ctrl.integ)
+                np.zeros((3, 18)), np.zeros((CK.NUH, 2)), np.eye(3), np.zeros(3), ctrl.cp, ctrl.integ)
     assert isinstance(ctrl, CEController)
-    mode, cp, theta, v, scale, v0, P, Z, Ad, Bd = ctrl.kernel_args()
-    return (False, mode, cp, theta, v, scale, v0, P, Z, Ad, Bd, np.zeros(CK.NPID), np.zeros(2))
+    mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd = ctrl.kernel_args()
+    return (False, mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, np.zeros(CK.NPID), np.zeros(2))
 
 
 def prepare(cfg: Mapping, duration: float, seed: int | None = None):
@@ -186,16 +186,26 @@ def simulate(
     estimator: str | None = None,
     duration: float = 100.0,
     seed: int | None = None,
-    delay: int = 0,
+    delay: int | None = None,
     scenario: str = "custom",
 ) -> SimResult:
-    """Simulate the closed loop for ``duration`` s from the 8 mm hover (notes 7)."""
+    """Simulate the closed loop for ``duration`` s from the 8 mm hover (notes 7).
+
+    ``delay`` (samples) sets both the plant's command delay and the controller's
+    knowledge of it; ``None`` takes ``plant_sim.command_delay`` and
+    ``controller.command_delay`` from ``cfg``.
+    """
     if duration <= 0:
         from .params import ConfigError
 
         raise ConfigError(f"duration: got {duration!r}, expected a positive number of seconds")
     wall0 = time.perf_counter()
+    if delay is not None:
+        cfg = {g: dict(v) for g, v in cfg.items()}
+        cfg["plant_sim"]["command_delay"] = int(delay)
+        cfg["controller"]["command_delay"] = int(delay)
     pc = cfg["plant_sim"]
+    delay = pc["command_delay"]
     t, r, ref, mass, noise, pert = prepare(cfg, duration, seed)
     n = t.size
     x0, u0 = hover_state(pc, pc["gap0"])
@@ -227,7 +237,7 @@ def simulate(
 
 @njit(cache=True, parallel=True)
 def _batch(
-    is_pid, mode, cp, theta, v, scale, v0, Pc, Z, Ad, Bd, pid_cp, integ,
+    is_pid, mode, cp, theta, v, scale, v0, Pc, Z, uh, Ad, Bd, pid_cp, integ,
     x0, pp, L, l, I, masses, ref, dt, nsub, gap_min, gap_max, u0, start, out,
 ):
     B = masses.shape[0]
@@ -242,7 +252,7 @@ def _batch(
         x = x0.copy()
         ppb = pp.copy()
         kf = _closed_loop(
-            is_pid, mode, cp.copy(), theta[b], v[b], scale[b], v0[b], Pc[b], Z[b], Ad, Bd, pid_cp, integ[b],
+            is_pid, mode, cp.copy(), theta[b], v[b], scale[b], v0[b], Pc[b], Z[b], uh[b], Ad, Bd, pid_cp, integ[b],
             False, np.zeros(8), np.eye(8), mask, pp, dt, np.zeros(3), np.zeros(6),
             x, ppb, L, l, I, masses[b], noise, pert, ref, dt, nsub, gap_min, gap_max, 0, u0,
             X, U, D, True,
@@ -266,7 +276,7 @@ def simulate_batch(cfg: Mapping, mass_offsets: np.ndarray, *, controller: str | 
     ctrl.reset(x0, u0)
     args = list(_controller_args(ctrl))
     B = len(mass_offsets)
-    for i in (3, 4, 5, 6, 7, 8, 12):  # per-run state arrays
+    for i in (3, 4, 5, 6, 7, 8, 9, 13):  # per-run state arrays
         args[i] = np.ascontiguousarray(np.repeat(args[i][None], B, axis=0))
     out = np.zeros((B, 7))
     _batch(*args, x0, plant_vector(pc), pc["L"], pc["l"], pc["I"], masses, ref, pc["dt"], pc["substeps"],

@@ -53,8 +53,9 @@ class ControllerNode:
 
     # -- parameters ----------------------------------------------------------
     def on_change(self, values) -> str | None:
-        if values["dt"] != self.cfg["dt"]:
-            return "dt is read-only"
+        for key in ("dt", "command_delay"):
+            if values[key] != self.cfg[key]:
+                return f"{key} cannot change during a run"
         if values["type"] != self.cfg["type"]:
             self.ctrl = make_controller(values)
             self.started = False  # re-initialised from the next sample

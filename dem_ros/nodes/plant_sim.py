@@ -44,8 +44,8 @@ class PlantSimNode:
         self.D = (node.msg("diagnostic_msgs/msg/DiagnosticArray"), node.msg("diagnostic_msgs/msg/DiagnosticStatus"),
                   node.msg("diagnostic_msgs/msg/KeyValue"))
         node.subscribe(contract.COMMAND, self.on_command)
-        self.cmd_stamp = -1
-        self.cmd_u = np.zeros(2)
+        self.cmd_ring = np.full(64, -1, dtype=np.int64)  # stamp of the command held in each slot
+        self.cmd_u = np.zeros((64, 2))
         self.u_applied = self.plant.u0.copy()
         self.last_fresh_ns = 0
         self.started = False
@@ -56,13 +56,16 @@ class PlantSimNode:
         self.misses = 0
         self.watchdog = 0
         self.lat = LatencyStats()
+        self.tick_late = LatencyStats()
+        self.tick_cost = LatencyStats()
         self.last_status = 0.0
         self.timer = node.timer(c["dt"], self.tick)
         node.timer(1.0, self.status)
 
     def on_change(self, values) -> str | None:
-        if values["dt"] != self.cfg["dt"] or values["substeps"] != self.cfg["substeps"]:
-            return "dt and substeps are read-only"
+        for key in ("dt", "substeps", "command_delay", "duration"):
+            if values[key] != self.cfg[key]:
+                return f"{key} cannot change during a run"
         self.cfg = dict(values)
         self.plant.pc.update(values)  # disturbances and noise act from the next tick
         return None
@@ -75,10 +78,12 @@ class PlantSimNode:
         if not np.all(np.isfinite(u)):
             self.node.logger.warn("non-finite command ignored")
             return
-        if t > self.cmd_stamp:
-            self.cmd_stamp = t
-            self.cmd_u = u
-            self.lat.add(self.node.now_ns() - t)
+        if not self.started:
+            return
+        j = int(round((t - self.epoch) / self.dt_ns)) % self.cmd_ring.size
+        self.cmd_ring[j] = t
+        self.cmd_u[j] = u
+        self.lat.add(self.node.now_ns() - t)
 
     def _ready(self) -> bool:
         c = self.cfg
@@ -103,17 +108,24 @@ class PlantSimNode:
             self.started = True
             self.epoch = self.node.now_ns()
             self.node.logger.info(f"t = 0: hover at {self.plant.x[0] * 1e3:.3f} mm, {self.plant.u0[0]:.2f} V")
+        tick_start = self.node.now_ns()
         p = self.plant
         # sample index from the clock: a late tick integrates the skipped samples (time does not wait)
         k = max(self.k_next, int(round((self.node.now_ns() - self.epoch) / self.dt_ns)))
         t_ns = self.epoch + k * self.dt_ns
+        d = self.cfg["command_delay"]
         for j in range(self.k_next, k + 1):
             if j == 0:
                 self.last_fresh_ns = t_ns
                 continue
-            prev = self.epoch + (j - 1) * self.dt_ns
-            if self.cmd_stamp == prev:
-                self.u_applied = self.cmd_u
+            src = j - 1 - d  # over [t_j-1, t_j] the plant holds the command of sample j-1-d
+            prev = self.epoch + src * self.dt_ns
+            slot = src % self.cmd_ring.size
+            if src < 0:
+                self.u_applied = self.plant.u0  # before t = 0 the coils held the hover voltage
+                self.last_fresh_ns = self.epoch
+            elif self.cmd_ring[slot] == prev:
+                self.u_applied = self.cmd_u[slot].copy()
                 self.last_fresh_ns = prev
             else:
                 self.misses += 1
@@ -133,6 +145,9 @@ class PlantSimNode:
                                            effort=(x[4], x[5]), names=(*contract.MAGNETS, "mass")))
         vel = (z[1], z[3]) if self.cfg["measure_velocity"] else ()
         self.pub_meas.publish(joint_state(JS, t_ns, position=(z[0], z[2]), velocity=vel, effort=(z[4], z[5])))
+        done = self.node.now_ns()
+        self.tick_late.add(tick_start - t_ns)
+        self.tick_cost.add(done - tick_start)
         if self.n_end and p.k >= self.n_end:
             self.finish(f"finished {self.cfg['duration']:g} s", level=0)
 
@@ -142,6 +157,8 @@ class PlantSimNode:
             "cycles": self.plant.k, "t_sim_s": round(self.plant.k * self.cfg["dt"], 3), "deadline_misses": self.misses,
             "watchdog_zero_voltage": self.watchdog, "timer_overruns": getattr(self.timer, "overruns", 0),
             "latency_p50_us": round(lat["p50"], 1), "latency_p99_us": round(lat["p99"], 1), "latency_max_us": round(lat["max"], 1),
+            "tick_lateness_p99_us": round(self.tick_late.summary_us()["p99"], 1),
+            "tick_compute_p99_us": round(self.tick_cost.summary_us()["p99"], 1),
             "failed": self.plant.fault is not None, "fault": self.plant.fault or "",
         }
 
@@ -154,7 +171,8 @@ class PlantSimNode:
         s = self.stats()
         x = self.plant.x
         print(f"t = {s['t_sim_s']:7.1f} s  gaps {x[0] * 1e3:6.3f} / {x[2] * 1e3:6.3f} mm  misses {s['deadline_misses']}"
-              f"  latency p50 {s['latency_p50_us']:.0f} us p99 {s['latency_p99_us']:.0f} us", flush=True)
+              f"  latency p50 {s['latency_p50_us']:.0f} us p99 {s['latency_p99_us']:.0f} us"
+              f"  tick late p99 {s['tick_lateness_p99_us']:.0f} us, compute p99 {s['tick_compute_p99_us']:.0f} us", flush=True)
         self.publish_diag(0 if s["deadline_misses"] == 0 else 1, "running")
 
     def finish(self, message: str, level: int) -> None:

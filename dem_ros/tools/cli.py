@@ -155,7 +155,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--estimator", default=None, choices=["kf", "none"], help="state estimator (default: config, 'kf')")
     s.add_argument("--duration", type=float, default=None, help="seconds (default: the scenario's, 100)")
     s.add_argument("--seed", type=int, default=None, help="seed of noise and perturbation (default: config)")
-    s.add_argument("--delay", type=int, default=0, help="command delay in samples (graph timing model: 0)")
+    s.add_argument("--delay", type=int, default=None, help="command delay in samples for plant and controller (default: config, 0; the node graph runs with 1)")
     s.add_argument("--params", default=None, help="ROS 2 params file to load on top of the defaults")
     s.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE", help="override a parameter, e.g. k1=60 or plant_sim.m=16")
     s.add_argument("--json", default=None, help="write the metrics as JSON")

@@ -85,6 +85,7 @@ def _cp_vector(cfg: Mapping) -> np.ndarray:
     cp[K.CP_K_MIN], cp[K.CP_K_MAX] = cfg["K_min"], cfg["K_max"]
     cp[K.CP_QM], cp[K.CP_QR], cp[K.CP_QK] = cfg["q_m"], cfg["q_R"], cfg["q_K"]
     cp[K.CP_ULIM] = cfg["voltage_limit"]
+    cp[K.CP_DELAY] = cfg["command_delay"]
     return cp
 
 
@@ -129,6 +130,9 @@ class CEController(Controller):
         c = self.cfg
         cp = self.cp
         self.Z = np.zeros((3, 18))
+        self.uh = np.zeros((K.NUH, 2))
+        if u0 is not None:
+            self.uh[:] = np.asarray(u0, float)  # before t = 0 the coils held u0
         self.P = np.zeros((8, 8))
         self.v = np.zeros(8)
         self.v0 = np.zeros(8)
@@ -208,7 +212,7 @@ class CEController(Controller):
 
     # -- loop -------------------------------------------------------------
     def step(self, meas: np.ndarray, ref: np.ndarray) -> np.ndarray:
-        K.ce_step(self.mode, self.cp, self.theta, self.v, self.scale, self.v0, self.P, self.Z,
+        K.ce_step(self.mode, self.cp, self.theta, self.v, self.scale, self.v0, self.P, self.Z, self.uh,
                   self.F.Ad, self.F.Bd, meas, ref, self.u, self.diag)
         return self.u
 
@@ -228,7 +232,7 @@ class CEController(Controller):
             self.theta[:] = _theta([1 / new["m_nominal"], new["R_nominal"], new["K_nominal"]], self.cp)
 
     def kernel_args(self) -> tuple:
-        return (self.mode, self.cp, self.theta, self.v, self.scale, self.v0, self.P, self.Z, self.F.Ad, self.F.Bd)
+        return (self.mode, self.cp, self.theta, self.v, self.scale, self.v0, self.P, self.Z, self.uh, self.F.Ad, self.F.Bd)
 
 
 class PIDController(Controller):

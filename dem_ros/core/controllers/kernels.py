@@ -18,8 +18,17 @@ Per sample k (notes 6, "common loop")::
     theta_hat <- update(e_c)
     v_e       = y_d''' - k1((L_f^2 h)_e - y_d'') - k2(y' - y_d') - k3 e     (Eq. 21, erratum 7)
     u         = M_hat^{-1} (v_e - (L_f^3 h)_e)                                (Eq. 22)
-    W_p       = W3(x, u) + k1 W2(x)
-    F(s) bank <- advance with W_p (16 channels) and W_p^T theta_hat (2 channels)
+    u_a       = the voltage applied over this sample: u_{k-delay} (and clipped)
+    W_p       = W3(x, u_a) + k1 W2(x)
+    F(s) bank <- advance with W_p (16 channels) and v_e + k1 W2^T theta_hat (2 channels)
+
+The last input equals W_p^T theta_hat when u_a is the law's own unclipped output
+(W3(u)^T theta_hat = v_e). In general the error equation is
+
+    e^(3) + k1 e^(2) + k2 e^(1) + k3 e = W_p(u_a)^T (theta - theta_hat) + [W3(u_a)^T theta_hat - v_e]
+
+and the bracket is known, so filtering v_e + k1 W2^T theta_hat keeps
+e_c = xi^T (theta_hat - theta) exact under a command delay and under clipping.
 
 State arrays (all float64, owned by the caller):
     theta (8,)    theta_hat used by the law (unscaled, Eq. 44 order)
@@ -28,7 +37,8 @@ State arrays (all float64, owned by the caller):
     scale (8,)    the scaling (A0: ones; A1: theta magnitudes; A2: phi0)
     v0 (8,)       leakage target (A2e)
     P (8, 8)      covariance (A2 uses the leading 3x3)
-    Z (3, 18)     F(s) filter bank: 16 channels of W_p, 2 of W_p^T theta_hat
+    Z (3, 18)     F(s) filter bank: 16 channels of W_p, 2 of v_e + k1 W2^T theta_hat
+    uh (NUH, 2)   last commands, newest first: the voltage applied now is uh[delay]
     cp (NCP,)     configuration vector, layout CP_* below
     diag (NDIAG,) out: m_hat, R_hat, K_hat, ec1, ec2, e1, e2, adapting, fault
 """
@@ -38,7 +48,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..model import lie_terms, regressors, theta_jacobian, theta_of
+from ..model import IA, IB, IC, ID, IG, IK, IN1, IN2, IP, IQ, IR, lie_terms, regressors, rk4, theta_jacobian, theta_of
 from ..lti import filter_step
 
 MODE_FIXED, MODE_PAPER, MODE_PAPER_FIX, MODE_ADAPTIVE, MODE_ENHANCED = 0, 1, 2, 3, 4
@@ -48,9 +58,10 @@ MODE_FIXED, MODE_PAPER, MODE_PAPER_FIX, MODE_ADAPTIVE, MODE_ENHANCED = 0, 1, 2, 
     CP_K1, CP_K2, CP_K3, CP_P, CP_Q, CP_CA, CP_CC, CP_N1, CP_N2, CP_G,
     CP_FLOOR, CP_TS, CP_W, CP_R0, CP_DZ, CP_E0,
     CP_MU_MIN, CP_MU_MAX, CP_R_MIN, CP_R_MAX, CP_K_MIN, CP_K_MAX,
-    CP_QM, CP_QR, CP_QK, CP_ULIM,
-) = range(26)
-NCP = 26
+    CP_QM, CP_QR, CP_QK, CP_ULIM, CP_DELAY,
+) = range(27)
+NCP = 27
+NUH = 9  # longest command delay (samples) + 1
 DZ_PDOT, DZ_ERROR, DZ_OFF = 0, 1, 2
 
 (D_M, D_R, D_K, D_EC1, D_EC2, D_E1, D_E2, D_ADAPT, D_FAULT) = range(9)
@@ -212,7 +223,73 @@ def _update_adaptive(cp, theta, v, scale, v0, P, xi, ec, enhanced, dz_mode) -> f
 
 
 @njit(cache=True)
-def ce_step(mode, cp, theta, v, scale, v0, P, Z, Ad, Bd, meas, ref, u, diag) -> None:
+def _ydd_hat(theta, ab, N1, N2, g):
+    """(L_f^2 h)_e = W2^T theta_hat + g (notes 1c)."""
+    q1 = ab[4]
+    q2 = ab[5]
+    y1 = theta[1] * q1 + theta[3] * q2 + theta[6] * N1 + theta[7] * N2 + g
+    y2 = theta[3] * q1 + theta[1] * q2 + theta[7] * N1 + theta[6] * N2 + g
+    return y1, y2
+
+
+@njit(cache=True)
+def _ce_law(theta, ab, ve1, ve2, u) -> None:
+    """u = M_hat^{-1} (v_e - (L_f^3 h)_e) (Eq. 22 corrected); NaN when M_hat is singular."""
+    a1, a2, b1, b2 = ab[0], ab[1], ab[2], ab[3]
+    L3_1 = 2 * theta[0] * a1 + 2 * theta[2] * a2
+    L3_2 = 2 * theta[2] * a1 + 2 * theta[0] * a2
+    m00 = 2 * theta[4] * b1
+    m01 = 2 * theta[5] * b2
+    m10 = 2 * theta[5] * b1
+    m11 = 2 * theta[4] * b2
+    det = m00 * m11 - m01 * m10
+    r1 = ve1 - L3_1
+    r2 = ve2 - L3_2
+    if det != 0.0 and np.isfinite(det):
+        u[0] = (m11 * r1 - m01 * r2) / det
+        u[1] = (-m10 * r1 + m00 * r2) / det
+    else:
+        u[0] = np.nan
+        u[1] = np.nan
+
+
+@njit(cache=True)
+def _predict(mode, cp, theta, v, scale, uh, delay, x) -> bool:
+    """Advance ``x`` by ``delay`` samples under uh[delay-1], ..., uh[0] with the estimated model."""
+    est = np.empty(3)
+    if mode == MODE_ADAPTIVE or mode == MODE_ENHANCED:
+        mu = scale[0] * v[0]
+        R = scale[1] * v[1]
+        Kc = scale[2] * v[2]
+    else:
+        physical_estimates(theta, est)
+        if not (est[0] > 0.0 and est[1] > 0.0 and est[2] > 0.0):
+            return False
+        mu = 1.0 / est[0]
+        R = est[1]
+        Kc = est[2]
+    p = np.empty(11)
+    p[IP] = cp[CP_P]
+    p[IQ] = cp[CP_Q]
+    p[IA] = mu + cp[CP_CA]
+    p[IB] = mu - cp[CP_CA]
+    p[IC] = mu + cp[CP_CC]
+    p[ID] = mu - cp[CP_CC]
+    p[IK] = Kc
+    p[IR] = R
+    p[IN1] = cp[CP_N1]
+    p[IN2] = cp[CP_N2]
+    p[IG] = cp[CP_G]
+    ua = np.empty(2)
+    for j in range(delay - 1, -1, -1):
+        ua[0] = uh[j, 0]
+        ua[1] = uh[j, 1]
+        rk4(x, ua, p, cp[CP_TS], 2)
+    return np.all(np.isfinite(x))
+
+
+@njit(cache=True)
+def ce_step(mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, meas, ref, u, diag) -> None:
     """One sample of the CE family. ``meas`` = [d1, d1', d2, d2', i1, i2], ``ref`` = reference (8,)."""
     k1 = cp[CP_K1]
     k2 = cp[CP_K2]
@@ -249,29 +326,38 @@ def ce_step(mode, cp, theta, v, scale, v0, P, Z, Ad, Bd, meas, ref, u, diag) -> 
             adapting = _update_adaptive(cp, theta, v, scale, v0, P, xi, ec, mode == MODE_ENHANCED, int(cp[CP_DZ]))
     ab = np.empty(6)
     lie_terms(d1, d2, i1, i2, cp[CP_P], cp[CP_Q], ab)
-    a1, a2, b1, b2, q1, q2 = ab[0], ab[1], ab[2], ab[3], ab[4], ab[5]
-    # estimated Lie derivatives (notes 1c)
-    L3_1 = 2 * theta[0] * a1 + 2 * theta[2] * a2
-    L3_2 = 2 * theta[2] * a1 + 2 * theta[0] * a2
-    ydd1 = theta[1] * q1 + theta[3] * q2 + theta[6] * N1 + theta[7] * N2 + g
-    ydd2 = theta[3] * q1 + theta[1] * q2 + theta[7] * N1 + theta[6] * N2 + g
+    # v_e at the measured state: enters the error filter whatever the law does
+    ydd1, ydd2 = _ydd_hat(theta, ab, N1, N2, g)
     ve1 = ref[6] - k1 * (ydd1 - ref[4]) - k2 * (meas[1] - ref[2]) - k3 * e[0]
     ve2 = ref[7] - k1 * (ydd2 - ref[5]) - k2 * (meas[3] - ref[3]) - k3 * e[1]
-    m00 = 2 * theta[4] * b1
-    m01 = 2 * theta[5] * b2
-    m10 = 2 * theta[5] * b1
-    m11 = 2 * theta[4] * b2
-    det = m00 * m11 - m01 * m10
-    r1 = ve1 - L3_1
-    r2 = ve2 - L3_2
+    delay = int(cp[CP_DELAY])
     fault = 0.0
-    if det != 0.0 and np.isfinite(det):
-        u[0] = (m11 * r1 - m01 * r2) / det
-        u[1] = (-m10 * r1 + m00 * r2) / det
+    if delay == 0:
+        _ce_law(theta, ab, ve1, ve2, u)
     else:
-        u[0] = 0.0
-        u[1] = 0.0
-        fault = 1.0
+        # delay compensation: our command acts d samples from now, so compute it for the
+        # state predicted there (estimated model, commands already in the pipe) and the
+        # reference extrapolated there (it is smooth: Taylor to third order)
+        xp = np.empty(6)
+        for i in range(6):
+            xp[i] = meas[i]
+        xp[0] = d1
+        xp[2] = d2
+        if not _predict(mode, cp, theta, v, scale, uh, delay, xp):
+            fault = 1.0
+        rp = np.empty(8)
+        tau = delay * cp[CP_TS]
+        for j in range(2):
+            rp[j] = ref[j] + ref[2 + j] * tau + ref[4 + j] * tau * tau / 2 + ref[6 + j] * tau ** 3 / 6
+            rp[2 + j] = ref[2 + j] + ref[4 + j] * tau + ref[6 + j] * tau * tau / 2
+            rp[4 + j] = ref[4 + j] + ref[6 + j] * tau
+            rp[6 + j] = ref[6 + j]
+        abp = np.empty(6)
+        lie_terms(max(xp[0], cp[CP_FLOOR]), max(xp[2], cp[CP_FLOOR]), xp[4], xp[5], cp[CP_P], cp[CP_Q], abp)
+        y1, y2 = _ydd_hat(theta, abp, N1, N2, g)
+        vp1 = rp[6] - k1 * (y1 - rp[4]) - k2 * (xp[1] - rp[2]) - k3 * (xp[0] - rp[0])
+        vp2 = rp[7] - k1 * (y2 - rp[5]) - k2 * (xp[3] - rp[3]) - k3 * (xp[2] - rp[1])
+        _ce_law(theta, abp, vp1, vp2, u)
     lim = cp[CP_ULIM]
     for j in range(2):
         if not np.isfinite(u[j]):
@@ -281,19 +367,34 @@ def ce_step(mode, cp, theta, v, scale, v0, P, Z, Ad, Bd, meas, ref, u, diag) -> 
             u[j] = lim
         elif u[j] < -lim:
             u[j] = -lim
-    # regressor with the applied u, then advance F(s) on W_p and W_p^T theta_hat
+    # the voltage applied over this sample: our command of `delay` samples ago
+    ua = np.empty(2)
+    if delay == 0:
+        ua[0] = u[0]
+        ua[1] = u[1]
+    else:
+        ua[0] = uh[delay - 1, 0]
+        ua[1] = uh[delay - 1, 1]
+    for i in range(uh.shape[0] - 1, 0, -1):
+        uh[i, 0] = uh[i - 1, 0]
+        uh[i, 1] = uh[i - 1, 1]
+    uh[0, 0] = u[0]
+    uh[0, 1] = u[1]
+    # regressor with the applied u, then advance F(s) on W_p and v_e + k1 W2^T theta_hat
     W3 = np.empty((8, 2))
     W2 = np.empty((8, 2))
-    regressors(ab, u, N1, N2, W3, W2)
+    regressors(ab, ua, N1, N2, W3, W2)
     w = np.empty(18)
     for r in range(8):
         w[2 * r] = W3[r, 0] + k1 * W2[r, 0]
         w[2 * r + 1] = W3[r, 1] + k1 * W2[r, 1]
+    w[16] = ve1
+    w[17] = ve2
     for j in range(2):
         s = 0.0
         for r in range(8):
-            s += w[2 * r + j] * theta[r]
-        w[16 + j] = s
+            s += k1 * W2[r, j] * theta[r]
+        w[16 + j] += s
     filter_step(Z, Ad, Bd, w)
     # diagnostics
     est = np.empty(3)

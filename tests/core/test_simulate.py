@@ -183,14 +183,18 @@ def test_bad_duration_rejected(scenarios):
 
 
 def test_simulate_batch_agrees_with_single_runs_50s(scenarios):
-    """simulate_batch over added masses 0, 1.5, 3 kg == three single runs (no noise, no estimator). 50 s runs."""
+    """simulate_batch over added masses 0, 1.5, 3 kg == three single runs (no noise, no estimator). 50 s runs.
+
+    Both sides use the configuration's own timing (no ``delay`` override), so the batch must
+    apply the same command delay as ``simulate`` does.
+    """
     cfg = scenarios["S2"].config()
     dms = np.array([0.0, 1.5, 3.0])
     out = simulate_batch(cfg, dms, controller="adaptive", duration=50.0)
     assert out.shape == (3, 7)
     for i, dm in enumerate(dms):
         single = simulate(apply_overrides(cfg, {"plant_sim": {"mass_delta": float(dm)}}),
-                          controller="adaptive", estimator="none", duration=50.0, delay=0)
+                          controller="adaptive", estimator="none", duration=50.0)
         m = single.metrics()
         expected = np.array(m["rms_error_um"] + m["max_error_um"] + m["rms_error_after_40s_um"]) * 1e-6
         np.testing.assert_allclose(out[i, :6], expected, rtol=1e-9)
@@ -203,6 +207,6 @@ def test_simulate_batch_reports_failures(scenarios):
     """The paper law fails in every plant of a batch, at the same index as a single run. 0.5 s runs."""
     cfg = scenarios["S1"].config()
     out = simulate_batch(cfg, np.array([0.0, 0.0]), controller="paper", duration=0.5)
-    single = simulate(cfg, controller="paper", estimator="none", duration=0.5, delay=0)
+    single = simulate(cfg, controller="paper", estimator="none", duration=0.5)
     assert single.failed
     np.testing.assert_array_equal(out[:, 6], round(single.fail_time / 1e-3))

@@ -40,6 +40,8 @@ THETA_TRUE = theta_of_phys(PC["m"], PC["R"], PC["K"])
 def run_loop(ctrl, n: int, ref_cfg: dict | None = None, pc: dict | None = None, before=None, after=None):
     """Closed loop on the true plant, noiseless, from the 8 mm hover (notes 6 common loop).
 
+    The command of sample k is held over [t_k+d, t_k+d+1) with d the controller's
+    ``command_delay`` (0 unless a test sets it), the pipe starting full of the hover voltage.
     ``before(k, x, ctrl)`` is called before the controller step, ``after(k, x, ctrl, u)`` after it.
     Returns the final state.
     """
@@ -50,13 +52,15 @@ def run_loop(ctrl, n: int, ref_cfg: dict | None = None, pc: dict | None = None, 
     ctrl.reset(x.copy(), u0)
     _, yd = reference_trajectory({**ref_cfg, "dt": dt}, n)
     p = plant_vector(pc)
+    pipe = [u0.copy() for _ in range(ctrl.cfg.get("command_delay", 0))]
     for k in range(n):
         if before:
             before(k, x, ctrl)
         u = ctrl.step(x.copy(), yd[k]).copy()
         if after:
             after(k, x, ctrl, u)
-        rk4(x, u, p, dt, pc["substeps"])
+        pipe.append(u)
+        rk4(x, pipe.pop(0), p, dt, pc["substeps"])
     return x
 
 
@@ -117,9 +121,11 @@ def test_wrong_parameters_do_not_linearise():
 # ---------------------------------------------------------------------------
 # augmented error
 # ---------------------------------------------------------------------------
-def _augmented_error_run(dt: float, T: float = 1.5):
+def _augmented_error_run(dt: float, delay: int = 0, T: float = 1.5):
     """Fixed, wrong theta_hat (m 13 kg, R 20.2 ohm, K 4.5e-4): e_c from the Z bank vs xi^T (theta_hat - theta)."""
     cc = {**CC, "m_nominal": 13.0, "R_nominal": 20.2, "K_nominal": 4.5e-4, "dt": dt}
+    if delay:
+        cc["command_delay"] = delay
     ctrl = make_controller(cc, "nonlinear_decoupling")
     th_hat = ctrl.theta.copy()
     n = int(round(T / dt))
@@ -157,6 +163,15 @@ def test_augmented_error_equals_xi_theta_error():
     mis_250us = np.abs(ec4 - rhs4)[t >= 0.3].max() / np.abs(ec4).max()
     assert 3.0 < mis_1ms / mis_250us < 5.0  # first order in T
     assert np.abs(ec4[-1] - rhs4[-1]).max() / np.abs(ec4[-1]).max() < 1e-3
+
+
+def test_augmented_error_under_a_command_delay():
+    """The same identity when the command is held one sample late and the law knows it (command_delay=1):
+    the error filter is fed with the applied voltage, so e_c = xi^T (theta_hat - theta) still holds."""
+    t, ec, rhs = _augmented_error_run(1e-3, delay=1)
+    assert np.abs(ec).max() > 3e-3
+    assert np.abs(ec[-1] - rhs[-1]).max() / np.abs(ec[-1]).max() < 5e-3
+    assert np.abs(ec - rhs)[t >= 0.3].max() / np.abs(ec).max() < 0.15
 
 
 def test_kernel_augmented_error_uses_the_notes_sign():
@@ -269,7 +284,7 @@ def test_A1_cone_projection_restores_invertibility(v45):
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "BUG kernels._update_paper_fixed (lines 147-153): when theta5_hat has the wrong sign "
+    "BUG kernels._update_paper_fixed (cone block, lines 158-165 at 17941d3): when theta5_hat has the wrong sign "
     "(-v5 - 0.01 + |v6| < 0, the cone's polar region) the half-step moves v6 through zero and "
     "leaves -v5 < |v6| + 0.01, so M_hat can stay singular/ill-signed. Fix: project to the apex "
     "(v[4] = -0.01, v[5] = 0) in that case."))
@@ -372,7 +387,7 @@ def test_nan_measurement_gives_finite_u_and_fault(name, channel):
 
 
 _POISONED = pytest.mark.xfail(strict=True, reason=(
-    "BUG kernels.ce_step (line 236 ff.) / pid_step (line 341): a NaN gap or current is not "
+    "BUG kernels.ce_step (from line 313 at 17941d3) / pid_step (line 442): a NaN gap or current is not "
     "rejected before the update: e_c, the estimates (v, theta) and the F(s) bank Z (or the PID "
     "integrator) become NaN for good, so every later u is 0 V (fault); adaptive_enhanced even "
     "raises LinAlgError from eigvalsh on the next step. Fix: at the top of ce_step/pid_step, if "

@@ -105,36 +105,66 @@ def test_S2_nonlinear_decoupling_offset_60s(scenarios):
 
 
 # ---------------------------------------------------------------------------
-# command delay
+# command delay (the graph's timing: plant_sim/controller command_delay = 1)
 # ---------------------------------------------------------------------------
-@pytest.mark.parametrize("controller", ["nonlinear_decoupling", "decentralized_pid", "paper_fixed"])
+_A1_DELAY = pytest.mark.xfail(strict=True, reason=(
+    "REGRESSION of 17941d3 (delay compensation): paper_fixed (A1) with delay=1 now makes a 4.75 mm "
+    "excursion at t = 0.13 s, at hover before any step (0.20 mm max before that commit). "
+    "kernels._predict predicts the state with (m, R, K) = physical_estimates(theta_hat), i.e. only "
+    "theta1/theta5, theta2/theta5, theta7+theta8 of A1's 8 free parameters (R_hat = 17.2 ohm after the "
+    "A1 hover init): not the model the CE law uses, and not in equilibrium at the measured hover. "
+    "Fix: in ce_step skip the prediction (use the d = 0 law) for MODE_PAPER and MODE_PAPER_FIX, or "
+    "predict the outputs with the theta_hat model itself (acceleration W2^T theta_hat + g, jerk W3^T theta_hat)."))
+
+
+@pytest.mark.parametrize("controller", [
+    "adaptive", "adaptive_enhanced", "nonlinear_decoupling", "decentralized_pid",
+    pytest.param("paper_fixed", marks=_A1_DELAY),
+])
 def test_delay_1_still_levitates_15s(scenarios, controller):
-    """A command one sample late (delay=1): the loop still levitates and tracks both steps. 15 s run."""
+    """A command one sample late (delay=1): the loop still levitates and tracks both steps (|e| < 1 mm). 15 s run."""
     res = simulate(scenarios["S1"].config(), controller=controller, estimator="none", duration=15.0, delay=1)
     assert not res.failed
+    assert res.extra["delay"] == 1
     assert np.abs(res.error).max() < 1e-3
     assert res.x[-1, 0] < 5.1e-3 and res.x[-1, 2] < 6.4e-3  # both steps happened
-    # the delay really acts: the applied voltage leaves the hover value one sample later than without it
-    ref = simulate(scenarios["S1"].config(), controller=controller, estimator="none", duration=15.0, delay=0)
-
-    def first_change(u):
-        return int(np.argmax(np.abs(u - u[0]).max(axis=1) > 1e-9))
-
-    assert 1000 <= first_change(ref.u) <= 1001  # the first step (t = 1 s) reaches the law
-    assert first_change(res.u) == first_change(ref.u) + 1
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "FINDING (not a one-line bug): A2 ('adaptive', also 'adaptive_enhanced') with a one-sample "
-    "command delay diverges in S1 (2 Hz oscillation growing from t~1.5 s, plate lost at ~4-5 s). "
-    "The hover initialisation puts m_hat at 8.9 kg (force balance with K_hat0 = 0.7 K and P0_K = 0.1); "
-    "the CE loop with consistent (m_hat, K_hat) below ~11 kg has no margin for 1 ms of delay: "
-    "nonlinear_decoupling with (m, K) = (8.9 kg, 3.21e-4) or (10 kg, 3.42e-4) also fails at delay=1, "
-    "(12 kg, 3.81e-4) and the true values do not."))
-def test_delay_1_adaptive_still_levitates_15s(scenarios):
-    res = simulate(scenarios["S1"].config(), controller="adaptive", estimator="none", duration=15.0, delay=1)
-    assert not res.failed
-    assert np.abs(res.error).max() < 1e-3
+def test_delay_compensation_is_exact_with_the_true_model_15s(scenarios):
+    """nonlinear_decoupling (true m, R, K) predicting over d = 1, 2 samples: the plant receives the same
+    voltage at the same time as in the undelayed loop, so the gaps agree to < 1 nm. Control: the same
+    plant delay with a law that does not know it (controller.command_delay = 0) does change the run. 15 s runs."""
+    cfg = scenarios["S1"].config()
+    r0 = simulate(cfg, controller="nonlinear_decoupling", estimator="none", duration=15.0, delay=0)
+    for d in (1, 2):
+        r = simulate(cfg, controller="nonlinear_decoupling", estimator="none", duration=15.0, delay=d)
+        assert r.extra["delay"] == d
+        assert np.abs(r.x[:, [0, 2]] - r0.x[:, [0, 2]]).max() < 1e-9
+        np.testing.assert_allclose(r.u, r0.u, rtol=0, atol=1e-4)
+    unaware = apply_overrides(cfg, {"plant_sim": {"command_delay": 1}, "controller": {"command_delay": 0}})
+    r = simulate(unaware, controller="nonlinear_decoupling", estimator="none", duration=15.0)
+    assert r.extra["delay"] == 1 and not r.failed
+    assert np.abs(r.x[:, [0, 2]] - r0.x[:, [0, 2]]).max() > 1e-6
+    assert np.abs(r.error).max() > 2 * np.abs(r0.error).max()
+
+
+def test_S1_adaptive_acceptance_with_graph_timing_15s(scenarios):
+    """S1, A2, the configuration's own timing (graph: command_delay = 1), 15 s: the notes-8 bounds still hold."""
+    cfg = scenarios["S1"].config()
+    res = simulate(cfg, controller="adaptive", estimator="none", duration=15.0, scenario="S1")
+    assert res.extra["delay"] == cfg["plant_sim"]["command_delay"] == 1
+    _check_s1_acceptance(res)
+
+
+def test_S2_adaptive_acceptance_with_graph_timing_100s(scenarios):
+    """S2, A2, the configuration's own timing, full 100 s: ramp max < 250 um, RMS after 40 s < 15 um."""
+    res = simulate(scenarios["S2"].config(), controller="adaptive", estimator="none", duration=100.0, scenario="S2")
+    assert res.extra["delay"] == 1
+    m = res.metrics()
+    assert not m["failed"]
+    ramp = (res.t >= 20.0) & (res.t <= 40.0)
+    assert np.abs(res.error[ramp]).max() < 250e-6
+    assert max(m["rms_error_after_40s_um"]) < 15.0
 
 
 # ---------------------------------------------------------------------------
@@ -182,6 +212,13 @@ def test_bad_duration_rejected(scenarios):
         simulate(scenarios["S1"].config(), duration=0.0)
 
 
+@pytest.mark.xfail(strict=True, reason=(
+    "BUG simulate.py (17941d3), _batch line 257 passes the plant delay as a literal 0 to _closed_loop, "
+    "while simulate_batch builds the controller from cfg['controller'] whose command_delay is now 1 by "
+    "default: every batch plant gets its command immediately while the law predicts one sample ahead, "
+    "so batch runs match neither simulate() nor the graph. Fix: pass pc['command_delay'] into _batch "
+    "and on to _closed_loop, and build the controller with command_delay = pc['command_delay'] as "
+    "simulate() does."))
 def test_simulate_batch_agrees_with_single_runs_50s(scenarios):
     """simulate_batch over added masses 0, 1.5, 3 kg == three single runs (no noise, no estimator). 50 s runs.
 

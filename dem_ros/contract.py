@@ -16,22 +16,28 @@ Conventions:
       coil current i_j [A]; for commands ``effort`` = coil voltage u_j [V].
     * Named vectors (reference, controller state) are ``JointState`` messages
       whose ``name`` labels each entry of ``position``; units are listed below.
+    * ``header.frame_id`` is ``"dem"``, or ``"dem/preroll"`` while the rig levitates
+      before the experiment's t = 0 (the reference holds its initial command then;
+      the experiment starts at the first ``"dem"`` sample).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["QoS", "Topic", "TOPICS", "MAGNETS", "REFERENCE_NAMES", "CONTROLLER_STATE_NAMES"]
+__all__ = ["FRAME", "FRAME_PREROLL", "QoS", "Topic", "TOPICS", "MAGNETS", "REFERENCE_NAMES", "CONTROLLER_STATE_NAMES"]
 
+FRAME = "dem"
+FRAME_PREROLL = "dem/preroll"
 MAGNETS = ("magnet_1", "magnet_2")
 #: y_d [m], y_d' [m/s], y_d'' [m/s^2], y_d''' [m/s^3] for both magnets.
 REFERENCE_NAMES = (
     "y_1", "y_2", "dy_1", "dy_2", "ddy_1", "ddy_2", "dddy_1", "dddy_2", "r_1", "r_2",
 )
-#: m_hat [kg], R_hat [ohm], K_hat [N m^2/A^2], e_c [m], tracking error e [m], flags.
+#: m_hat [kg], R_hat [ohm], K_hat [N m^2/A^2], e_c [m], tracking error e [m], flags, and
+#: ref_lag: how many samples the reference used lags the measurement (0 normally; -1: none yet).
 CONTROLLER_STATE_NAMES = (
-    "m_hat", "R_hat", "K_hat", "ec_1", "ec_2", "e_1", "e_2", "adapting", "age_s", "fault",
+    "m_hat", "R_hat", "K_hat", "ec_1", "ec_2", "e_1", "e_2", "adapting", "age_s", "fault", "ref_lag",
 )
 
 
@@ -95,7 +101,8 @@ COMMAND = Topic(
 CONTROLLER_STATE = Topic(
     "/dem/controller/state", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "controller",
     ("recorder",),
-    "named vector: m_hat [kg], R_hat [ohm], K_hat [N m^2/A^2], ec_j [m], e_j [m], adapting (0/1), age_s [s], fault (0/1)",
+    "named vector: m_hat [kg], R_hat [ohm], K_hat [N m^2/A^2], ec_j [m], e_j [m], adapting (0/1), age_s [s], "
+    "fault (0/1: no command sent), ref_lag [samples]",
 )
 DIAGNOSTICS = Topic(
     "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", QOS_STREAM, 1.0, "every node",

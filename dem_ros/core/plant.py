@@ -66,6 +66,21 @@ class DemPlant:
         """z_k = x_k + noise_k (velocities included; the node drops them if not measured)."""
         return self.x + self._noise_k()
 
+    def measurement_preroll(self) -> np.ndarray:
+        """Measurement before t = 0: noise from a separate stream, so the run's sequences stay the offline ones."""
+        if self.pc["noise_scale"] == 0:
+            return self.x.copy()
+        z = self.x + self.rng.uniform(-1.0, 1.0, 6) * self.pc["noise_scale"] * NOISE_UNIT
+        if not self.pc["measure_velocity"]:
+            z[[1, 3]] = 0.0
+        return z
+
+    def hold(self, u: np.ndarray) -> None:
+        """Pre-roll: integrate one period under ``u`` with the initial mass and no perturbation; k stays 0."""
+        set_mass(self.p, self.pc["m"], self.pc["L"], self.pc["l"], self.pc["I"])
+        rk4(self.x, np.asarray(u, float), self.p, self.dt, self.pc["substeps"])
+        self._check()
+
     def advance(self, u: np.ndarray) -> None:
         """Hold ``u`` (+ perturbation) over [t_k, t_k+1) and integrate; then k += 1."""
         t = self.k * self.dt
@@ -74,6 +89,9 @@ class DemPlant:
         ua = np.asarray(u, float) + self._pert_k()
         rk4(self.x, ua, self.p, self.dt, self.pc["substeps"])
         self.k += 1
+        self._check()
+
+    def _check(self) -> None:
         d1 = self.p[IP] * self.x[0] + self.p[IQ] * self.x[2]
         d2 = self.p[IQ] * self.x[0] + self.p[IP] * self.x[2]
         if not np.all(np.isfinite(self.x)):

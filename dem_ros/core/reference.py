@@ -74,6 +74,13 @@ class ReferenceModel:
         self.k += 1
         return out
 
+    def step_hold(self) -> np.ndarray:
+        """The reference at rest (state unchanged): what is held before the schedule starts."""
+        out = np.empty(8)
+        z = self.z.copy()
+        _ref_step(z, self.filter.Ad, self.filter.Bd, self.filter.c, self.filter.gain, np.full(2, self.cfg["initial"]), out)
+        return out
+
     def step_at(self, t: float) -> np.ndarray:
         """Reference for time ``t`` using the configured schedule (one period per call)."""
         return self.step(command(self.cfg, t))

@@ -7,7 +7,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..contract import MAGNETS
+from ..contract import FRAME, MAGNETS
 
 __all__ = ["stamp_ns", "set_stamp", "joint_state", "named_vector", "meas_array", "LatencyStats", "diag_array"]
 
@@ -22,11 +22,12 @@ def set_stamp(msg: Any, t_ns: int) -> None:
     msg.header.stamp.nanosec = int(t_ns % 1_000_000_000)
 
 
-def joint_state(cls: type, t_ns: int, position=(), velocity=(), effort=(), names: Sequence[str] = MAGNETS) -> Any:
+def joint_state(cls: type, t_ns: int, position=(), velocity=(), effort=(), names: Sequence[str] = MAGNETS,
+                frame: str = FRAME) -> Any:
     """A per-magnet JointState (gaps [m], rates [m/s], currents [A] or voltages [V] in effort)."""
     m = cls()
     set_stamp(m, t_ns)
-    m.header.frame_id = "dem"
+    m.header.frame_id = frame
     m.name = list(names)
     m.position = [float(v) for v in position]
     m.velocity = [float(v) for v in velocity]
@@ -34,9 +35,9 @@ def joint_state(cls: type, t_ns: int, position=(), velocity=(), effort=(), names
     return m
 
 
-def named_vector(cls: type, t_ns: int, names: Sequence[str], values) -> Any:
+def named_vector(cls: type, t_ns: int, names: Sequence[str], values, frame: str = FRAME) -> Any:
     """A named vector carried in JointState.position (contract convention)."""
-    return joint_state(cls, t_ns, position=values, names=names)
+    return joint_state(cls, t_ns, position=values, names=names, frame=frame)
 
 
 def meas_array(msg: Any) -> tuple[np.ndarray, bool]:

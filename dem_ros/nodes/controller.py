@@ -37,6 +37,7 @@ class ControllerNode:
         self.ref = None
         self.ref_stamp = -1
         self.u_applied = None
+        self.ref_lag = -1
         self.counts = {"steps": 0, "stale": 0, "non_finite_input": 0, "non_finite_output": 0, "reference_mismatch": 0}
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.JS = node.msg("sensor_msgs/msg/JointState")
@@ -80,7 +81,7 @@ class ControllerNode:
         age = (self.node.now_ns() - t) * 1e-9
         xh, _ = meas_array(msg)
         fault = 0.0
-        if age > self.cfg["max_age"]:
+        if self.cfg["max_age"] > 0 and age > self.cfg["max_age"]:
             self.counts["stale"] += 1
             self._warn_every("stale", f"sample {age * 1e3:.2f} ms old (> max_age): not acted on")
             return self._state(t, age, 1.0)
@@ -91,7 +92,10 @@ class ControllerNode:
         ref = self.ref
         if ref is None:  # first sample before any reference: hold the measured hover
             ref = np.array([xh[0], xh[2], 0, 0, 0, 0, 0, 0], dtype=float)
-        if self.ref_stamp != t:
+            self.ref_lag = -1
+        else:
+            self.ref_lag = int(round((t - self.ref_stamp) / (self.cfg["dt"] * 1e9)))
+        if self.ref_lag != 0:
             self.counts["reference_mismatch"] += 1
         if not self.started:
             u0 = self.u_applied if self.u_applied is not None else np.zeros(2)
@@ -110,7 +114,7 @@ class ControllerNode:
     def _state(self, t: int, age: float, fault: float) -> None:
         d = self.ctrl.diag
         self.pub_state.publish(named_vector(self.JS, t, contract.CONTROLLER_STATE_NAMES,
-                                            (d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7], age, fault)))
+                                            (d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7], age, fault, self.ref_lag)))
 
     def _warn_every(self, key: str, text: str) -> None:
         n = self.counts[key]

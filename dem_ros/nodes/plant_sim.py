@@ -1,13 +1,27 @@
-"""``plant_sim``: the simulated DEM, ticking at 1 kHz against absolute deadlines.
+"""``plant_sim``: the simulated DEM, paced at 1 kHz against absolute deadlines.
 
-At tick k (stamp t_k = epoch + k T) it applies the command computed from the
-measurement of tick k-1 (zero-order hold over [t_k-1, t_k)), integrates, and
-publishes ``/dem/applied_voltage``, ``/dem/plant/truth`` and ``/dem/measurement``
-stamped t_k. A command that has not arrived by its tick is a counted deadline
-miss: the last command is held, and after ``command_timeout`` the coils get
-0 V (watchdog). Latency = receive time of the command - stamp of the
-measurement it answers. A hardware driver replaces this node by honouring the
-same topics.
+Sample k is stamped t_k = epoch + k T on the plant's clock. To publish sample k
+the plant integrates [t_k-1, t_k] holding the command computed from sample
+k-1-d (``command_delay`` d; zero-order hold), then publishes
+``/dem/applied_voltage``, ``/dem/plant/truth`` and ``/dem/measurement`` for t_k.
+Every sample is published, in order.
+
+Two timing modes:
+
+* ``lockstep: true`` (default, simulation): when the command a sample needs has
+  not arrived by its deadline, the plant waits for it (a counted deadline
+  miss) and its clock falls behind wall time; the closed loop is then exactly
+  the offline simulator's, however slow the machine. After ``command_timeout``
+  without it, the plant proceeds with 0 V (watchdog), so a dead controller
+  cannot freeze the simulation.
+* ``lockstep: false`` (hardware-like): time does not wait; a missing command is
+  a counted deadline miss, the last voltage is held, and after
+  ``command_timeout`` the coils get 0 V.
+
+Before t = 0 the plant levitates in closed loop for ``preroll`` seconds
+(frame_id ``dem/preroll``; a missing command then just holds the voltage).
+Latency = receive time of a command - publish time of the measurement it
+answers. A hardware driver replaces this node by honouring the same topics.
 """
 
 from __future__ import annotations
@@ -21,9 +35,11 @@ from .. import contract
 from ..core.plant import DemPlant
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import LatencyStats, diag_array, joint_state, named_vector, stamp_ns
+from .common import LatencyStats, diag_array, joint_state, stamp_ns
 
 __all__ = ["PlantSimNode", "main"]
+
+RING = 256  # commands / publish times kept by sample index
 
 
 class PlantSimNode:
@@ -34,9 +50,8 @@ class PlantSimNode:
         self.dt_ns = int(round(c["dt"] * 1e9))
         self.plant = DemPlant(c, c["duration"])
         self.n_end = int(round(c["duration"] / c["dt"])) if c["duration"] > 0 else 0
-        warm_up()  # kernels resident before we subscribe (no stale first samples)
-        JS = node.msg("sensor_msgs/msg/JointState")
-        self.JS = JS
+        warm_up()  # kernels resident before we subscribe (no slow first samples)
+        self.JS = node.msg("sensor_msgs/msg/JointState")
         self.pub_meas = node.publisher(contract.MEASUREMENT)
         self.pub_truth = node.publisher(contract.TRUTH)
         self.pub_applied = node.publisher(contract.APPLIED)
@@ -44,46 +59,52 @@ class PlantSimNode:
         self.D = (node.msg("diagnostic_msgs/msg/DiagnosticArray"), node.msg("diagnostic_msgs/msg/DiagnosticStatus"),
                   node.msg("diagnostic_msgs/msg/KeyValue"))
         node.subscribe(contract.COMMAND, self.on_command)
-        self.cmd_ring = np.full(64, -1, dtype=np.int64)  # stamp of the command held in each slot
-        self.cmd_u = np.zeros((64, 2))
+        self.cmd_stamp = np.full(RING, -1, dtype=np.int64)  # stamp of the command held in each slot
+        self.cmd_u = np.zeros((RING, 2))
+        self.pub_wall = np.zeros(RING, dtype=np.int64)  # when each sample was published (wall clock, ns)
         self.u_applied = self.plant.u0.copy()
-        self.last_fresh_ns = 0
+        self.last_fresh_k = 0
         self.started = False
         self.finished = False
+        self.n_pre = 0
         self.k_next = 0
+        self.epoch = 0  # stamp of sample 0 (t = 0 of the experiment), plant clock
+        self.due = 0  # wall time (monotonic ns) at which sample k_next is due
+        self.wait_since = None  # lockstep: wall time we started waiting for the current sample
+        self.wall0 = 0
         self.t_boot = time.monotonic()
-        self.epoch = 0
         self.misses = 0
+        self.preroll_misses = 0
         self.watchdog = 0
         self.lat = LatencyStats()
-        self.tick_late = LatencyStats()
-        self.tick_cost = LatencyStats()
-        self.last_status = 0.0
+        self.late = LatencyStats()
         self.timer = node.timer(c["dt"], self.tick)
         node.timer(1.0, self.status)
 
+    # -- parameters / inputs ------------------------------------------------------------------
     def on_change(self, values) -> str | None:
-        for key in ("dt", "substeps", "command_delay", "duration"):
+        for key in ("dt", "substeps", "command_delay", "duration", "lockstep", "preroll"):
             if values[key] != self.cfg[key]:
                 return f"{key} cannot change during a run"
         self.cfg = dict(values)
-        self.plant.pc.update(values)  # disturbances and noise act from the next tick
+        self.plant.pc.update(values)  # disturbances and noise act from the next sample
         return None
 
     def on_command(self, msg) -> None:
-        t = stamp_ns(msg)
-        if len(msg.effort) < 2:
+        if not self.started or len(msg.effort) < 2:
             return
         u = np.array(msg.effort[:2], dtype=float)
         if not np.all(np.isfinite(u)):
             self.node.logger.warn("non-finite command ignored")
             return
-        if not self.started:
-            return
-        j = int(round((t - self.epoch) / self.dt_ns)) % self.cmd_ring.size
-        self.cmd_ring[j] = t
-        self.cmd_u[j] = u
-        self.lat.add(self.node.now_ns() - t)
+        t = stamp_ns(msg)
+        k = int(round((t - self.epoch) / self.dt_ns))
+        slot = k % RING
+        self.cmd_stamp[slot] = t
+        self.cmd_u[slot] = u
+        self.lat.add(time.monotonic_ns() - self.pub_wall[slot])
+        if self.wait_since is not None:
+            self.tick()  # lockstep: the command we were waiting for may have come
 
     def _ready(self) -> bool:
         c = self.cfg
@@ -95,70 +116,108 @@ class PlantSimNode:
             count = count()
         if count is None and hasattr(self.pub_meas, "get_subscription_count"):
             count = self.pub_meas.get_subscription_count()
-        if count is not None and count < c["min_subscribers"] and waited < c["start_delay"] + 30.0:
-            return False
-        return True
+        return not (count is not None and count < c["min_subscribers"] and waited < c["start_delay"] + 30.0)
 
+    # -- the loop -----------------------------------------------------------------------------
     def tick(self) -> None:
         if self.finished:
             return
+        now = time.monotonic_ns()
         if not self.started:
             if not self._ready():
                 return
             self.started = True
-            self.epoch = self.node.now_ns()
-            self.node.logger.info(f"t = 0: hover at {self.plant.x[0] * 1e3:.3f} mm, {self.plant.u0[0]:.2f} V")
-        tick_start = self.node.now_ns()
-        p = self.plant
-        # sample index from the clock: a late tick integrates the skipped samples (time does not wait)
-        k = max(self.k_next, int(round((self.node.now_ns() - self.epoch) / self.dt_ns)))
-        t_ns = self.epoch + k * self.dt_ns
-        d = self.cfg["command_delay"]
-        for j in range(self.k_next, k + 1):
-            if j == 0:
-                self.last_fresh_ns = t_ns
-                continue
-            src = j - 1 - d  # over [t_j-1, t_j] the plant holds the command of sample j-1-d
-            prev = self.epoch + src * self.dt_ns
-            slot = src % self.cmd_ring.size
-            if src < 0:
-                self.u_applied = self.plant.u0  # before t = 0 the coils held the hover voltage
-                self.last_fresh_ns = self.epoch
-            elif self.cmd_ring[slot] == prev:
-                self.u_applied = self.cmd_u[slot].copy()
-                self.last_fresh_ns = prev
+            self.n_pre = int(round(self.cfg["preroll"] / self.cfg["dt"]))
+            self.k_next = -self.n_pre
+            self.epoch = self.node.now_ns() + self.n_pre * self.dt_ns
+            self.due = now
+            self.wall0 = now + self.n_pre * self.dt_ns
+            mode = "lockstep" if self.cfg["lockstep"] else "real time"
+            self.node.logger.info(f"levitating at {self.plant.x[0] * 1e3:.3f} mm, {self.plant.u0[0]:.2f} V ({mode});"
+                                  f" t = 0 in {self.cfg['preroll']:g} s")
+        while not self.finished and now >= self.due:
+            if not self._advance(now):
+                return  # lockstep: waiting for a command
+            self._publish(self.k_next)
+            if self.k_next >= 0:
+                self.late.add(now - self.due)
+            self.k_next += 1
+            self.due += self.dt_ns
+            if self.n_end and self.k_next > self.n_end:
+                self.finish(f"finished {self.cfg['duration']:g} s", level=0)
+                return
+            now = time.monotonic_ns()
+
+    def _advance(self, now: int) -> bool:
+        """Integrate [t_k-1, t_k] for k = k_next; False when lockstep must wait for the command."""
+        k = self.k_next
+        if k == -self.n_pre:
+            return True  # the first sample: nothing to integrate yet
+        src = k - 1 - self.cfg["command_delay"]  # the sample whose command is held over [t_k-1, t_k]
+        slot = src % RING
+        if src < -self.n_pre:
+            self.u_applied = self.plant.u0  # before the loop closed the coils held the hover voltage
+        elif self.cmd_stamp[slot] == self.epoch + src * self.dt_ns:
+            self.u_applied = self.cmd_u[slot].copy()
+            self.last_fresh_k = src
+            if self.wait_since is not None:
+                self.wait_since = None
+        else:
+            timeout = (k - 1 - self.last_fresh_k) * self.cfg["dt"] > self.cfg["command_timeout"]
+            if self.cfg["lockstep"]:
+                if self.wait_since is None:
+                    self.wait_since = now
+                    self.misses += 1
+                if (now - self.wait_since) * 1e-9 < self.cfg["command_timeout"]:
+                    return False
+                self.wait_since = None
+                self.u_applied = np.zeros(2)  # the controller is gone: watchdog
+                self.watchdog += 1
+            elif k <= 0:
+                self.preroll_misses += 1  # levitating before t = 0: hold the last voltage
             else:
                 self.misses += 1
-                if prev - self.last_fresh_ns > self.cfg["command_timeout"] * 1e9:
+                if timeout:
                     self.u_applied = np.zeros(2)
                     self.watchdog += 1
-            p.advance(self.u_applied)  # x_{j-1} -> x_j under the command of sample j-1
-            if p.fault:
-                self.finish(f"plant failure at t = {p.k * self.cfg['dt']:.3f} s: {p.fault}", level=2)
-                return
-        self.k_next = k + 1
+        p = self.plant
+        if k <= 0:
+            p.hold(self.u_applied)  # pre-roll: true dynamics, no scenario disturbances, clock at 0
+        else:
+            p.advance(self.u_applied)
+        if p.fault:
+            when = "during pre-roll" if k <= 0 else f"at t = {p.k * self.cfg['dt']:.3f} s"
+            self.finish(f"plant failure {when}: {p.fault}", level=2)
+            return False
+        return True
+
+    def _publish(self, k: int) -> None:
+        p = self.plant
+        t_ns = self.epoch + k * self.dt_ns
+        frame = contract.FRAME if k >= 0 else contract.FRAME_PREROLL
         JS = self.JS
         x = p.x
-        z = p.measurement()
-        self.pub_applied.publish(joint_state(JS, t_ns, effort=self.u_applied))
+        z = p.measurement() if k >= 0 else p.measurement_preroll()
+        self.pub_wall[k % RING] = time.monotonic_ns()
+        self.pub_applied.publish(joint_state(JS, t_ns, effort=self.u_applied, frame=frame))
         self.pub_truth.publish(joint_state(JS, t_ns, position=(x[0], x[2], p.mass), velocity=(x[1], x[3]),
-                                           effort=(x[4], x[5]), names=(*contract.MAGNETS, "mass")))
+                                           effort=(x[4], x[5]), names=(*contract.MAGNETS, "mass"), frame=frame))
         vel = (z[1], z[3]) if self.cfg["measure_velocity"] else ()
-        self.pub_meas.publish(joint_state(JS, t_ns, position=(z[0], z[2]), velocity=vel, effort=(z[4], z[5])))
-        done = self.node.now_ns()
-        self.tick_late.add(tick_start - t_ns)
-        self.tick_cost.add(done - tick_start)
-        if self.n_end and p.k >= self.n_end:
-            self.finish(f"finished {self.cfg['duration']:g} s", level=0)
+        self.pub_meas.publish(joint_state(JS, t_ns, position=(z[0], z[2]), velocity=vel, effort=(z[4], z[5]), frame=frame))
 
+    # -- reporting ----------------------------------------------------------------------------
     def stats(self) -> dict:
         lat = self.lat.summary_us()
+        late = self.late.summary_us()
+        k = max(self.plant.k, 0)
+        wall = max(time.monotonic_ns() - self.wall0, 1) * 1e-9
         return {
-            "cycles": self.plant.k, "t_sim_s": round(self.plant.k * self.cfg["dt"], 3), "deadline_misses": self.misses,
-            "watchdog_zero_voltage": self.watchdog, "timer_overruns": getattr(self.timer, "overruns", 0),
+            "cycles": k, "t_sim_s": round(k * self.cfg["dt"], 3), "deadline_misses": self.misses,
+            "preroll_misses": self.preroll_misses, "watchdog_zero_voltage": self.watchdog,
+            "lockstep": self.cfg["lockstep"], "realtime_factor": round(k * self.cfg["dt"] / wall, 3) if k else 0.0,
+            "epoch_ns": self.epoch,
             "latency_p50_us": round(lat["p50"], 1), "latency_p99_us": round(lat["p99"], 1), "latency_max_us": round(lat["max"], 1),
-            "tick_lateness_p99_us": round(self.tick_late.summary_us()["p99"], 1),
-            "tick_compute_p99_us": round(self.tick_cost.summary_us()["p99"], 1),
+            "lateness_p99_us": round(late["p99"], 1),
             "failed": self.plant.fault is not None, "fault": self.plant.fault or "",
         }
 
@@ -171,8 +230,8 @@ class PlantSimNode:
         s = self.stats()
         x = self.plant.x
         print(f"t = {s['t_sim_s']:7.1f} s  gaps {x[0] * 1e3:6.3f} / {x[2] * 1e3:6.3f} mm  misses {s['deadline_misses']}"
-              f"  latency p50 {s['latency_p50_us']:.0f} us p99 {s['latency_p99_us']:.0f} us"
-              f"  tick late p99 {s['tick_lateness_p99_us']:.0f} us, compute p99 {s['tick_compute_p99_us']:.0f} us", flush=True)
+              f"  latency p50 {s['latency_p50_us']:.0f} us p99 {s['latency_p99_us']:.0f} us  x{s['realtime_factor']:.2f} real time",
+              flush=True)
         self.publish_diag(0 if s["deadline_misses"] == 0 else 1, "running")
 
     def finish(self, message: str, level: int) -> None:

@@ -1,6 +1,7 @@
 """``reference``: the reference model M(s) (Eq. 46) driven by the command schedule.
 
-The schedule's t = 0 is the stamp of the first measurement. On measurement k it
+The schedule's t = 0 is the stamp of the first measurement of the experiment
+(``frame_id == "dem"``); before it (pre-roll) the model rests at the initial command. On measurement k it
 publishes the reference for sample k+1 (stamped t_k + T), one period ahead, so
 the controller has it when measurement k+1 arrives; on the first measurement it
 also publishes sample 0. Lost measurements are caught up sample by sample, so
@@ -29,6 +30,7 @@ class ReferenceNode:
         self.model = ReferenceModel(self.cfg)
         self.dt_ns = int(round(self.cfg["dt"] * 1e9))
         self.epoch: int | None = None
+        self.pre_seen = False
         self.next_k = 0
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.JS = node.msg("sensor_msgs/msg/JointState")
@@ -54,6 +56,17 @@ class ReferenceNode:
 
     def on_measurement(self, msg) -> None:
         t = stamp_ns(msg)
+        if self.epoch is None and msg.header.frame_id == contract.FRAME_PREROLL:
+            # levitating before t = 0: the model rests at the initial command
+            y = self.model.step_hold()
+            r = command(self.cfg, -1.0)
+            self.pub.publish(named_vector(self.JS, t + self.dt_ns, contract.REFERENCE_NAMES, np.concatenate([y, r]),
+                                          frame=contract.FRAME_PREROLL))
+            if not self.pre_seen:
+                self.pre_seen = True
+                self.pub.publish(named_vector(self.JS, t, contract.REFERENCE_NAMES, np.concatenate([y, r]),
+                                              frame=contract.FRAME_PREROLL))
+            return
         if self.epoch is None:
             self.epoch = t
         k = int(round((t - self.epoch) / self.dt_ns))

@@ -33,6 +33,10 @@ __all__ = ["cmd_launch", "cmd_node", "cmd_param", "run_graph", "graph_summary", 
 NODES = ("recorder", "reference", "estimator", "controller", "plant_sim")
 
 
+class GraphError(RuntimeError):
+    """The graph could not be started or run; the message says which node and where its log is."""
+
+
 def _yaml(v: Any) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
@@ -60,7 +64,7 @@ def _wait_ready(logs: dict, procs: dict, timeout: float) -> None:
     while pending and time.monotonic() < end:
         for n, path in list(pending.items()):
             if procs[n].poll() is not None:
-                raise RuntimeError(f"node {n} exited during start-up (code {procs[n].returncode}); see {path}")
+                raise GraphError(f"node {n} exited during start-up (code {procs[n].returncode}); see {path}")
             try:
                 if "ready" in path.read_text(errors="replace"):
                     del pending[n]
@@ -68,7 +72,7 @@ def _wait_ready(logs: dict, procs: dict, timeout: float) -> None:
                 pass
         time.sleep(0.05)
     if pending:
-        raise RuntimeError(f"nodes not ready after {timeout:.0f} s: {', '.join(pending)}")
+        raise GraphError(f"nodes not ready after {timeout:.0f} s: {', '.join(pending)}")
 
 
 def _cpu_seconds(pid: int) -> float:
@@ -133,7 +137,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
         while plant.poll() is None and not interrupted and time.monotonic() < limit:
             for name, p in procs.items():
                 if name != "plant_sim" and p.poll() is not None:
-                    raise RuntimeError(f"node {name} exited early with code {p.returncode}; see {logs[name]}")
+                    raise GraphError(f"node {name} exited early with code {p.returncode}; see {logs[name]}")
             time.sleep(0.1)
             try:
                 chunk = plant.stdout.read()
@@ -188,21 +192,25 @@ def graph_summary(bag: Path) -> dict:
     from ..bag import BagReader
 
     r = BagReader(bag)
-    truth = r.joint_state_arrays("/dem/plant/truth")
-    ref = r.joint_state_arrays("/dem/reference")
-    ts, i_t, i_r = np.intersect1d(truth["stamp_ns"], ref["stamp_ns"], return_indices=True)
-    out: dict[str, Any] = {}
-    if ts.size:
-        t = (ts - ts[0]) * 1e-9
-        e = truth["position"][i_t, :2] - ref["position"][i_r, :2]
-        out.update(error_metrics(t, e))
-        out["samples"] = int(ts.size)
     loop = None
     for topic, _, msg in r.messages(["/diagnostics"]):
         for st in msg.status:
             if st.name == "plant_sim: loop":
                 loop = {kv.key: kv.value for kv in st.values}
                 loop["message"] = st.message
+    epoch = int(loop["epoch_ns"]) if loop and "epoch_ns" in loop else None
+    truth = r.joint_state_arrays("/dem/plant/truth")
+    ref = r.joint_state_arrays("/dem/reference")
+    ts, i_t, i_r = np.intersect1d(truth["stamp_ns"], ref["stamp_ns"], return_indices=True)
+    if epoch is not None:  # the experiment, not the pre-roll
+        keep = ts >= epoch
+        ts, i_t, i_r = ts[keep], i_t[keep], i_r[keep]
+    out: dict[str, Any] = {}
+    if ts.size:
+        t = (ts - ts[0]) * 1e-9
+        e = truth["position"][i_t, :2] - ref["position"][i_r, :2]
+        out.update(error_metrics(t, e))
+        out["samples"] = int(ts.size)
     out["plant_diagnostics"] = loop
     est = r.joint_state_arrays("/dem/controller/state") if "/dem/controller/state" in r.topics else None
     if est is not None and est["position"].shape[0]:
@@ -273,8 +281,9 @@ def launch(args, *, quiet: bool = False) -> dict:
         "recorder": facts["recorder"],
         "interrupted": facts["interrupted"],
     }
-    cmd = _peak_voltage(bag)
-    result["peak_voltage_v"] = cmd
+    result["peak_voltage_v"] = _peak_voltage(bag)
+    if record and bag.is_dir():  # the run-time summary travels with the bag (replay compares against it)
+        (bag / "summary.json").write_text(json.dumps(result, indent=2) + "\n")
     if tmp is not None:
         import shutil
 

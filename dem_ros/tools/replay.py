@@ -1,0 +1,321 @@
+"""``dem-ros replay`` and ``dem-ros bag``: offline analysis of recorded runs.
+
+* ``replay BAG``: the run's metrics and figures from the recording alone
+  (tracking error e = true gap - y_m matched by stamp, voltages, currents,
+  estimates, loop latency and deadline misses over time).
+* ``replay BAG --controller NAME [--set k1=60 ...]``: what-if. Re-runs a control
+  law on the recorded controller inputs (state estimate, reference, applied
+  voltage) sample by sample, as the node did, and compares its commands with the
+  recorded ones. With the recorded law and parameters it reproduces them.
+* ``replay BAG --publish``: plays the recording back onto the DDS graph at its
+  recorded rate (like ``ros2 bag play``), without ROS.
+* ``bag check BAG`` / ``bag info BAG``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import contract
+from ..core.metrics import error_metrics
+
+__all__ = ["analyse", "what_if", "cmd_replay", "cmd_bag"]
+
+
+def _arrays(reader, topic: str) -> dict | None:
+    if topic not in reader.topics or reader.topics[topic].count == 0:
+        return None
+    return reader.joint_state_arrays(topic)
+
+
+def analyse(bag: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(metrics, series) of a recorded run; series feed the figures."""
+    from ..bag import BagError, BagReader
+
+    r = BagReader(bag)
+    truth = _arrays(r, contract.TRUTH.name)
+    ref = _arrays(r, contract.REFERENCE.name)
+    meas = _arrays(r, contract.MEASUREMENT.name)
+    if ref is None or (truth is None and meas is None):
+        have = ", ".join(r.topics) or "none"
+        raise BagError(f"{bag}: not a dem_ros run (needs /dem/reference and /dem/plant/truth or /dem/measurement; has: {have})")
+    loop_hist = []
+    for _, log_ns, msg in r.messages([contract.DIAGNOSTICS.name]):
+        for s in msg.status:
+            if s.name == "plant_sim: loop":
+                loop_hist.append((log_ns, {kv.key: kv.value for kv in s.values}))
+    epoch = int(loop_hist[-1][1]["epoch_ns"]) if loop_hist and "epoch_ns" in loop_hist[-1][1] else None
+    src = truth if truth is not None else meas
+    ts, i_s, i_r = np.intersect1d(src["stamp_ns"], ref["stamp_ns"], return_indices=True)
+    if epoch is not None:  # the experiment, not the pre-roll
+        keep = ts >= epoch
+        ts, i_s, i_r = ts[keep], i_s[keep], i_r[keep]
+    t0 = ts[0] if ts.size else 0
+    t = (ts - t0) * 1e-9
+    gaps = src["position"][i_s, :2]
+    e = gaps - ref["position"][i_r, :2]
+    run = r.run_metadata() or {}
+    m: dict[str, Any] = {
+        "scenario": run.get("scenario"), "controller": run.get("controller"), "estimator": run.get("estimator"),
+        "transport": run.get("transport"), "error_source": "truth" if truth is not None else "measurement",
+        "samples": int(ts.size),
+    }
+    m.update(error_metrics(t, e))
+    cmd = _arrays(r, contract.COMMAND.name)
+    series: dict[str, Any] = {"t": t, "gaps": gaps, "ref": ref["position"][i_r, :2], "e": e}
+    if cmd is not None and cmd["effort"].size:
+        m["peak_voltage_v"] = float(np.nanmax(np.abs(cmd["effort"])))
+        lat = (cmd["log_time_ns"] - cmd["stamp_ns"]) * 1e-3
+        m["command_latency_at_recorder_us"] = {"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
+                                               "max": float(lat.max())}
+        series["cmd_t"] = (cmd["stamp_ns"] - t0) * 1e-9
+        series["cmd"] = cmd["effort"][:, :2]
+        series["cmd_latency_us"] = lat
+    if truth is not None:
+        series["current"] = truth["effort"][i_s, :2]
+        series["mass"] = truth["position"][i_s, 2] if truth["position"].shape[1] > 2 else None
+        m["peak_current_a"] = float(np.nanmax(np.abs(truth["effort"][:, :2])))
+    st = _arrays(r, contract.CONTROLLER_STATE.name)
+    if st is not None and st["position"].shape[0]:
+        names = list(st["name"])
+        last = dict(zip(names, st["position"][-1]))
+        est = np.array([last.get("m_hat", np.nan), last.get("R_hat", np.nan), last.get("K_hat", np.nan)], float)
+        m["final_estimates"] = {"m_kg": float(est[0]), "R_ohm": float(est[1]), "K": float(est[2])} if np.all(np.isfinite(est)) else None
+        series["est_t"] = (st["stamp_ns"] - t0) * 1e-9
+        series["est"] = st["position"][:, :3]
+    if loop_hist:
+        last = loop_hist[-1][1]
+        m["loop"] = {
+            "cycles": int(last.get("cycles", 0)), "deadline_misses": int(last.get("deadline_misses", 0)),
+            "latency_us": {k: float(last.get(f"latency_{k}_us", "nan")) for k in ("p50", "p99", "max")},
+        }
+        m["failed"] = last.get("failed") == "True"
+        series["loop"] = [((ln - loop_hist[0][0]) * 1e-9, int(v.get("deadline_misses", 0)), int(v.get("cycles", 0)))
+                          for ln, v in loop_hist]
+    return m, series
+
+
+def plot_replay(series: dict, out: Path, title: str) -> list[Path]:
+    from .plots import figure, overlay, save
+
+    out.mkdir(parents=True, exist_ok=True)
+    files = []
+    t = series["t"]
+    fig, ax = figure(2, 1)
+    for j in range(2):
+        overlay(ax[j], t, [(f"d{j + 1}", series["gaps"][:, j]), (f"y_m{j + 1}", series["ref"][:, j])], 1e3)
+        ax[j].set_ylabel("mm")
+    ax[0].set_title(f"{title}: tracking")
+    ax[-1].set_xlabel("t [s]")
+    files.append(save(fig, out / "tracking.png"))
+    fig, ax = figure(1, 1)
+    overlay(ax[0], t, [("e1", series["e"][:, 0]), ("e2", series["e"][:, 1])], 1e6)
+    ax[0].set_ylabel("e [um]")
+    ax[0].set_xlabel("t [s]")
+    ax[0].set_title(f"{title}: tracking error")
+    files.append(save(fig, out / "error.png"))
+    if "cmd" in series:
+        fig, ax = figure(2, 1)
+        overlay(ax[0], series["cmd_t"], [("u1", series["cmd"][:, 0]), ("u2", series["cmd"][:, 1])])
+        ax[0].set_ylabel("u [V]")
+        if series.get("current") is not None:
+            overlay(ax[1], t, [("i1", series["current"][:, 0]), ("i2", series["current"][:, 1])])
+        ax[1].set_ylabel("i [A]")
+        ax[1].set_xlabel("t [s]")
+        ax[0].set_title(f"{title}: voltages and currents")
+        files.append(save(fig, out / "inputs.png"))
+        fig, ax = figure(2, 1)
+        ax[0].plot(series["cmd_t"], series["cmd_latency_us"], ".", ms=1)
+        ax[0].set_ylabel("command latency [us]")
+        ax[0].set_yscale("log")
+        if series.get("loop"):
+            lt = [x[0] for x in series["loop"]]
+            ax[1].plot(lt, [x[1] for x in series["loop"]], "o-")
+        ax[1].set_ylabel("deadline misses (cum.)")
+        ax[1].set_xlabel("t [s]")
+        ax[0].set_title(f"{title}: loop timing")
+        files.append(save(fig, out / "loop.png"))
+    if "est" in series and np.isfinite(series["est"]).any():
+        fig, ax = figure(3, 1, 2.2)
+        for j, lab in enumerate(["m_hat [kg]", "R_hat [ohm]", "K_hat"]):
+            ax[j].plot(series["est_t"], series["est"][:, j])
+            ax[j].set_ylabel(lab)
+        if series.get("mass") is not None:
+            ax[0].plot(t, series["mass"], "k:", label="true m")
+            ax[0].legend()
+        ax[0].set_title(f"{title}: parameter estimates")
+        files.append(save(fig, out / "estimates.png"))
+    return files
+
+
+def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = None) -> dict:
+    """Re-run a law on the recorded controller inputs; compare with the recorded commands."""
+    from ..bag import BagError, BagReader
+    from ..core.controllers import make_controller
+    from ..core.params import SCHEMA, apply_overrides, default_config, parse_assignment
+
+    r = BagReader(bag)
+    run = r.run_metadata() or {}
+    cfg = run.get("config")
+    if not cfg:
+        raise BagError(f"{bag}: no recorded configuration (run_info); cannot re-run the controller")
+    cfg = apply_overrides(default_config(), {g: v for g, v in cfg.items() if g in SCHEMA.groups}, "recorded config")
+    recorded_law = cfg["controller"]["type"]
+    ccfg = dict(cfg["controller"])
+    for text in sets or []:
+        g, n, v = parse_assignment(text, "controller")
+        if g != "controller":
+            raise BagError(f"{text!r}: only controller parameters can change in a what-if replay")
+        ccfg[n] = v
+    ccfg = SCHEMA.validate_group("controller", ccfg)
+    name = controller or recorded_law
+    est = _arrays(r, contract.ESTIMATE.name)
+    ref = _arrays(r, contract.REFERENCE.name)
+    app = _arrays(r, contract.APPLIED.name)
+    cmd = _arrays(r, contract.COMMAND.name)
+    st = _arrays(r, contract.CONTROLLER_STATE.name)
+    if est is None or ref is None or cmd is None:
+        raise BagError(f"{bag}: needs /dem/state_estimate, /dem/reference and /dem/command for a what-if replay")
+    dt_ns = int(round(ccfg["dt"] * 1e9))
+    ref_by = {int(s): i for i, s in enumerate(ref["stamp_ns"])}
+    cmd_by = {int(s): i for i, s in enumerate(cmd["stamp_ns"])}
+    lag_by = {}
+    if st is not None:
+        names = list(st["name"])
+        if "ref_lag" in names:
+            col = names.index("ref_lag")
+            lag_by = {int(s): int(v) for s, v in zip(st["stamp_ns"], st["position"][:, col])}
+    ctrl = make_controller(ccfg, name)
+    started = False
+    u_new, u_old, stamps = [], [], []
+    for i, t in enumerate(est["stamp_ns"]):
+        t = int(t)
+        if t not in cmd_by:  # the node did not act on this sample (stale / invalid): neither do we
+            continue
+        x = np.array([est["position"][i, 0], est["velocity"][i, 0], est["position"][i, 1], est["velocity"][i, 1],
+                      est["effort"][i, 0], est["effort"][i, 1]], float)
+        lag = lag_by.get(t, 0)
+        j = ref_by.get(t - lag * dt_ns)
+        rv = ref["position"][j, :8].astype(float) if (j is not None and lag >= 0) else np.array([x[0], x[2], 0, 0, 0, 0, 0, 0.0])
+        if not started:
+            u0 = np.zeros(2)
+            if app is not None:
+                k = np.searchsorted(app["stamp_ns"], t, side="right") - 1
+                if k >= 0:
+                    u0 = app["effort"][k, :2].astype(float)
+            ctrl.reset(x.copy(), u0)
+            started = True
+        u = ctrl.step(x, rv).copy()
+        u_new.append(np.clip(u, -ccfg["voltage_limit"], ccfg["voltage_limit"]))
+        u_old.append(cmd["effort"][cmd_by[t], :2])
+        stamps.append(t)
+    if not stamps:
+        raise BagError(f"{bag}: no sample on which the controller acted")
+    u_new = np.array(u_new)
+    u_old = np.array(u_old)
+    d = np.abs(u_new - u_old)
+    return {
+        "law": name, "recorded_law": recorded_law, "changes": sets or [], "samples": len(stamps),
+        "max_abs_diff_v": float(d.max()), "rms_diff_v": float(np.sqrt(np.mean(d**2))),
+        "reproduces_recording": bool(d.max() <= 1e-9 * max(1.0, float(np.abs(u_old).max()))),
+        "t": ((np.array(stamps) - stamps[0]) * 1e-9).tolist(), "u_replayed": u_new.tolist(), "u_recorded": u_old.tolist(),
+    }
+
+
+def publish(bag: Path, rate: float = 1.0) -> dict:
+    """Play the bag onto the DDS graph at its recorded timing (raw CDR, contract QoS)."""
+    from ..bag import BagReader
+    from ..transport import make_node
+
+    r = BagReader(bag)
+    topics = {t.name: t for t in contract.TOPICS}
+    node = make_node("dem_ros_player", transport="dds", args=[])
+    pubs = {n: node.publisher(topics[n]) for n in r.topics if n in topics and n != contract.PARAMETER_EVENTS.name}
+    time.sleep(1.0)  # discovery
+    sent = 0
+    start = None
+    t_wall0 = time.monotonic_ns()
+    try:
+        for topic, log_ns, _pub_ns, data in r.raw_messages(list(pubs)):
+            if start is None:
+                start = log_ns
+            due = t_wall0 + int((log_ns - start) / rate)
+            now = time.monotonic_ns()
+            if due > now:
+                time.sleep((due - now) * 1e-9)
+            pubs[topic].publish_raw(data)
+            sent += 1
+    finally:
+        node.shutdown()
+    return {"published": sent, "topics": list(pubs)}
+
+
+def cmd_replay(args) -> int:
+    bag = Path(args.bag)
+    if args.publish:
+        res = publish(bag)
+        print(f"replay: published {res['published']} messages on {len(res['topics'])} topics")
+        return 0
+    if args.controller or args.set:
+        res = what_if(bag, args.controller, args.set)
+        verdict = "reproduces the recorded commands" if res["reproduces_recording"] else "differs from the recording"
+        print(f"what-if replay of {bag}: law {res['law']} (recorded: {res['recorded_law']}), changes {res['changes'] or 'none'}")
+        print(f"  {res['samples']} samples; max |u_replayed - u_recorded| = {res['max_abs_diff_v']:.3e} V,"
+              f" RMS {res['rms_diff_v']:.3e} V: {verdict}")
+        if args.json:
+            Path(args.json).write_text(json.dumps({k: v for k, v in res.items() if k not in ("t", "u_replayed", "u_recorded")}, indent=2) + "\n")
+        if args.plot:
+            from .plots import figure, save
+
+            fig, ax = figure(2, 1)
+            t = np.array(res["t"])
+            for j in range(2):
+                ax[j].plot(t, np.array(res["u_recorded"])[:, j], label="recorded")
+                ax[j].plot(t, np.array(res["u_replayed"])[:, j], "--", label=res["law"])
+                ax[j].set_ylabel(f"u{j + 1} [V]")
+                ax[j].legend()
+            ax[-1].set_xlabel("t [s]")
+            ax[0].set_title("what-if replay: commands")
+            save(fig, Path(args.plot) / "what_if.png")
+        return 0
+    m, series = analyse(bag)
+    from .cli import _fmt_pair
+
+    print(f"replay of {bag}: {m.get('scenario')} / {m.get('controller')} / {m.get('estimator')} ({m.get('transport')}), {m['samples']} samples")
+    print(f"  RMS error e1 / e2 [um]        {_fmt_pair(m['rms_error_um'])}   (e from {m['error_source']})")
+    print(f"  max error e1 / e2 [um]        {_fmt_pair(m['max_error_um'])}")
+    print(f"  RMS error after 40 s [um]     {_fmt_pair(m['rms_error_after_40s_um'])}")
+    if "peak_voltage_v" in m:
+        print(f"  peak |u| [V]                  {m['peak_voltage_v']:.2f}")
+    if m.get("loop"):
+        L = m["loop"]
+        print(f"  loop: cycles {L['cycles']}, deadline misses {L['deadline_misses']}, latency p50 {L['latency_us']['p50']:.0f} us,"
+              f" p99 {L['latency_us']['p99']:.0f} us, max {L['latency_us']['max']:.0f} us")
+    if m.get("final_estimates"):
+        fe = m["final_estimates"]
+        print(f"  final m_hat / R_hat / K_hat   {fe['m_kg']:.3f} kg / {fe['R_ohm']:.4f} ohm / {fe['K']:.4e}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(m, indent=2) + "\n")
+        print(f"  metrics written to {args.json}")
+    if args.plot:
+        files = plot_replay(series, Path(args.plot), f"{m.get('scenario')} / {m.get('controller')}")
+        print(f"  {len(files)} figures written to {args.plot}")
+    return 0
+
+
+def cmd_bag(args) -> int:
+    from ..bag import check
+
+    if args.action == "check":
+        from ..bag import main_check
+
+        return main_check([args.bag])
+    rep = check(Path(args.bag))
+    print(rep.format())
+    return 0

@@ -8,13 +8,14 @@ changes). The filter uses the *applied* voltages over the last sample.
 Model (continuous, nominal m, R, K of the ``estimator`` group)::
 
     s' = f(s, u) + G n,   f = [plant dynamics with d_j'' += beta_j ; beta' = 0]
-    n  = white: acceleration sigma_accel, voltage sigma_voltage, bias rate sigma_bias
+    n  = per-sample (held) disturbances: acceleration sigma_accel, voltage sigma_voltage,
+         bias change sigma_bias T; Q = G diag(sigma^2) G^T T^2
 
 Discrete step (period T)::
 
     predict   s <- RK4(f, s, u_{k-1}, T)
               F  = I + A T + (A T)^2 / 2,     A = df/ds (central differences)
-              Pk = F P F^T + G Qc G^T T
+              Pk = F P F^T + Q
     update    y  = z - H s                    (innovation)
               S  = H P H^T + Rm
               Kg = P H^T S^-1
@@ -94,15 +95,19 @@ def ekf_step(s, P, z, mask, u_prev, p, T, qc, rm, out) -> None:
     AT = A * T
     F = np.eye(NS) + AT + 0.5 * (AT @ AT)
     # process noise: acceleration on d', voltage through delta/(2K) on i', random walk on beta
+    # per-sample (zero-order-hold) disturbances of standard deviation sigma: a held
+    # acceleration a changes the rate by a T, a held voltage v the current by (delta/2K) v T,
+    # and the bias walks by sigma_bias T per sample
     Q = np.zeros((NS, NS))
-    Q[1, 1] = qc[0] * T
-    Q[3, 3] = qc[0] * T
+    T2 = T * T
+    Q[1, 1] = qc[0] * T2
+    Q[3, 3] = qc[0] * T2
     de1 = p[IP] * s[0] + p[IQ] * s[2]
     de2 = p[IQ] * s[0] + p[IP] * s[2]
-    Q[4, 4] = qc[1] * (de1 / (2.0 * p[IK])) ** 2 * T
-    Q[5, 5] = qc[1] * (de2 / (2.0 * p[IK])) ** 2 * T
-    Q[6, 6] = qc[2] * T
-    Q[7, 7] = qc[2] * T
+    Q[4, 4] = qc[1] * (de1 / (2.0 * p[IK])) ** 2 * T2
+    Q[5, 5] = qc[1] * (de2 / (2.0 * p[IK])) ** 2 * T2
+    Q[6, 6] = qc[2] * T2
+    Q[7, 7] = qc[2] * T2
     P[:, :] = F @ P @ F.T + Q
     nm = 0
     for i in range(6):

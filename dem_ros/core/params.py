@@ -280,9 +280,9 @@ SCHEMA = Schema(
             ParamSpec("sigma_gap", float, 1e-5, "m", "gap sensor noise standard deviation assumed by the filter", 1e-9, 1.0),
             ParamSpec("sigma_rate", float, 1e-3, "m/s", "gap-rate sensor noise standard deviation assumed by the filter", 1e-9, 100.0),
             ParamSpec("sigma_current", float, 1e-3, "A", "current sensor noise standard deviation assumed by the filter", 1e-9, 100.0),
-            ParamSpec("sigma_accel", float, 0.05, "m/s^2", "process noise: unmodelled acceleration standard deviation", 1e-9, 1e3),
-            ParamSpec("sigma_voltage", float, 1.0, "V", "process noise: unmodelled input voltage standard deviation", 1e-9, 1e4),
-            ParamSpec("sigma_bias", float, 1.0, "m/s^3", "process noise: random-walk rate of the acceleration bias states", 1e-9, 1e6),
+            ParamSpec("sigma_accel", float, 0.5, "m/s^2", "process noise: per-sample (held) unmodelled acceleration, standard deviation", 1e-9, 1e3),
+            ParamSpec("sigma_voltage", float, 1.0, "V", "process noise: per-sample (held) unmodelled input voltage, standard deviation", 1e-9, 1e4),
+            ParamSpec("sigma_bias", float, 30.0, "m/s^3", "process noise: rate of the acceleration-bias random walk (sigma_bias T per sample)", 1e-9, 1e6),
             ParamSpec("dt", float, 1e-3, "s", "sample period", 1e-5, 0.1, read_only=True),
         )
         + _geometry("model ")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import STORE, joint_state, write_bag
+from bagutil import STORE, joint_state, write_bag
 from mcap.writer import Writer as McapWriter
 
 from dem_ros.bag import BagError, BagReader, BagWriter, check, main_check

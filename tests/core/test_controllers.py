@@ -283,11 +283,6 @@ def test_A1_cone_projection_restores_invertibility(v45):
     assert abs(d[1] - np.sign(v45[1]) * d[0]) < 1e-12
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG kernels._update_paper_fixed (cone block, lines 158-165 at 17941d3): when theta5_hat has the wrong sign "
-    "(-v5 - 0.01 + |v6| < 0, the cone's polar region) the half-step moves v6 through zero and "
-    "leaves -v5 < |v6| + 0.01, so M_hat can stay singular/ill-signed. Fix: project to the apex "
-    "(v[4] = -0.01, v[5] = 0) in that case."))
 def test_A1_cone_projection_sweep_including_wrong_sign():
     rng = np.random.default_rng(41)
     for v45 in rng.uniform(-2.0, 2.0, (200, 2)):
@@ -386,21 +381,13 @@ def test_nan_measurement_gives_finite_u_and_fault(name, channel):
     assert ctrl.diag[K.D_FAULT] == 1
 
 
-_POISONED = pytest.mark.xfail(strict=True, reason=(
-    "BUG kernels.ce_step (from line 313 at 17941d3) / pid_step (line 442): a NaN gap or current is not "
-    "rejected before the update: e_c, the estimates (v, theta) and the F(s) bank Z (or the PID "
-    "integrator) become NaN for good, so every later u is 0 V (fault); adaptive_enhanced even "
-    "raises LinAlgError from eigvalsh on the next step. Fix: at the top of ce_step/pid_step, if "
-    "any of meas[0], meas[2], meas[4], meas[5] (or meas[1], meas[3]) is not finite, set u (hold "
-    "the last u, or 0), diag fault = 1 and return before touching estimates, P, Z or integ."))
-
 
 @pytest.mark.parametrize("name", [
-    pytest.param("adaptive", marks=_POISONED),
-    pytest.param("adaptive_enhanced", marks=_POISONED),
-    pytest.param("paper_fixed", marks=_POISONED),
-    pytest.param("paper", marks=_POISONED),
-    pytest.param("decentralized_pid", marks=_POISONED),
+    "adaptive",
+    "adaptive_enhanced",
+    "paper_fixed",
+    "paper",
+    "decentralized_pid",
     "nonlinear_decoupling",
 ])
 def test_controller_recovers_after_one_nan_gap_sample(name):

@@ -107,19 +107,10 @@ def test_S2_nonlinear_decoupling_offset_60s(scenarios):
 # ---------------------------------------------------------------------------
 # command delay (the graph's timing: plant_sim/controller command_delay = 1)
 # ---------------------------------------------------------------------------
-_A1_DELAY = pytest.mark.xfail(strict=True, reason=(
-    "REGRESSION of 17941d3 (delay compensation): paper_fixed (A1) with delay=1 now makes a 4.75 mm "
-    "excursion at t = 0.13 s, at hover before any step (0.20 mm max before that commit). "
-    "kernels._predict predicts the state with (m, R, K) = physical_estimates(theta_hat), i.e. only "
-    "theta1/theta5, theta2/theta5, theta7+theta8 of A1's 8 free parameters (R_hat = 17.2 ohm after the "
-    "A1 hover init): not the model the CE law uses, and not in equilibrium at the measured hover. "
-    "Fix: in ce_step skip the prediction (use the d = 0 law) for MODE_PAPER and MODE_PAPER_FIX, or "
-    "predict the outputs with the theta_hat model itself (acceleration W2^T theta_hat + g, jerk W3^T theta_hat)."))
-
 
 @pytest.mark.parametrize("controller", [
     "adaptive", "adaptive_enhanced", "nonlinear_decoupling", "decentralized_pid",
-    pytest.param("paper_fixed", marks=_A1_DELAY),
+    "paper_fixed",
 ])
 def test_delay_1_still_levitates_15s(scenarios, controller):
     """A command one sample late (delay=1): the loop still levitates and tracks both steps (|e| < 1 mm). 15 s run."""
@@ -212,13 +203,6 @@ def test_bad_duration_rejected(scenarios):
         simulate(scenarios["S1"].config(), duration=0.0)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG simulate.py (17941d3), _batch line 257 passes the plant delay as a literal 0 to _closed_loop, "
-    "while simulate_batch builds the controller from cfg['controller'] whose command_delay is now 1 by "
-    "default: every batch plant gets its command immediately while the law predicts one sample ahead, "
-    "so batch runs match neither simulate() nor the graph. Fix: pass pc['command_delay'] into _batch "
-    "and on to _closed_loop, and build the controller with command_delay = pc['command_delay'] as "
-    "simulate() does."))
 def test_simulate_batch_agrees_with_single_runs_50s(scenarios):
     """simulate_batch over added masses 0, 1.5, 3 kg == three single runs (no noise, no estimator). 50 s runs.
 

@@ -155,13 +155,19 @@ def _update_paper_fixed(cp, theta, v, scale, P, xi, ec) -> None:
     for i in range(8):
         for j in range(8):
             P[i, j] -= 0.5 * (dP[i, j] + dP[j, i])
-    # cone: theta5 = -A/2 < 0 and |theta5| > |theta6| keeps M_hat invertible
+    # cone {-v5 >= |v6| + 0.01}: theta5 = -A/2 < 0 and |theta5| > |theta6| keep M_hat invertible.
+    # Orthogonal projection onto the nearer face, or onto the apex when that face step
+    # would carry v6 through zero (the region below both faces).
     s6 = 1.0 if v[5] >= 0.0 else -1.0
     g = -v[4] - s6 * v[5] - 0.01
     if g < 0.0:
         t = -0.5 * g
-        v[4] -= t
-        v[5] -= s6 * t
+        if t > abs(v[5]):
+            v[4] = -0.01
+            v[5] = 0.0
+        else:
+            v[4] -= t
+            v[5] -= s6 * t
     for i in range(8):
         theta[i] = scale[i] * v[i]
 
@@ -257,6 +263,9 @@ def _ce_law(theta, ab, ve1, ve2, u) -> None:
 def _predict(mode, cp, theta, v, scale, uh, delay, x) -> bool:
     """Advance ``x`` by ``delay`` samples under uh[delay-1], ..., uh[0] with the estimated model."""
     est = np.empty(3)
+    if mode == MODE_PAPER or mode == MODE_PAPER_FIX:
+        # eight free thetas need not describe any physical (m, R, K): no model to predict with
+        return False
     if mode == MODE_ADAPTIVE or mode == MODE_ENHANCED:
         mu = scale[0] * v[0]
         R = scale[1] * v[1]
@@ -290,7 +299,15 @@ def _predict(mode, cp, theta, v, scale, uh, delay, x) -> bool:
 
 @njit(cache=True)
 def ce_step(mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, meas, ref, u, diag) -> None:
-    """One sample of the CE family. ``meas`` = [d1, d1', d2, d2', i1, i2], ``ref`` = reference (8,)."""
+    """One sample of the CE family. ``meas`` = [d1, d1', d2, d2', i1, i2], ``ref`` = reference (8,).
+
+    A non-finite measurement or reference leaves every state untouched: ``u`` keeps the
+    previous command and the fault flag is set (the caller decides whether to send it).
+    """
+    if not (np.all(np.isfinite(meas)) and np.all(np.isfinite(ref))):
+        diag[D_FAULT] = 1.0
+        diag[D_ADAPT] = 0.0
+        return
     k1 = cp[CP_K1]
     k2 = cp[CP_K2]
     k3 = cp[CP_K3]
@@ -344,7 +361,10 @@ def ce_step(mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, meas, ref, u, diag)
         xp[0] = d1
         xp[2] = d2
         if not _predict(mode, cp, theta, v, scale, uh, delay, xp):
-            fault = 1.0
+            for i in range(6):  # no usable model: act on the measured state
+                xp[i] = meas[i]
+            xp[0] = d1
+            xp[2] = d2
         rp = np.empty(8)
         tau = delay * cp[CP_TS]
         for j in range(2):
@@ -424,7 +444,13 @@ NPID = 8
 
 @njit(cache=True)
 def pid_step(cp, integ, meas, ref, u, diag) -> None:
-    """i_ref = y_m sqrt(F0/K) + kp e + kd (d' - y_m') + ki int e;  u = R i_ref + kc (i_ref - i)."""
+    """i_ref = y_m sqrt(F0/K) + kp e + kd (d' - y_m') + ki int e;  u = R i_ref + kc (i_ref - i).
+
+    A non-finite measurement or reference leaves the integrators untouched and sets the fault flag.
+    """
+    if not (np.all(np.isfinite(meas)) and np.all(np.isfinite(ref))):
+        diag[D_FAULT] = 1.0
+        return
     fault = 0.0
     for j in range(2):
         e = meas[2 * j] - ref[j]

@@ -35,7 +35,7 @@ REFERENCE_NAMES = (
     "y_1", "y_2", "dy_1", "dy_2", "ddy_1", "ddy_2", "dddy_1", "dddy_2", "r_1", "r_2",
 )
 #: m_hat [kg], R_hat [ohm], K_hat [N m^2/A^2], e_c [m], tracking error e [m], flags, and
-#: ref_lag: how many samples the reference used lags the measurement (0 normally; -1: none yet).
+#: ref_lag: how many samples the reference used lags the measurement (0 normally, -1: one ahead; NaN: none yet).
 CONTROLLER_STATE_NAMES = (
     "m_hat", "R_hat", "K_hat", "ec_1", "ec_2", "e_1", "e_2", "adapting", "age_s", "fault", "ref_lag",
 )
@@ -50,7 +50,9 @@ class QoS:
     depth: int = 10
 
 
-QOS_STREAM = QoS(reliable=True, transient_local=False, depth=10)
+#: 1 kHz streams: reliable, 100 samples (100 ms) of history so a briefly stalled reader (the
+#: recorder writing a chunk) loses nothing.
+QOS_STREAM = QoS(reliable=True, transient_local=False, depth=100)
 QOS_LATCHED = QoS(reliable=True, transient_local=True, depth=1)
 QOS_PARAM_EVENTS = QoS(reliable=True, transient_local=False, depth=1000)
 

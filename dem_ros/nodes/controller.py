@@ -37,7 +37,7 @@ class ControllerNode:
         self.ref = None
         self.ref_stamp = -1
         self.u_applied = None
-        self.ref_lag = -1
+        self.ref_lag = float("nan")
         self.counts = {"steps": 0, "stale": 0, "non_finite_input": 0, "non_finite_output": 0, "reference_mismatch": 0}
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.JS = node.msg("sensor_msgs/msg/JointState")
@@ -92,7 +92,7 @@ class ControllerNode:
         ref = self.ref
         if ref is None:  # first sample before any reference: hold the measured hover
             ref = np.array([xh[0], xh[2], 0, 0, 0, 0, 0, 0], dtype=float)
-            self.ref_lag = -1
+            self.ref_lag = float("nan")
         else:
             self.ref_lag = int(round((t - self.ref_stamp) / (self.cfg["dt"] * 1e9)))
         if self.ref_lag != 0:

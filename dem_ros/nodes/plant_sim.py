@@ -167,7 +167,10 @@ class PlantSimNode:
             if self.cfg["lockstep"]:
                 if self.wait_since is None:
                     self.wait_since = now
-                    self.misses += 1
+                    if k > 0:
+                        self.misses += 1
+                    else:
+                        self.preroll_misses += 1
                 if (now - self.wait_since) * 1e-9 < self.cfg["command_timeout"]:
                     return False
                 self.wait_since = None

@@ -60,15 +60,16 @@ class ReferenceNode:
             # levitating before t = 0: the model rests at the initial command
             y = self.model.step_hold()
             r = command(self.cfg, -1.0)
-            self.pub.publish(named_vector(self.JS, t + self.dt_ns, contract.REFERENCE_NAMES, np.concatenate([y, r]),
-                                          frame=contract.FRAME_PREROLL))
+            vec = np.concatenate([y, r])
             if not self.pre_seen:
                 self.pre_seen = True
-                self.pub.publish(named_vector(self.JS, t, contract.REFERENCE_NAMES, np.concatenate([y, r]),
-                                              frame=contract.FRAME_PREROLL))
+                self.pub.publish(named_vector(self.JS, t, contract.REFERENCE_NAMES, vec, frame=contract.FRAME_PREROLL))
+            self.pub.publish(named_vector(self.JS, t + self.dt_ns, contract.REFERENCE_NAMES, vec, frame=contract.FRAME_PREROLL))
             return
         if self.epoch is None:
             self.epoch = t
+            if self.pre_seen:
+                self.next_k = 1  # sample 0 went out with the last pre-roll sample (the model at rest)
         k = int(round((t - self.epoch) / self.dt_ns))
         self._publish_upto(k + 1)
 

@@ -17,6 +17,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from datetime import datetime
 from pathlib import Path
@@ -114,7 +115,9 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
         nonlocal interrupted
         interrupted = True
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    old = {}
+    if threading.current_thread() is threading.main_thread():  # Ctrl-C / SIGTERM stop the graph cleanly
+        old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     t0 = time.monotonic()
     try:
         for name in NODES:
@@ -131,7 +134,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
                 _wait_ready({n: logs[n] for n in procs if n != "plant_sim"}, procs, timeout=120.0)
         plant = procs["plant_sim"]
         plant_log = open(logs["plant_sim"], "w")
-        limit = time.monotonic() + duration + 60.0
+        limit = time.monotonic() + 60.0 + 10.0 * (duration + cfg["plant_sim"]["preroll"])  # lockstep may run below real time
         os.set_blocking(plant.stdout.fileno(), False)
         buf = ""
         while plant.poll() is None and not interrupted and time.monotonic() < limit:

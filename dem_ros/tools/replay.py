@@ -190,7 +190,7 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
         names = list(st["name"])
         if "ref_lag" in names:
             col = names.index("ref_lag")
-            lag_by = {int(s): int(v) for s, v in zip(st["stamp_ns"], st["position"][:, col])}
+            lag_by = {int(s): v for s, v in zip(st["stamp_ns"], st["position"][:, col])}
     ctrl = make_controller(ccfg, name)
     started = False
     u_new, u_old, stamps = [], [], []
@@ -200,9 +200,10 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
             continue
         x = np.array([est["position"][i, 0], est["velocity"][i, 0], est["position"][i, 1], est["velocity"][i, 1],
                       est["effort"][i, 0], est["effort"][i, 1]], float)
-        lag = lag_by.get(t, 0)
-        j = ref_by.get(t - lag * dt_ns)
-        rv = ref["position"][j, :8].astype(float) if (j is not None and lag >= 0) else np.array([x[0], x[2], 0, 0, 0, 0, 0, 0.0])
+        lag = lag_by.get(t, 0.0)
+        j = ref_by.get(t - int(lag) * dt_ns) if np.isfinite(lag) else None
+        # the node's fallback before any reference arrived: hold the measured hover
+        rv = ref["position"][j, :8].astype(float) if j is not None else np.array([x[0], x[2], 0, 0, 0, 0, 0, 0.0])
         if not started:
             u0 = np.zeros(2)
             if app is not None:

@@ -31,6 +31,35 @@ def _node_fqn(node_name: str) -> str:
     return n if n.startswith("/") else "/" + n
 
 
+_ENDPOINTS: dict = {}
+
+
+def _endpoints(p: Any, fqn: str, srv: str) -> tuple:
+    """The client's request writer / reply reader for one service, kept for the process.
+
+    Reusing them means a second call needs no new endpoint discovery, which a node
+    whose loop runs flat out can take a long time to process.
+    """
+    key = (p.settings.domain_id, fqn, srv)
+    ep = _ENDPOINTS.get(key)
+    if ep is None or ep[0] is not p:
+        srv_type, req_cls, rep_cls = msgs.SERVICES[srv]
+        rq, rr = wire.service_topics(fqn + "/" + srv)
+        guid = random.getrandbits(63) | 1
+        ud = f"clientid={guid:x}.{random.getrandbits(32):x};"
+        distro = p.settings.distro
+        writer = DataWriter(p.dp, p.topic(rq, req_cls),
+                            qos=wire.dds_qos(QOS_SERVICES, wire.user_data_for_endpoint(srv_type + "_Request", distro, ud)))
+        reader = DataReader(p.dp, p.topic(rr, rep_cls),
+                            qos=wire.dds_qos(QOS_SERVICES, wire.user_data_for_endpoint(srv_type + "_Response", distro, ud)))
+        ws = WaitSet(p.dp)
+        cond = ReadCondition(reader, _ANY)
+        ws.attach(cond)
+        ep = [p, writer, reader, ws, cond, guid, 0]
+        _ENDPOINTS[key] = ep
+    return ep
+
+
 def call_service(node_name: str, srv: str, request: Any, *, domain_id: int | None = None,
                  timeout_s: float = 2.0) -> Any:
     """Call ``<node>/<srv>`` (one of msgs.SERVICES) and return the response message.
@@ -38,53 +67,47 @@ def call_service(node_name: str, srv: str, request: Any, *, domain_id: int | Non
     Raises TransportError when no server answers within ``timeout_s``.
     """
     fqn = _node_fqn(node_name)
-    srv_type, req_cls, rep_cls = msgs.SERVICES[srv]
     p = Participant.get(domain_id)
-    rq, rr = wire.service_topics(fqn + "/" + srv)
-    guid = random.getrandbits(63) | 1
-    ud = f"clientid={guid:x}.{random.getrandbits(32):x};"
-    distro = p.settings.distro
-    writer = DataWriter(p.dp, p.topic(rq, req_cls),
-                        qos=wire.dds_qos(QOS_SERVICES, wire.user_data_for_endpoint(srv_type + "_Request", distro, ud)))
-    reader = DataReader(p.dp, p.topic(rr, rep_cls),
-                        qos=wire.dds_qos(QOS_SERVICES, wire.user_data_for_endpoint(srv_type + "_Response", distro, ud)))
-    ws = WaitSet(p.dp)
-    cond = ReadCondition(reader, _ANY)
-    ws.attach(cond)
-    deadline = time.monotonic() + timeout_s
     try:
-        while not (writer.get_matched_subscriptions() and reader.get_matched_publications()):
-            if time.monotonic() > deadline:
-                raise TransportError(
-                    f"no parameter service {fqn}/{srv} on ROS_DOMAIN_ID={p.settings.domain_id} "
-                    f"within {timeout_s:g} s (is the node running?)"
-                )
-            time.sleep(0.005)
-        request.guid = guid
-        request.seq = 1
-        data = request.serialize()
-        ddspy_write(writer._ref, data + b"\0" * (-len(data) % 4))
-        while True:
-            left = deadline - time.monotonic()
-            if left <= 0:
-                raise TransportError(f"{fqn}/{srv}: no reply within {timeout_s:g} s")
-            ws.wait(int(min(left, 0.2) * 1e9))
-            got = ddspy_take(reader._ref, _ANY, 16)
-            if isinstance(got, int):
-                continue
-            for raw, info in got:
-                if info.valid_data:
-                    rep = rep_cls.deserialize(raw)
-                    if rep.guid == guid and rep.seq == 1:
-                        return rep
+        return _call(p, fqn, srv, request, timeout_s)
     finally:
-        ws.detach(cond)
-        for e in (cond, reader, writer, ws):
-            try:
-                e.__del__()
-            except Exception:
-                pass
-        p.release_if_unused()
+        if not p._nodes:  # a one-shot client process: release everything, as we found it
+            for key in [k for k, v in _ENDPOINTS.items() if v[0] is p]:
+                del _ENDPOINTS[key]
+            p.release_if_unused()
+
+
+def _call(p: Any, fqn: str, srv: str, request: Any, timeout_s: float) -> Any:
+    _srv_type, _req_cls, rep_cls = msgs.SERVICES[srv]
+    ep = _endpoints(p, fqn, srv)
+    _, writer, reader, ws, _cond, guid, _ = ep
+    deadline = time.monotonic() + timeout_s
+    while not (writer.get_matched_subscriptions() and reader.get_matched_publications()):
+        if time.monotonic() > deadline:
+            raise TransportError(
+                f"no parameter service {fqn}/{srv} on ROS_DOMAIN_ID={p.settings.domain_id} "
+                f"within {timeout_s:g} s (is the node running?)"
+            )
+        time.sleep(0.005)
+    ep[6] += 1
+    seq = ep[6]
+    request.guid = guid
+    request.seq = seq
+    data = request.serialize()
+    ddspy_write(writer._ref, data + b"\0" * (-len(data) % 4))
+    while True:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise TransportError(f"{fqn}/{srv}: no reply within {timeout_s:g} s")
+        ws.wait(int(min(left, 0.2) * 1e9))
+        got = ddspy_take(reader._ref, _ANY, 16)
+        if isinstance(got, int):
+            continue
+        for raw, info in got:
+            if info.valid_data:
+                rep = rep_cls.deserialize(raw)
+                if rep.guid == guid and rep.seq == seq:
+                    return rep
 
 
 def param_get(node_name: str, name: str, *, domain_id: int | None = None, timeout_s: float = 2.0) -> Any:

@@ -501,7 +501,8 @@ class DdsNode:
             payload = rep.serialize()
             payload += b"\0" * (-len(payload) % 4)
             clientid = _user_data_key(reader_box[0], info.publication_handle, "clientid")
-            self._pending_replies.append((time.monotonic_ns() + 100_000_000, writer, payload, clientid))
+            # wait for the client's reader to match (rmw_cyclonedds: 100 ms; a busy 1 kHz node needs longer)
+            self._pending_replies.append((time.monotonic_ns() + 5_000_000_000, writer, payload, clientid))
             self._flush_replies()
 
         reader_box.append(self._make_reader(rq, srv_type + "_Request", req_cls, QOS_SERVICES, handle, extra_ud=ud))

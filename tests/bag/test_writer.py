@@ -137,7 +137,7 @@ def test_mcap_records_match_rosbag2_conventions(bag: Path, stream) -> None:
 
 def test_qos_string_is_yaml_cpp_block_form() -> None:
     """The v8 QoS string, byte for byte as rosbag2 (yaml-cpp YAML::Dump) writes it."""
-    assert qos_to_v8_string(QOS_STREAM) == (
+    assert qos_to_v8_string(QoS(reliable=True, transient_local=False, depth=10)) == (
         "- history: 1\n  depth: 10\n  reliability: 1\n  durability: 2\n"
         "  deadline:\n    sec: 9223372036\n    nsec: 854775807\n"
         "  lifespan:\n    sec: 9223372036\n    nsec: 854775807\n"

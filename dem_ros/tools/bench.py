@@ -61,10 +61,13 @@ def _peer(cfg, duration: float, ref_arrays):
     ctrl = make_controller(cfg["controller"], "adaptive")
     ctrl.reset(x.copy(), u0)
     X = np.zeros((n, 6))
+    d = pc["command_delay"]
+    held = [u0.copy() for _ in range(d)]  # the same command delay as ours: u_k is held over [t_k+d, t_k+d+1)
     t0 = time.perf_counter()
     for k in range(n):
         X[k] = x
-        u = ctrl.step(x.copy(), ref[k]).copy()
+        held.append(ctrl.step(x.copy(), ref[k]).copy())
+        u = held.pop(0)
         sol = solve_ivp(f, (0.0, dt), x, args=(u,), method="RK45", rtol=1e-10, atol=1e-13)
         x = sol.y[:, -1]
     return X, time.perf_counter() - t0

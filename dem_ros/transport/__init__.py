@@ -135,7 +135,12 @@ def run_node(
                 previous[sig] = signal.signal(sig, stop)
             except ValueError:  # not the main thread: the caller handles signals
                 pass
-        setup(node)
+        try:
+            setup(node)
+        except Exception:
+            if getattr(node, "is_shutdown", False) or getattr(node, "_node", True) is None:
+                return 0  # stopped (Ctrl-C / SIGTERM) while setting up: not an error
+            raise
         # Everything allocated so far (numba, the middleware, the node) lives for the whole run:
         # move it out of the collector's reach. A full collection over it takes ~100 ms, which a
         # 1 kHz loop cannot absorb; afterwards collections only scan what the loop allocates.

@@ -278,7 +278,9 @@ def launch(args, *, quiet: bool = False) -> dict:
             "cycles": int(loop.get("cycles", 0)), "deadline_misses": int(loop.get("deadline_misses", 0)),
             "latency_us": {"p50": float(loop.get("latency_p50_us", "nan")), "p99": float(loop.get("latency_p99_us", "nan")),
                            "max": float(loop.get("latency_max_us", "nan"))},
-            "cpu_percent": facts["cpu_percent"],
+            "cpu_percent": _with_plant_cpu(facts["cpu_percent"], loop),
+            "realtime_factor": float(loop.get("realtime_factor", "nan")),
+            "lockstep": loop.get("lockstep") == "True",
         },
         "bag": str(bag) if record else None,
         "recorder": facts["recorder"],
@@ -292,6 +294,16 @@ def launch(args, *, quiet: bool = False) -> dict:
 
         shutil.rmtree(tmp, ignore_errors=True)
     return result
+
+
+def _with_plant_cpu(cpu: dict, loop: dict) -> dict:
+    """The plant exits before the launcher can read its CPU time: it reports its own."""
+    out = dict(cpu)
+    try:
+        out["plant_sim"] = round(100.0 * float(loop["cpu_s"]) / float(loop["wall_s"]), 1)
+    except (KeyError, ValueError, ZeroDivisionError):
+        pass
+    return out
 
 
 def _peak_voltage(bag: Path) -> float | None:
@@ -319,7 +331,8 @@ def print_summary(res: dict) -> None:
         print(f"  final m_hat / R_hat / K_hat         {fe['m_kg']:.3f} kg / {fe['R_ohm']:.4f} ohm / {fe['K']:.4e}")
     print(f"  loop: cycles {L['cycles']}, deadline misses {L['deadline_misses']}"
           f" ({100.0 * L['deadline_misses'] / max(L['cycles'], 1):.3f} %), latency p50 {L['latency_us']['p50']:.0f} us,"
-          f" p99 {L['latency_us']['p99']:.0f} us, max {L['latency_us']['max']:.0f} us")
+          f" p99 {L['latency_us']['p99']:.0f} us, max {L['latency_us']['max']:.0f} us;"
+          f" x{L.get('realtime_factor', float('nan')):.2f} real time{' (lockstep)' if L.get('lockstep') else ''}")
     print("  CPU [% of one core]                 " + ", ".join(f"{k} {v:.1f}" for k, v in L["cpu_percent"].items())
           + f"; total {sum(L['cpu_percent'].values()):.1f}")
     if res.get("recorder"):

@@ -259,6 +259,7 @@ SCHEMA = Schema(
             ParamSpec("command_delay", int, 1, "samples", "the command computed from sample k is held over [t_k+d, t_k+d+1): d = 1 gives the graph a full period to deliver it", 0, 8),
             ParamSpec("duration", float, 0.0, "s", "graph: stop after this much simulated time (0: run until stopped)", 0.0, 1e7),
             ParamSpec("lockstep", bool, True, "", "graph: wait for the command a sample needs (simulated clock may fall behind wall time); false: hardware-like timing"),
+            ParamSpec("lockstep_timeout", float, 1.0, "s", "lockstep: wait this long for a command before the watchdog applies 0 V (a dead controller)", 1e-3, 600.0),
             ParamSpec("preroll", float, 1.0, "s", "graph: levitate in closed loop this long before t = 0 (frame_id dem/preroll)", 0.0, 600.0),
             ParamSpec("start_delay", float, 3.0, "s", "graph: wait at least this long after start-up before t = 0 (discovery)", 0.0, 600.0),
             ParamSpec("min_subscribers", int, 2, "", "graph: wait (up to 30 s) until this many readers match /dem/measurement (estimator, reference)", 0, 100),

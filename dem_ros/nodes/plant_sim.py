@@ -11,7 +11,7 @@ Two timing modes:
 * ``lockstep: true`` (default, simulation): when the command a sample needs has
   not arrived by its deadline, the plant waits for it (a counted deadline
   miss) and its clock falls behind wall time; the closed loop is then exactly
-  the offline simulator's, however slow the machine. After ``command_timeout``
+  the offline simulator's, however slow the machine. After ``lockstep_timeout``
   without it, the plant proceeds with 0 V (watchdog), so a dead controller
   cannot freeze the simulation.
 * ``lockstep: false`` (hardware-like): time does not wait; a missing command is
@@ -171,7 +171,7 @@ class PlantSimNode:
                         self.misses += 1
                     else:
                         self.preroll_misses += 1
-                if (now - self.wait_since) * 1e-9 < self.cfg["command_timeout"]:
+                if (now - self.wait_since) * 1e-9 < self.cfg["lockstep_timeout"]:
                     return False
                 self.wait_since = None
                 self.u_applied = np.zeros(2)  # the controller is gone: watchdog

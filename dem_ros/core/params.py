@@ -34,6 +34,7 @@ __all__ = [
     "SCHEMA",
     "TABLE2",
     "load_params_file",
+    "read_yaml",
     "default_config",
 ]
 
@@ -348,7 +349,9 @@ def default_config() -> dict[str, dict[str, Any]]:
     return {g: SCHEMA.defaults(g) for g in SCHEMA.groups}
 
 
-def _read_yaml(path: Path) -> Any:
+def read_yaml(path: str | Path) -> Any:
+    """Parse a YAML file; ConfigError naming the file when it cannot be read or parsed."""
+    path = Path(path)
     import yaml
 
     try:
@@ -411,7 +414,7 @@ def params_from_tree(tree: Any, source: str) -> dict[str, dict[str, Any]]:
 def load_params_file(path: str | Path, base: Mapping[str, Mapping[str, Any]] | None = None) -> dict[str, dict[str, Any]]:
     """Load and validate a ROS 2 params file on top of ``base`` (default: schema defaults)."""
     path = Path(path)
-    overrides = params_from_tree(_read_yaml(path), str(path))
+    overrides = params_from_tree(read_yaml(path), str(path))
     return apply_overrides(base or default_config(), overrides, str(path))
 
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-from ..core.params import SCHEMA, ConfigError, apply_overrides, default_config, params_from_tree
+from ..core.params import SCHEMA, ConfigError, apply_overrides, default_config, params_from_tree, read_yaml
 
 __all__ = ["RosArgs", "parse_ros_args", "initial_parameters"]
 
@@ -105,26 +105,13 @@ def parse_ros_args(args: Sequence[str] | None) -> RosArgs:
     return out
 
 
-def _read_params_file(path: str) -> Any:
-    import yaml
-
-    try:
-        text = Path(path).read_text()
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
-
-
 def initial_parameters(group: str, ros_args: RosArgs, node_name: str | None = None) -> dict[str, Any]:
     """Schema defaults <- params files <- ``-p`` overrides, validated; raises ConfigError."""
     if group not in SCHEMA.groups:
         raise ConfigError(f"unknown parameter group {group!r}; known: {', '.join(SCHEMA.groups)}")
     cfg = default_config()
     for path in ros_args.params_files:
-        cfg = apply_overrides(cfg, params_from_tree(_read_params_file(path), path), path)
+        cfg = apply_overrides(cfg, params_from_tree(read_yaml(path), path), path)
     cli = {
         name: value
         for node, name, value in ros_args.params

@@ -220,6 +220,9 @@ def test_parameter_services_from_another_process(domain_id, spawn, tmp_path, wai
     watcher = make_node(f"watch_{domain_id}", transport="dds", args=[])
     events = []
     watcher.subscribe(contract.PARAMETER_EVENTS, events.append)
+    end = time.monotonic() + 1.5  # /parameter_events is volatile: let the watcher match first
+    while time.monotonic() < end:
+        watcher.spin_once(0.05)
     try:
         assert param_get(fqn, "k1") == 80.0
         assert param_get(fqn, "k2") == 1700.0

@@ -27,8 +27,12 @@ from dem_ros import contract
 from dem_ros.transport import make_node, param_get, param_list, param_set
 
 JOINT_STATE_HASH = "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e"  # Jazzy
+# rmw_cyclonedds' LOCALHOST configuration. A Jazzy process (Cyclone 0.10) accepts discovery
+# arriving over lo whatever interface it selected; this reader runs on PyPI Cyclone 11, which
+# drops discovery from unselected interfaces, so it selects lo explicitly to behave the same.
 LOCALHOST_XML = (
-    "<CycloneDDS><Domain><General><AllowMulticast>false</AllowMulticast></General>"
+    "<CycloneDDS><Domain><General><Interfaces><NetworkInterface address=\"127.0.0.1\"/></Interfaces>"
+    "<AllowMulticast>false</AllowMulticast></General>"
     "<Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>32</MaxAutoParticipantIndex>"
     '<Peers><Peer address="localhost"/></Peers></Discovery></Domain></CycloneDDS>'
 )

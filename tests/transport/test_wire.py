@@ -127,12 +127,28 @@ def test_domain_id_bad(raw):
 def test_discovery_config_localhost_mirrors_rmw_cyclonedds():
     s = wire.settings_from_env(env={"CYCLONEDDS_URI": "file:///tmp/x.xml"})
     assert (s.domain_id, s.distro, s.discovery_range, s.gid_size) == (0, "jazzy", "LOCALHOST", 16)
-    cfg = wire.domain_config(s)
-    assert cfg == (
+    rmw = (
         "<CycloneDDS><Domain><General><AllowMulticast>false</AllowMulticast></General>"
         "<Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>32</MaxAutoParticipantIndex>"
         '<Peers><Peer address="localhost"/></Peers></Discovery></Domain></CycloneDDS>,file:///tmp/x.xml'
     )
+    assert wire.rmw_domain_config(s) == rmw
+    # Cyclone >= 11 drops SPDP arriving on an unselected interface; rmw_cyclonedds' LOCALHOST
+    # announcements arrive on lo, so dem_ros selects it explicitly in front of the rmw string
+    lo = '<CycloneDDS><Domain><General><Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces></General></Domain></CycloneDDS>,'
+    assert wire.domain_config(s) == lo + rmw
+
+
+def test_localhost_interface_fragment_yields_to_user_and_peers(tmp_path):
+    peers = wire.settings_from_env(env={"ROS_STATIC_PEERS": "192.0.2.7"})
+    assert 'autodetermine="true"' in wire.interface_config(peers) and "127.0.0.1" in wire.interface_config(peers)
+    inline = wire.settings_from_env(env={"CYCLONEDDS_URI": '<General><Interfaces><NetworkInterface name="eth1"/></Interfaces></General>'})
+    assert wire.interface_config(inline) == ""
+    f = tmp_path / "cyclone.xml"
+    f.write_text('<CycloneDDS><Domain><General><Interfaces><NetworkInterface name="lo"/></Interfaces></General></Domain></CycloneDDS>')
+    assert wire.interface_config(wire.settings_from_env(env={"CYCLONEDDS_URI": f"file://{f}"})) == ""
+    for rng in ("SUBNET", "OFF", "SYSTEM_DEFAULT"):
+        assert wire.interface_config(wire.settings_from_env(env={"ROS_AUTOMATIC_DISCOVERY_RANGE": rng})) == ""
     sub = wire.settings_from_env(env={"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "DEM_ROS_DISTRO": "humble"})
     assert sub.gid_size == 24
     assert "AllowMulticast" not in wire.domain_config(sub)

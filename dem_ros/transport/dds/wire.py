@@ -13,6 +13,7 @@ Sources (ros2/rmw_cyclonedds, ``rmw_cyclonedds_cpp/src/rmw_node.cpp``):
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -23,6 +24,8 @@ __all__ = [
     "Settings",
     "settings_from_env",
     "domain_config",
+    "rmw_domain_config",
+    "interface_config",
     "topic_name",
     "service_topics",
     "type_hash",
@@ -92,7 +95,57 @@ def settings_from_env(domain_id: int | None = None, env: dict[str, str] | None =
     return Settings(int(domain_id), distro, rng, peers, env.get("CYCLONEDDS_URI", ""))
 
 
+# Cyclone DDS >= 11 (the PyPI binding) ignores SPDP that arrives over a network interface it
+# has not selected (cyclonedds a4937a96 "Ignore SPDP from non-selected interfaces"; relaxed
+# again upstream by PR #2457, after 11.0.1). The 0.10.x under rmw_cyclonedds has no such
+# check. Under LOCALHOST every rmw_cyclonedds participant unicasts its SPDP to 127.0.0.1
+# (all 32 auto-index ports); that arrives over ``lo``, whereas Cyclone auto-selects only the
+# best non-loopback interface (eth0, ...), so an 11.x participant with the rmw string alone
+# drops every Jazzy announcement and Jazzy never learns of us. Hence, for LOCALHOST only,
+# the loopback interface is selected explicitly (as Humble's ROS_LOCALHOST_ONLY did). With
+# ROS_STATIC_PEERS the auto-selected interface is kept too, so that remote peers can reach
+# the locators we advertise. Nothing is added when CYCLONEDDS_URI selects interfaces itself
+# (Cyclone refuses an interface listed twice).
+_LOOPBACK_ONLY = '<NetworkInterface address="127.0.0.1"/>'
+_AUTO_AND_LOOPBACK = '<NetworkInterface autodetermine="true"/><NetworkInterface address="127.0.0.1"/>'
+_SELECTS_INTERFACES = re.compile(r"NetworkInterface", re.IGNORECASE)
+
+
+def _user_selects_interfaces(user_uri: str) -> bool:
+    """Whether CYCLONEDDS_URI (inline XML and/or config files) already selects network interfaces."""
+    if not user_uri.strip():
+        return False
+    if _SELECTS_INTERFACES.search(user_uri):
+        return True
+    for item in user_uri.split(","):
+        item = os.path.expandvars(item.strip())
+        if not item or item.startswith("<"):
+            continue
+        path = item[len("file://"):] if item.startswith("file://") else item
+        try:
+            with open(path, encoding="utf-8", errors="replace") as f:
+                if _SELECTS_INTERFACES.search(f.read()):
+                    return True
+        except OSError:
+            pass
+    return False
+
+
+def interface_config(s: Settings) -> str:
+    """The interface-selection fragment dem_ros puts before the rmw_cyclonedds string (LOCALHOST only)."""
+    if s.discovery_range != "LOCALHOST" or _user_selects_interfaces(s.user_uri):
+        return ""
+    ifs = _AUTO_AND_LOOPBACK if s.static_peers else _LOOPBACK_ONLY
+    return f"<CycloneDDS><Domain><General><Interfaces>{ifs}</Interfaces></General></Domain></CycloneDDS>,"
+
+
 def domain_config(s: Settings) -> str:
+    """The Cyclone config string for ``dds_create_domain``: :func:`interface_config` followed by
+    the string rmw_cyclonedds passes (see :func:`rmw_domain_config`)."""
+    return interface_config(s) + rmw_domain_config(s)
+
+
+def rmw_domain_config(s: Settings) -> str:
     """The Cyclone config string rmw_cyclonedds passes to ``dds_create_domain``."""
     if s.discovery_range == "HUMBLE_LOCALHOST":
         cfg = (

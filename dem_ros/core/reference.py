@@ -25,6 +25,9 @@ __all__ = ["ReferenceModel", "command", "reference_trajectory"]
 
 def command(cfg: Mapping, t: np.ndarray | float) -> np.ndarray:
     """Command r(t) (m), shape (..., 2): staggered steps of the ``reference`` group."""
+    if isinstance(t, float):  # one sample (the 1 kHz node): no array machinery
+        return np.array([cfg["target_1"] if t >= cfg["step_time_1"] else cfg["initial"],
+                         cfg["target_2"] if t >= cfg["step_time_2"] else cfg["initial"]])
     t = np.asarray(t, dtype=float)
     r1 = np.where(t >= cfg["step_time_1"], cfg["target_1"], cfg["initial"])
     r2 = np.where(t >= cfg["step_time_2"], cfg["target_2"], cfg["initial"])

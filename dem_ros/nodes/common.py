@@ -9,7 +9,20 @@ import numpy as np
 
 from ..contract import FRAME, MAGNETS
 
-__all__ = ["stamp_ns", "set_stamp", "joint_state", "named_vector", "meas_array", "LatencyStats", "diag_array"]
+__all__ = ["stamp_ns", "set_stamp", "joint_state", "named_vector", "meas_array", "all_finite", "clipped",
+           "LatencyStats", "diag_array"]
+
+_isfinite = math.isfinite
+
+
+def all_finite(values) -> bool:
+    """True when every element of a short vector is finite (~10x cheaper than np.all(np.isfinite()))."""
+    return all(map(_isfinite, values))
+
+
+def clipped(values, limit: float) -> list[float]:
+    """Each element limited to [-limit, limit], as Python floats (NaN stays NaN)."""
+    return [min(max(float(v), -limit), limit) for v in values]
 
 
 def stamp_ns(msg: Any) -> int:

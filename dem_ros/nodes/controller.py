@@ -1,7 +1,8 @@
 """``controller``: the control laws of :mod:`dem_ros.core.controllers` at 1 kHz.
 
 Triggered by ``/dem/state_estimate``: it looks up the reference of the same
-stamp (published one period ahead), steps the law and publishes
+stamp (published one period ahead; kept by stamp, so the arrival order of the
+two topics does not matter), steps the law and publishes
 ``/dem/command`` (coil voltages) and ``/dem/controller/state`` with the
 measurement's stamp. The first sample initialises the law from the measured
 hover and the pre-start voltage (``/dem/applied_voltage``).
@@ -23,9 +24,11 @@ from .. import contract
 from ..core.controllers import make_controller
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import diag_array, joint_state, meas_array, named_vector, stamp_ns
+from .common import all_finite, clipped, diag_array, joint_state, meas_array, named_vector, stamp_ns
 
 __all__ = ["ControllerNode", "main"]
+
+REF_KEEP = 32  # reference samples kept by stamp
 
 
 class ControllerNode:
@@ -34,8 +37,7 @@ class ControllerNode:
         self.cfg = node.declare_parameters("controller", self.on_change)
         self.ctrl = make_controller(self.cfg)
         self.started = False
-        self.ref = None
-        self.ref_stamp = -1
+        self.refs: dict[int, np.ndarray] = {}  # reference samples by stamp (the newest REF_KEEP)
         self.u_applied = None
         self.ref_lag = float("nan")
         self.counts = {"steps": 0, "stale": 0, "non_finite_input": 0, "non_finite_output": 0, "reference_mismatch": 0}
@@ -69,8 +71,21 @@ class ControllerNode:
     # -- inputs --------------------------------------------------------------
     def on_reference(self, msg) -> None:
         if len(msg.position) >= 8:
-            self.ref = np.array(msg.position[:8], dtype=float)
-            self.ref_stamp = stamp_ns(msg)
+            refs = self.refs
+            refs[stamp_ns(msg)] = np.array(msg.position[:8], dtype=float)
+            if len(refs) > REF_KEEP:
+                del refs[next(iter(refs))]  # the oldest
+
+    def _reference(self, t: int) -> tuple[np.ndarray | None, int]:
+        """The reference for stamp ``t``, else the newest older one; (vector, stamp)."""
+        ref = self.refs.get(t)
+        if ref is not None:
+            return ref, t
+        older = [s for s in self.refs if s <= t]
+        if older:
+            s = max(older)
+            return self.refs[s], s
+        return None, -1
 
     def on_applied(self, msg) -> None:
         if len(msg.effort) >= 2:
@@ -85,16 +100,16 @@ class ControllerNode:
             self.counts["stale"] += 1
             self._warn_every("stale", f"sample {age * 1e3:.2f} ms old (> max_age): not acted on")
             return self._state(t, age, 1.0)
-        if not np.all(np.isfinite(xh)):
+        if not all_finite(xh):
             self.counts["non_finite_input"] += 1
             self._warn_every("non_finite_input", "non-finite input: not acted on")
             return self._state(t, age, 1.0)
-        ref = self.ref
+        ref, ref_stamp = self._reference(t)
         if ref is None:  # first sample before any reference: hold the measured hover
             ref = np.array([xh[0], xh[2], 0, 0, 0, 0, 0, 0], dtype=float)
             self.ref_lag = float("nan")
         else:
-            self.ref_lag = int(round((t - self.ref_stamp) / (self.cfg["dt"] * 1e9)))
+            self.ref_lag = int(round((t - ref_stamp) / (self.cfg["dt"] * 1e9)))
         if self.ref_lag != 0:
             self.counts["reference_mismatch"] += 1
         if not self.started:
@@ -103,12 +118,12 @@ class ControllerNode:
             self.started = True
         u = self.ctrl.step(xh, ref)
         self.counts["steps"] += 1
-        if not np.all(np.isfinite(u)) or self.ctrl.diag[-1] > 0:
+        if not all_finite(u) or self.ctrl.diag[-1] > 0:
             self.counts["non_finite_output"] += 1
             self._warn_every("non_finite_output", "the law produced no valid voltage: no command sent")
             return self._state(t, age, 1.0)
         lim = self.cfg["voltage_limit"]
-        self.pub_cmd.publish(joint_state(self.JS, t, effort=np.clip(u, -lim, lim)))
+        self.pub_cmd.publish(joint_state(self.JS, t, effort=clipped(u, lim)))
         self._state(t, age, fault)
 
     def _state(self, t: int, age: float, fault: float) -> None:

@@ -18,7 +18,7 @@ from .. import contract
 from ..core.estimator import make_estimator
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import joint_state, meas_array, stamp_ns
+from .common import all_finite, joint_state, meas_array, stamp_ns
 
 __all__ = ["EstimatorNode", "main"]
 
@@ -51,7 +51,7 @@ class EstimatorNode:
 
     def on_measurement(self, msg) -> None:
         z, has_v = meas_array(msg)
-        if not np.all(np.isfinite(z)):
+        if not all_finite(z):
             self.bad += 1
             if self.bad in (1, 10, 100, 1000):
                 self.node.logger.warn(f"non-finite measurement ({self.bad} so far): skipped by the filter")

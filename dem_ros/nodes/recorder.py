@@ -21,49 +21,72 @@ from .. import __version__, contract
 from ..bag import Recorder
 from ..transport import Node, run_node
 
-__all__ = ["main"]
+__all__ = ["RecorderNode", "main", "parse_recorder_args"]
 
 
-def main(args=None) -> int:
-    argv = list(sys.argv[1:] if args is None else args)
-    ros_args = []
-    if "--ros-args" in argv:
-        i = argv.index("--ros-args")
-        argv, ros_args = argv[:i], argv[i:]
-    p = argparse.ArgumentParser(prog="recorder", description="record the dem_ros graph to a rosbag2 MCAP bag")
-    p.add_argument("--bag", required=True, help="bag directory to create")
-    p.add_argument("--meta", default=None, help="JSON file with the run's metadata")
-    p.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
-    a = p.parse_args(argv)
-    meta = {"dem_ros_version": __version__}
-    if a.meta:
-        meta.update(json.loads(Path(a.meta).read_text()))
-    bag = Path(a.bag)
-    if bag.exists():
-        print(f"error: recorder: {bag} exists; choose a new bag directory", file=sys.stderr)
-        return 2
-    topics = [t for t in contract.TOPICS]
-    rec: list[Recorder] = []
+class RecorderNode:
+    """Subscribes to every contract topic (raw CDR) and writes them to ``bag``."""
 
-    def setup(node: Node) -> None:
+    def __init__(self, node: Node, bag: Path, meta: dict):
+        self.node = node
+        meta = dict(meta)
         meta.setdefault("transport", node.transport)
-        r = Recorder(bag, topics, meta)
-        rec.append(r)
+        topics = list(contract.TOPICS)
+        self.rec = Recorder(bag, topics, meta)
+        now = node.now_ns
+        on_message = self.rec.on_message
         for t in topics:
-            node.subscribe_raw(t, lambda data, name=t.name: r.on_message(name, node.now_ns(), data))
+            node.subscribe_raw(t, lambda data, name=t.name: on_message(name, now(), data))
         String = node.msg("std_msgs/msg/String")
         info = String()
         info.data = json.dumps(meta)
-        pub = node.publisher(contract.RUN_INFO)
-        pub.publish(info)
+        node.publisher(contract.RUN_INFO).publish(info)
         node.logger.info(f"recording {len(topics)} topics to {bag}")
         node.logger.info("ready")
 
-    code = run_node("recorder", setup, args=ros_args, transport=a.transport)
-    if rec:
-        counters = rec[0].close()
-        summary = {name: {"received": c.received, "written": c.written, "dropped": c.dropped} for name, c in counters.items()}
+    def close(self) -> dict:
+        """Finalise the bag; per-topic counters, also printed as a ``RECORDER {json}`` line."""
+        counters = self.rec.close()
+        summary = {name: {"received": c.received, "written": c.written, "dropped": c.dropped}
+                   for name, c in counters.items()}
         print("RECORDER " + json.dumps(summary), flush=True)
+        return summary
+
+
+def parse_recorder_args(p: argparse.ArgumentParser, argv: list[str]) -> tuple[argparse.Namespace, dict]:
+    """``--bag DIR [--meta FILE]`` (added to ``p``) -> (args, metadata); exits 2 on a bad bag path."""
+    p.add_argument("--bag", required=p.prog == "recorder", help="bag directory to create")
+    p.add_argument("--meta", default=None, help="JSON file with the run's metadata")
+    a = p.parse_args(argv)
+    meta = {"dem_ros_version": __version__}
+    if a.bag is not None:
+        if Path(a.bag).exists():
+            p.exit(2, f"error: {p.prog}: {a.bag} exists; choose a new bag directory\n")
+        if a.meta:
+            try:
+                meta.update(json.loads(Path(a.meta).read_text()))
+            except (OSError, ValueError) as exc:
+                p.exit(2, f"error: {p.prog}: --meta {a.meta}: {exc}\n")
+    return a, meta
+
+
+def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
+    if "--ros-args" in argv:
+        i = argv.index("--ros-args")
+        return argv[:i], argv[i:]
+    return argv, []
+
+
+def main(args=None) -> int:
+    argv, ros_args = split_ros_args(list(sys.argv[1:] if args is None else args))
+    p = argparse.ArgumentParser(prog="recorder", description="record the dem_ros graph to a rosbag2 MCAP bag")
+    p.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
+    a, meta = parse_recorder_args(p, argv)
+    rec: list[RecorderNode] = []
+    code = run_node("recorder", lambda node: rec.append(RecorderNode(node, Path(a.bag), meta)),
+                    args=ros_args, transport=a.transport)
+    if rec:
+        rec[0].close()
     return code
 
 

@@ -4,7 +4,8 @@
     dem-ros report    controller x scenario matrix, figures and a markdown report
     dem-ros bench     sim | loop | record benchmarks
     dem-ros launch    the node graph, each node its own process, recorded to a bag
-    dem-ros node      run one node (plant_sim, estimator, controller, reference, recorder)
+    dem-ros node      run one node (plant_sim, estimator, controller, reference, recorder),
+                      or ``container``: all of them in one process
     dem-ros replay    metrics, plots and what-if re-runs from a bag
     dem-ros bag       check a bag
     dem-ros param     get/set a parameter of a running node
@@ -176,6 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--peer-duration", type=float, default=5.0, help="bench sim: seconds simulated by the peer (default 5)")
     b.add_argument("--duration", type=float, default=None, help="bench loop/record: seconds (default 60 / 10)")
     b.add_argument("--transport", default="dds", choices=["auto", "rclpy", "dds"])
+    b.add_argument("--compose", action="store_true", help="bench loop: all nodes in one process (see dem-ros launch --compose)")
     b.set_defaults(func=cmd_bench)
 
     c = sub.add_parser("config", help="print the parameter schema or a params file of the defaults")
@@ -188,6 +190,9 @@ def build_parser() -> argparse.ArgumentParser:
     lg.add_argument("--estimator", default=None, choices=["kf", "none"])
     lg.add_argument("--duration", type=float, default=None, help="seconds (default: the scenario's)")
     lg.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
+    lg.add_argument("--compose", action="store_true",
+                    help="all nodes in one process on one executor, topics between them in memory (dds); "
+                         "the real-time configuration")
     lg.add_argument("--params", default=None, help="ROS 2 params file")
     lg.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE")
     lg.add_argument("--bag-dir", default="bags", help="where the run's bag goes (default ./bags)")
@@ -197,7 +202,7 @@ def build_parser() -> argparse.ArgumentParser:
     lg.set_defaults(func=_delegate("launcher", "cmd_launch"))
 
     nd = sub.add_parser("node", help="run one node of the graph")
-    nd.add_argument("name", choices=["plant_sim", "estimator", "controller", "reference", "recorder"])
+    nd.add_argument("name", choices=["plant_sim", "estimator", "controller", "reference", "recorder", "container"])
     nd.add_argument("ros_args", nargs=argparse.REMAINDER, help="--ros-args ... (params file, remaps)")
     nd.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
     nd.set_defaults(func=_delegate("launcher", "cmd_node"))

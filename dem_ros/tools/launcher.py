@@ -90,8 +90,13 @@ def _node_cmd(name: str, transport: str, params: Path, extra: list[str]) -> list
 
 
 def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, meta: dict,
-              domain_id: int | None = None, status: bool = True, workdir: Path | None = None) -> dict:
-    """Start the graph, wait for the plant to finish ``duration`` s, stop everything; return raw facts."""
+              domain_id: int | None = None, status: bool = True, workdir: Path | None = None,
+              compose: bool = False) -> dict:
+    """Start the graph, wait for the plant to finish ``duration`` s, stop everything; return raw facts.
+
+    ``compose``: all nodes in one ``container`` process (intra-process topics)
+    instead of one process per node.
+    """
     workdir = workdir or Path(tempfile.mkdtemp(prefix="dem_ros_launch_"))
     workdir.mkdir(parents=True, exist_ok=True)
     cfg = {g: dict(v) for g, v in cfg.items()}
@@ -110,6 +115,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     started = {}
     cpu: dict[str, float] = {}
     interrupted = False
+    cpu_start: dict[str, float] | None = None  # CPU seconds of each process when t = 0 was reached
 
     def on_signal(signum, frame):
         nonlocal interrupted
@@ -118,28 +124,29 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     old = {}
     if threading.current_thread() is threading.main_thread():  # Ctrl-C / SIGTERM stop the graph cleanly
         old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    lead = "container" if compose else "plant_sim"  # its exit ends the run; its stdout has the status lines
+    names = ["container"] if compose else [n for n in NODES if n != "recorder" or bag is not None]
     t0 = time.monotonic()
     try:
-        for name in NODES:
-            if name == "recorder" and bag is None:
-                continue
-            extra = ["--bag", str(bag), "--meta", str(meta_file)] if name == "recorder" else []
+        for name in names:
+            bag_args = ["--bag", str(bag), "--meta", str(meta_file)] if bag is not None else []
+            extra = bag_args if name in ("recorder", "container") else []
             logs[name] = workdir / f"{name}.log"
-            out = subprocess.PIPE if name == "plant_sim" else open(logs[name], "wb")
+            out = subprocess.PIPE if name == lead else open(logs[name], "wb")
             procs[name] = subprocess.Popen(_node_cmd(name, transport, params, extra), env=env, stdout=out,
                                            stderr=subprocess.STDOUT, start_new_session=True,
-                                           text=(name == "plant_sim"))
+                                           text=(name == lead))
             started[name] = time.monotonic()
             if name == "controller":  # every other node is up: wait for their "ready"
                 _wait_ready({n: logs[n] for n in procs if n != "plant_sim"}, procs, timeout=120.0)
-        plant = procs["plant_sim"]
-        plant_log = open(logs["plant_sim"], "w")
+        plant = procs[lead]
+        plant_log = open(logs[lead], "w")
         limit = time.monotonic() + 60.0 + 10.0 * (duration + cfg["plant_sim"]["preroll"])  # lockstep may run below real time
         os.set_blocking(plant.stdout.fileno(), False)
         buf = ""
         while plant.poll() is None and not interrupted and time.monotonic() < limit:
             for name, p in procs.items():
-                if name != "plant_sim" and p.poll() is not None:
+                if name != lead and p.poll() is not None:
                     raise GraphError(f"node {name} exited early with code {p.returncode}; see {logs[name]}")
             time.sleep(0.1)
             try:
@@ -148,10 +155,14 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
                 chunk = None
             if chunk:
                 plant_log.write(chunk)
+                plant_log.flush()  # users (and tests) follow the run in the log
                 buf += chunk
                 lines = buf.split("\n")
                 buf = lines[-1]
                 for line in lines[:-1]:
+                    if line.startswith("t =") and cpu_start is None:  # the run (t >= 0) has begun
+                        cpu_start = {n: _cpu_seconds(p.pid) for n, p in procs.items()}
+                        started = {n: time.monotonic() for n in procs}
                     if status and line.startswith("t ="):
                         print("\r  " + line.strip(), end="", file=sys.stderr, flush=True)
         if status:
@@ -165,7 +176,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
         for name, p in procs.items():
             cpu[name] = _cpu_seconds(p.pid)
         # stop: plant (if still running) and controllers first, recorder last
-        for name in ("plant_sim", "controller", "estimator", "reference", "recorder"):
+        for name in ("container", "plant_sim", "controller", "estimator", "reference", "recorder"):
             p = procs.get(name)
             if p is None or p.poll() is not None:
                 continue
@@ -180,10 +191,13 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
         for s, h in old.items():
             signal.signal(s, h)
     elapsed = {n: (time.monotonic() - started[n]) for n in procs}
+    base = cpu_start or {}
+    cpu = {n: c - base.get(n, 0.0) for n, c in cpu.items()}
     cpu_pct = {n: round(100.0 * cpu[n] / max(elapsed[n], 1e-9), 1) for n in procs if cpu[n] == cpu[n]}
     recorder_counts = None
-    if "recorder" in logs and logs["recorder"].exists():
-        for line in logs["recorder"].read_text(errors="replace").splitlines():
+    rec_log = logs.get("container" if compose else "recorder")
+    if bag is not None and rec_log is not None and rec_log.exists():
+        for line in rec_log.read_text(errors="replace").splitlines():
             if line.startswith("RECORDER "):
                 recorder_counts = json.loads(line[len("RECORDER "):])
     return {"interrupted": interrupted, "wall_s": wall, "cpu_percent": cpu_pct, "returncodes": {n: p.returncode for n, p in procs.items()},
@@ -260,8 +274,11 @@ def launch(args, *, quiet: bool = False) -> dict:
     if not quiet:
         print(f"dem-ros launch: {sc.name} ({sc.description}), controller {meta['controller']}, estimator {meta['estimator']},"
               f" {duration:g} s, transport {args.transport}", file=sys.stderr)
+    compose = bool(getattr(args, "compose", False))
+    meta["composed"] = compose
     facts = run_graph(cfg, duration=duration, transport=args.transport, bag=bag, meta=meta, domain_id=args.domain_id,
-                      status=not quiet, workdir=(bag.parent / (bag.name + "_logs")) if record else None)
+                      status=not quiet, workdir=(bag.parent / (bag.name + "_logs")) if record else None,
+                      compose=compose)
     summary = graph_summary(bag)
     loop = summary.get("plant_diagnostics") or {}
     failed = str(loop.get("failed", "False")) == "True"
@@ -269,6 +286,7 @@ def launch(args, *, quiet: bool = False) -> dict:
                        scenario=sc.name).metrics()
     result = {
         "scenario": sc.name, "controller": meta["controller"], "estimator": meta["estimator"], "transport": args.transport,
+        "composed": compose,
         "failed": failed, "fail_time_s": float(loop.get("t_sim_s", "nan")) if failed else None,
         "rms_error_um": summary.get("rms_error_um"), "max_error_um": summary.get("max_error_um"),
         "rms_error_after_40s_um": summary.get("rms_error_after_40s_um"),
@@ -278,7 +296,7 @@ def launch(args, *, quiet: bool = False) -> dict:
             "cycles": int(loop.get("cycles", 0)), "deadline_misses": int(loop.get("deadline_misses", 0)),
             "latency_us": {"p50": float(loop.get("latency_p50_us", "nan")), "p99": float(loop.get("latency_p99_us", "nan")),
                            "max": float(loop.get("latency_max_us", "nan"))},
-            "cpu_percent": _with_plant_cpu(facts["cpu_percent"], loop),
+            "cpu_percent": _with_plant_cpu(facts["cpu_percent"], loop, "container" if compose else "plant_sim"),
             "realtime_factor": float(loop.get("realtime_factor", "nan")),
             "lockstep": loop.get("lockstep") == "True",
         },
@@ -296,11 +314,11 @@ def launch(args, *, quiet: bool = False) -> dict:
     return result
 
 
-def _with_plant_cpu(cpu: dict, loop: dict) -> dict:
-    """The plant exits before the launcher can read its CPU time: it reports its own."""
+def _with_plant_cpu(cpu: dict, loop: dict, process: str = "plant_sim") -> dict:
+    """The plant's process exits before the launcher can read its CPU time: the plant reports it."""
     out = dict(cpu)
     try:
-        out["plant_sim"] = round(100.0 * float(loop["cpu_s"]) / float(loop["wall_s"]), 1)
+        out[process] = round(100.0 * float(loop["cpu_s"]) / float(loop["wall_s"]), 1)
     except (KeyError, ValueError, ZeroDivisionError):
         pass
     return out
@@ -320,7 +338,8 @@ def print_summary(res: dict) -> None:
     from .cli import _fmt_pair
 
     L = res["loop"]
-    print(f"  scenario / controller / estimator   {res['scenario']} / {res['controller']} / {res['estimator']} ({res['transport']})")
+    how = "one process (composed)" if res.get("composed") else "a process per node"
+    print(f"  scenario / controller / estimator   {res['scenario']} / {res['controller']} / {res['estimator']} ({res['transport']}, {how})")
     print(f"  failed                              {'yes, at t = %.3f s' % res['fail_time_s'] if res['failed'] else 'no'}")
     if res["rms_error_um"]:
         print(f"  RMS error e1 / e2 [um]              {_fmt_pair(res['rms_error_um'])}   (offline, same timing: {_fmt_pair(res['offline_rms_error_um'])})")
@@ -384,20 +403,22 @@ class _Args:
 
 def bench_loop(args) -> dict:
     duration = args.duration or 60.0
+    compose = bool(getattr(args, "compose", False))
     a = _Args(scenario="S1", params=None, set=None, controller=None, estimator=None, duration=duration,
               transport=args.transport, bag_dir=tempfile.mkdtemp(prefix="dem_ros_bench_"), no_record=True,
-              domain_id=None, json=None)
+              domain_id=None, json=None, compose=compose)
     res = launch(a, quiet=False)
     from .bench import machine
 
     m = machine()
     L = res["loop"]
-    print(f"dem-ros bench loop on {m['cpu']} ({m['cores']} cores), transport {args.transport}, {duration:g} s of S1")
+    how = "all nodes in one process (--compose)" if compose else "one process per node"
+    print(f"dem-ros bench loop on {m['cpu']} ({m['cores']} cores), transport {args.transport}, {how}, {duration:g} s of S1")
     print(f"  cycles {L['cycles']}, deadline misses {L['deadline_misses']} ({100.0 * L['deadline_misses'] / max(L['cycles'], 1):.3f} %)")
     print(f"  latency sensor stamp -> command at plant: p50 {L['latency_us']['p50']:.0f} us, p99 {L['latency_us']['p99']:.0f} us, max {L['latency_us']['max']:.0f} us")
     print("  CPU [% of one core]: " + ", ".join(f"{k} {v:.1f}" for k, v in L["cpu_percent"].items())
           + f"; all nodes {sum(L['cpu_percent'].values()):.1f}")
-    return {"loop": L, "machine": m, "transport": args.transport, "duration_s": duration}
+    return {"loop": L, "machine": m, "transport": args.transport, "composed": compose, "duration_s": duration}
 
 
 def bench_record(args) -> dict:

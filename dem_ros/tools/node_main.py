@@ -7,7 +7,7 @@ import sys
 
 from ..nodes import __doc__ as _doc  # noqa: F401
 
-NODES = ("plant_sim", "estimator", "controller", "reference", "recorder")
+NODES = ("plant_sim", "estimator", "controller", "reference", "recorder", "container")
 
 
 def run(name: str, rest: list[str], transport: str = "auto") -> int:
@@ -18,7 +18,7 @@ def run(name: str, rest: list[str], transport: str = "auto") -> int:
 
     os.environ.setdefault("DEM_ROS_TRANSPORT", transport)
     mod = importlib.import_module(f"dem_ros.nodes.{name}")
-    if name == "recorder":
+    if name in ("recorder", "container"):
         return mod.main(["--transport", transport, *rest])
     from ..transport import run_node
 

@@ -50,6 +50,7 @@ __all__ = [
     "rclpy_available",
     "make_node",
     "run_node",
+    "run_nodes",
     "serialize",
     "deserialize",
     "param_set",
@@ -77,7 +78,8 @@ def _pick(transport: str) -> str:
     return transport
 
 
-def make_node(name: str, *, transport: str = "auto", args: Sequence[str] | None = None) -> Node:
+def make_node(name: str, *, transport: str = "auto", args: Sequence[str] | None = None,
+              executor: Any = None, composed: bool = False) -> Node:
     """Create node ``name`` on the chosen transport.
 
     Args:
@@ -85,6 +87,10 @@ def make_node(name: str, *, transport: str = "auto", args: Sequence[str] | None 
         transport: ``"auto"``, ``"rclpy"`` or ``"dds"``.
         args: command-line arguments (default ``sys.argv[1:]``); the part after
             ``--ros-args`` is parsed as rcl does (``--params-file``, ``-p``, ``-r __node:=``, ``-r __ns:=``).
+        executor: the transport's executor to share with other nodes of the process
+            (see :func:`run_nodes`); by default the node has its own.
+        composed: the node is one of several in this process: a global ``-p`` it
+            does not declare is left to the others instead of being an error.
 
     Raises:
         TransportError: unknown transport, rclpy missing, bad ROS_DOMAIN_ID, DDS failure.
@@ -98,10 +104,10 @@ def make_node(name: str, *, transport: str = "auto", args: Sequence[str] | None 
             raise TransportError("transport 'rclpy' needs a sourced ROS 2 (import rclpy failed); use 'dds'")
         from .rclpy_node import RclpyNode
 
-        return RclpyNode(name, list(args) if args is not None else None)  # type: ignore[return-value]
+        return RclpyNode(name, list(args), executor=executor, ignore_undeclared=composed)  # type: ignore[return-value]
     from .dds.node import DdsNode
 
-    return DdsNode(name, list(args) if args is not None else None)  # type: ignore[return-value]
+    return DdsNode(name, list(args), executor=executor, ignore_undeclared=composed)  # type: ignore[return-value]
 
 
 def run_node(
@@ -117,39 +123,95 @@ def run_node(
     exit code 2 (no traceback); Ctrl-C gives 0. Use as ``sys.exit(run_node(...))``
     or return it from ``main()``.
     """
-    node: Node | None = None
+    return run_nodes([(name, setup)], args=args, transport=transport, intra_process=False)
+
+
+def _check_composable(args: Sequence[str], names: Sequence[str]) -> None:
+    """Several nodes share the process's ROS arguments: refuse what cannot apply to all of them."""
+    from ..core.params import SCHEMA
+    from .rosargs import parse_ros_args
+
+    ra = parse_ros_args(list(args))
+    if ra.node_name:
+        raise ConfigError(f"-r __node:={ra.node_name} would give all {len(names)} nodes of this process the same name")
+    declared = {p.name for g in names if g in SCHEMA.groups for p in SCHEMA.groups[g]}
+    unknown = sorted({n for node, n, _ in ra.params if node is None and n not in declared})
+    if unknown:
+        raise ConfigError(f"-p {', '.join(unknown)}: not a parameter of any node of this process ({', '.join(names)})")
+
+
+def run_nodes(
+    nodes: Sequence[tuple[str, Callable[[Node], Any]]],
+    *,
+    args: Sequence[str] | None = None,
+    transport: str = "auto",
+    intra_process: bool = True,
+    stop_with: str | None = None,
+) -> int:
+    """Run several nodes in this process on one executor (a component container).
+
+    Each ``(name, setup)`` gets its own node (own name, parameters and
+    services) created with the process's ``args`` and set up in order; then one
+    thread spins them all. With the dds transport and ``intra_process`` (the
+    default), topics between these nodes are delivered in memory (see
+    :mod:`dem_ros.transport.dds.executor`) and reach DDS only for remote
+    subscribers; with rclpy the nodes share a SingleThreadedExecutor and the
+    middleware delivers within the process. ``stop_with``: when that node
+    shuts itself down (e.g. the plant at the end of its run), all do.
+    Errors and signals are handled as in :func:`run_node`.
+    """
+    made: list[Node] = []
     previous: dict[int, Any] = {}
+    names = [n for n, _ in nodes]
+    if args is None:
+        args = sys.argv[1:]
+    executor: Any = None
 
     def stop(signum: int, frame: Any) -> None:
-        if node is not None:
-            node.shutdown()  # spin() returns within its bounded wait
-        else:
+        if not made:
             raise KeyboardInterrupt
+        for n in made:
+            n.shutdown()  # the spin returns within its bounded wait
 
     try:
-        node = make_node(name, transport=transport, args=args)
+        kind = _pick(transport)
+        composed = len(nodes) > 1
+        if composed:
+            _check_composable(args, names)
+        if kind == "dds" and (composed or intra_process):
+            from .dds.executor import DdsExecutor
+            from .dds.node import Participant
+
+            executor = DdsExecutor(Participant.get(), intra_process=intra_process)
+        elif kind == "rclpy" and composed:
+            from .rclpy_node import shared_executor
+
+            executor = shared_executor(args)
         # rclpy handles SIGINT itself (shuts its context down); we add SIGTERM
-        sigs = (signal.SIGTERM,) if node.transport == "rclpy" else (signal.SIGINT, signal.SIGTERM)
+        sigs = (signal.SIGTERM,) if kind == "rclpy" else (signal.SIGINT, signal.SIGTERM)
         for sig in sigs:
             try:
                 previous[sig] = signal.signal(sig, stop)
             except ValueError:  # not the main thread: the caller handles signals
                 pass
-        try:
-            setup(node)
-        except Exception:
-            if getattr(node, "is_shutdown", False) or getattr(node, "_node", True) is None:
-                return 0  # stopped (Ctrl-C / SIGTERM) while setting up: not an error
-            raise
-        # Everything allocated so far (numba, the middleware, the node) lives for the whole run:
+        for name, setup in nodes:
+            node = make_node(name, transport=kind, args=args, executor=executor, composed=composed)
+            made.append(node)
+            try:
+                setup(node)
+            except Exception:
+                if getattr(node, "is_shutdown", False) or getattr(node, "_node", True) is None:
+                    return 0  # stopped (Ctrl-C / SIGTERM) while setting up: not an error
+                raise
+        # Everything allocated so far (numba, the middleware, the nodes) lives for the whole run:
         # move it out of the collector's reach. A full collection over it takes ~100 ms, which a
         # 1 kHz loop cannot absorb; afterwards collections only scan what the loop allocates.
         gc.collect()
         gc.freeze()
-        node.spin()
+        _spin(made, names.index(stop_with) if stop_with in names else None)
         return 0
     except (ConfigError, TransportError) as exc:
-        sys.stderr.write(f"error: {name}: {exc}\n")
+        sys.stderr.write(f"error: {'+'.join(names)}: {exc}\n")
         return 2
     except KeyboardInterrupt:
         return 0
@@ -158,9 +220,9 @@ def run_node(
             return 0
         raise
     finally:
-        if node is not None:
+        for n in made:
             try:
-                node.shutdown()
+                n.shutdown()
             except Exception:
                 pass
         for sig, handler in previous.items():
@@ -168,6 +230,15 @@ def run_node(
                 signal.signal(sig, handler)
             except (ValueError, TypeError):
                 pass
+
+
+def _spin(nodes: list[Node], stop_index: int | None) -> None:
+    """Spin the nodes (one executor) until all are shut down, or the ``stop_index`` one is."""
+    while True:
+        live = [n for n in nodes if not n.is_shutdown]  # type: ignore[attr-defined]
+        if not live or (stop_index is not None and nodes[stop_index].is_shutdown):  # type: ignore[attr-defined]
+            return
+        live[0].spin_once(0.2)  # bounded, so Python signal handlers run promptly
 
 
 def serialize(msg: Any) -> bytes:

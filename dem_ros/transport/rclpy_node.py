@@ -61,13 +61,25 @@ class _Logger:
         self._l.error(msg)
 
 
+def shared_executor(args: list[str] | None = None) -> Any:
+    """One SingleThreadedExecutor for several nodes of this process (rclpy initialised here)."""
+    if not rclpy.ok():
+        try:
+            rclpy.init(args=[sys.argv[0] if sys.argv else "dem_ros", *(args or [])])
+        except Exception as exc:
+            raise TransportError(f"rclpy.init failed: {exc}") from None
+    return SingleThreadedExecutor()
+
+
 class RclpyNode:
     """A dem_ros node backed by ``rclpy.node.Node`` and a SingleThreadedExecutor."""
 
     transport = "rclpy"
 
-    def __init__(self, name: str, args: list[str] | None = None):
+    def __init__(self, name: str, args: list[str] | None = None, *, executor: Any = None,
+                 ignore_undeclared: bool = False):
         argv = list(args) if args is not None else []
+        self._ignore_undeclared = ignore_undeclared
         self._ros_args = parse_ros_args(argv)  # ConfigError on bad --ros-args / missing file
         self._owns_context = not rclpy.ok()
         if self._owns_context:
@@ -79,7 +91,7 @@ class RclpyNode:
         self.name = self._node.get_name()
         self.namespace = self._node.get_namespace()
         self.logger = _Logger(self._node.get_logger())
-        self._executor = SingleThreadedExecutor()
+        self._executor = executor if executor is not None else SingleThreadedExecutor()
         self._executor.add_node(self._node)
         self._shutdown = False
         self._group: str | None = None
@@ -120,7 +132,7 @@ class RclpyNode:
     def declare_parameters(self, group: str, on_change: OnChange | None = None) -> dict[str, Any]:
         if self._group is not None:
             raise TransportError(f"{self.fully_qualified_name}: parameters already declared (group {self._group!r})")
-        values = initial_parameters(group, self._ros_args, self.name)
+        values = initial_parameters(group, self._ros_args, self.name, strict=not self._ignore_undeclared)
         for spec in SCHEMA.groups[group]:
             descriptor = pv.describe(spec, ParameterDescriptor, FloatingPointRange, IntegerRange)
             self._node.declare_parameter(spec.name, values[spec.name], descriptor, ignore_override=True)

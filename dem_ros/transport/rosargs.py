@@ -105,8 +105,13 @@ def parse_ros_args(args: Sequence[str] | None) -> RosArgs:
     return out
 
 
-def initial_parameters(group: str, ros_args: RosArgs, node_name: str | None = None) -> dict[str, Any]:
-    """Schema defaults <- params files <- ``-p`` overrides, validated; raises ConfigError."""
+def initial_parameters(group: str, ros_args: RosArgs, node_name: str | None = None,
+                       strict: bool = True) -> dict[str, Any]:
+    """Schema defaults <- params files <- ``-p`` overrides, validated; raises ConfigError.
+
+    ``strict=False`` (several nodes in one process): a global ``-p name:=value``
+    that this group does not declare is left to the other nodes, as rcl does.
+    """
     if group not in SCHEMA.groups:
         raise ConfigError(f"unknown parameter group {group!r}; known: {', '.join(SCHEMA.groups)}")
     cfg = default_config()
@@ -117,6 +122,9 @@ def initial_parameters(group: str, ros_args: RosArgs, node_name: str | None = No
         for node, name, value in ros_args.params
         if node is None or node.rstrip("/").split("/")[-1] in (group, node_name)
     }
+    if not strict:
+        declared = {p.name for p in SCHEMA.groups[group]}
+        cli = {k: v for k, v in cli.items() if k in declared}
     if cli:
         cfg = apply_overrides(cfg, {group: cli}, "-p")
     return dict(cfg[group])

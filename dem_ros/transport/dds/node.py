@@ -22,12 +22,12 @@ import threading
 import time
 from typing import Any, Callable, Mapping
 
-from cyclonedds.core import GuardCondition, InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic as DdsTopic
-from cyclonedds._clayer import ddspy_take, ddspy_write
+from cyclonedds._clayer import ddspy_write
 
 from ... import contract
 from ...contract import QoS, Topic
@@ -36,17 +36,17 @@ from .. import paramvalue as pv
 from ..api import OnChange, RawCallback, TransportError
 from ..rosargs import RosArgs, initial_parameters, parse_ros_args
 from . import fastcdr, msgs, wire
+from .executor import DdsExecutor, LocalSubscription
 
-__all__ = ["DdsNode", "DdsPublisher", "DdsTimer", "Participant"]
+__all__ = ["DdsNode", "DdsPublisher", "DdsTimer", "Participant", "DdsExecutor"]
 
 _ANY = SampleState.Any | ViewState.Any | InstanceState.Any
-_TAKE_N = 256
 #: rmw_qos_profile_services_default
 QOS_SERVICES = QoS(reliable=True, transient_local=False, depth=10)
 #: rcl's rosout QoS (Jazzy: transient local, depth 1000)
 QOS_ROSOUT = QoS(reliable=True, transient_local=True, depth=1000)
-#: the longest a blocking wait lasts, so that Python signal handlers run promptly
-_MAX_WAIT_NS = 200_000_000
+#: how often an intra-process publisher re-reads its count of remote subscribers
+_REMOTE_CHECK_NS = 100_000_000
 
 
 def _guid_bytes(entity: Any) -> bytes:
@@ -153,20 +153,55 @@ class Participant:
 
 
 class DdsPublisher:
-    """Writes messages of one topic; :meth:`publish_raw` sends ready CDR bytes."""
+    """Writes messages of one topic; :meth:`publish_raw` sends ready CDR bytes.
 
-    def __init__(self, writer: DataWriter, cls: type):
+    With ``local`` (intra-process, see :mod:`.executor`) a message goes to the
+    subscriptions of the same executor through its queue, and to DDS only
+    while a remote subscriber is matched.
+    """
+
+    def __init__(self, writer: DataWriter, cls: type, local: list[LocalSubscription] | None = None,
+                 queue: Any = None):
         self._writer = writer
         self._cls = cls
         self._ref = writer._ref
         self._encode = fastcdr.ENCODERS.get(cls)
+        self._local = local
+        self._queue = queue
+        self._remote = 0
+        self._remote_checked = 0
 
-    def publish(self, msg: Any) -> None:
+    def _cdr(self, msg: Any) -> bytes:
         data = self._encode(msg) if self._encode is not None and type(msg) is self._cls else msg.serialize()
         # Cyclone expects the payload padded to a multiple of 4 (as DataWriter.write does)
         pad = -len(data) % 4
-        if pad:
-            data += b"\0" * pad
+        return data + b"\0" * pad if pad else data
+
+    def _remote_subscribers(self) -> int:
+        now = time.monotonic_ns()
+        if now >= self._remote_checked:
+            self._remote_checked = now + _REMOTE_CHECK_NS
+            self._remote = self._writer.get_publication_matched_status().current_count
+        return self._remote
+
+    def publish(self, msg: Any) -> None:
+        local = self._local
+        if local is None:
+            data = self._cdr(msg)
+        else:
+            data = None
+            queue = self._queue
+            for sub in local:
+                if sub.raw:
+                    if data is None:
+                        data = self._cdr(msg)
+                    queue.append((sub, data))
+                else:
+                    queue.append((sub, msg))
+            if not self._remote_subscribers():
+                return
+            if data is None:
+                data = self._cdr(msg)
         ret = ddspy_write(self._ref, data)
         if ret < 0:
             raise TransportError(f"DDS write failed on {self._writer.topic.name} (code {ret})")
@@ -180,7 +215,8 @@ class DdsPublisher:
 
     @property
     def subscription_count(self) -> int:
-        return len(self._writer.get_matched_subscriptions())
+        """Matched subscriptions: remote ones plus those of the same executor (intra-process)."""
+        return len(self._writer.get_matched_subscriptions()) + len(self._local or ())
 
 
 class DdsTimer:
@@ -194,11 +230,12 @@ class DdsTimer:
             (the timer then resumes at the next future deadline, never bursts).
     """
 
-    def __init__(self, period_s: float, callback: Callable[[], None]):
+    def __init__(self, period_s: float, callback: Callable[[], None], node: Any = None):
         if not period_s > 0:
             raise ValueError(f"timer period must be positive, got {period_s!r} s")
         self.period_ns = int(round(period_s * 1e9))
         self.callback = callback
+        self.node = node
         self.next_ns = time.monotonic_ns() + self.period_ns
         self.fired = 0
         self.overruns = 0
@@ -258,21 +295,25 @@ class DdsNode:
 
     transport = "dds"
 
-    def __init__(self, name: str, args: list[str] | None = None, *, domain_id: int | None = None):
+    def __init__(self, name: str, args: list[str] | None = None, *, domain_id: int | None = None,
+                 executor: DdsExecutor | None = None, ignore_undeclared: bool = False):
+        """``executor``: share one (e.g. intra-process) executor with other nodes of this process;
+        by default the node has its own. ``ignore_undeclared``: a ``-p name:=value`` this node
+        does not declare is left to the other nodes of the process (composition) instead of
+        being an error."""
         self._ros_args: RosArgs = parse_ros_args(args)
         self.name = self._ros_args.node_name or name
         self.namespace = self._ros_args.namespace or "/"
         self._p = Participant.get(domain_id)
+        self._ignore_undeclared = ignore_undeclared
         self._reader_gids: list[bytes] = []
         self._writer_gids: list[bytes] = []
-        self._readers: list[tuple[Any, Callable[[bytes, Any], None]]] = []
-        self._timers: list[DdsTimer] = []
         self._pending_replies: list[tuple[int, Any, bytes, str]] = []
         self._shutdown = False
-        self._spin_lock = threading.Lock()
-        self._ws = WaitSet(self._p.dp)
-        self._guard = GuardCondition(self._p.dp)
-        self._ws.attach(self._guard)
+        self._ex = executor if executor is not None else DdsExecutor(self._p)
+        if self._ex.participant is not self._p:
+            raise TransportError("the executor belongs to another DDS participant")
+        self._ex.add_node(self)
         self._group: str | None = None
         self._values: dict[str, Any] = {}
         self._on_change: OnChange | None = None
@@ -305,44 +346,57 @@ class DdsNode:
 
     # -- endpoints ---------------------------------------------------------------------
     def _make_writer(self, ros_name: str, ros_type: str, qos: QoS, dds_name: str | None = None,
-                     cls: type | None = None, extra_ud: str = "") -> DdsPublisher:
+                     cls: type | None = None, extra_ud: str = "", intra: bool = False) -> DdsPublisher:
         cls = cls or msgs.message_class(ros_type)
         dds_name = dds_name or wire.topic_name(self.resolve(ros_name))
         ud = wire.user_data_for_endpoint(ros_type, self._p.settings.distro, extra_ud)
-        w = DataWriter(self._p.dp, self._p.topic(dds_name, cls), qos=wire.dds_qos(qos, ud))
+        w = DataWriter(self._p.dp, self._p.topic(dds_name, cls), qos=_qos(qos, ud, intra))
         self._writer_gids.append(self._p.gid_of(w))
         self._p.publish_graph()
+        if intra:
+            return DdsPublisher(w, cls, self._ex.local_subscriptions(dds_name), self._ex.queue)
         return DdsPublisher(w, cls)
 
     def _make_reader(self, dds_name: str, ros_type: str, cls: type, qos: QoS,
-                     handler: Callable[[bytes, Any], None], extra_ud: str = "") -> DataReader:
+                     handler: Callable[[bytes, Any], None], extra_ud: str = "", intra: bool = False) -> DataReader:
         ud = wire.user_data_for_endpoint(ros_type, self._p.settings.distro, extra_ud)
-        r = DataReader(self._p.dp, self._p.topic(dds_name, cls), qos=wire.dds_qos(qos, ud))
-        cond = ReadCondition(r, _ANY)
-        self._ws.attach(cond)
-        self._readers.append((r, handler, cond))  # type: ignore[arg-type]
+        r = DataReader(self._p.dp, self._p.topic(dds_name, cls), qos=_qos(qos, ud, intra))
+        self._ex.add_reader(r, handler, ReadCondition(r, _ANY), self)
         self._reader_gids.append(self._p.gid_of(r))
         self._p.publish_graph()
         return r
 
+    @property
+    def intra_process(self) -> bool:
+        """True when topics between nodes of this node's executor bypass DDS (composition)."""
+        return self._ex.intra_process
+
     def publisher(self, topic: Topic) -> DdsPublisher:
-        return self._make_writer(topic.name, topic.type, topic.qos)
+        return self._make_writer(topic.name, topic.type, topic.qos, intra=self._ex.intra_process)
+
+    def _subscribe(self, topic: Topic, callback: Callable[[Any], None], raw: bool) -> None:
+        cls = msgs.message_class(topic.type)
+        dds_name = wire.topic_name(self.resolve(topic.name))
+        intra = self._ex.intra_process
+        if intra:  # same-process publishers deliver through the executor's queue
+            self._ex.local_subscriptions(dds_name).append(LocalSubscription(self, callback, raw))
+        if raw:
+            handler = lambda data, info: callback(data)  # noqa: E731
+        else:
+            deser = fastcdr.DECODERS.get(cls, cls.deserialize)
+            handler = lambda data, info: callback(deser(data))  # noqa: E731
+        self._make_reader(dds_name, topic.type, cls, topic.qos, handler, intra=intra)
 
     def subscribe(self, topic: Topic, callback: Callable[[Any], None]) -> None:
-        cls = msgs.message_class(topic.type)
-        deser = fastcdr.DECODERS.get(cls, cls.deserialize)
-        self._make_reader(wire.topic_name(self.resolve(topic.name)), topic.type, cls, topic.qos,
-                          lambda data, info: callback(deser(data)))
+        self._subscribe(topic, callback, raw=False)
 
     def subscribe_raw(self, topic: Topic, callback: RawCallback) -> None:
         """Deliver the CDR bytes as received (no decode): what rosbag2 stores."""
-        cls = msgs.message_class(topic.type)
-        self._make_reader(wire.topic_name(self.resolve(topic.name)), topic.type, cls, topic.qos,
-                          lambda data, info: callback(data))
+        self._subscribe(topic, callback, raw=True)
 
     def timer(self, period_s: float, callback: Callable[[], None]) -> DdsTimer:
-        t = DdsTimer(period_s, callback)
-        self._timers.append(t)
+        t = DdsTimer(period_s, callback, self)
+        self._ex.add_timer(t)
         return t
 
     def now_ns(self) -> int:
@@ -353,64 +407,23 @@ class DdsNode:
 
     # -- dispatch ------------------------------------------------------------------------
     def spin_once(self, timeout_s: float | None = 0.1) -> None:
-        """Wait for data, a timer deadline or ``timeout_s``; then run what is ready."""
-        with self._spin_lock:
-            if self._shutdown:
-                return
-            now = time.monotonic_ns()
-            limit = now + (_MAX_WAIT_NS if timeout_s is None else max(0, int(timeout_s * 1e9)))
-            timers = [t for t in self._timers if not t.cancelled]
-            deadline = min([limit] + [t.next_ns for t in timers])
-            if self._pending_replies:
-                deadline = min(deadline, now + 5_000_000)
-            wait = deadline - now
-            if wait > 0:
-                self._ws.wait(min(wait, _MAX_WAIT_NS))
-            if self._shutdown:
-                return
-            for reader, handler, cond in self._readers:
-                while True:
-                    got = ddspy_take(reader._ref, _ANY, _TAKE_N)
-                    if isinstance(got, int) or not got:
-                        break
-                    for data, info in got:
-                        if info.valid_data:
-                            self._call(handler, data, info)
-                    if len(got) < _TAKE_N:
-                        break
-            now = time.monotonic_ns()
-            for t in timers:
-                if not t.cancelled and t.next_ns <= now and not self._shutdown:
-                    try:
-                        t._run(now)
-                    except (KeyboardInterrupt, SystemExit):
-                        raise
-            if self._pending_replies:
-                self._flush_replies()
-
-    def _call(self, handler: Callable[[bytes, Any], None], data: bytes, info: Any) -> None:
-        handler(data, info)
+        """Wait for data, a timer deadline or ``timeout_s``; then run what is ready (on this node's executor)."""
+        if not self._shutdown:
+            self._ex.spin_once(timeout_s)
 
     def spin(self) -> None:
         """Dispatch until :meth:`shutdown` (waits are bounded so signals are handled)."""
         while not self._shutdown:
-            self.spin_once(None)
+            self._ex.spin_once(None)
 
     def shutdown(self) -> None:
         """Stop spinning, leave the graph, release the participant with the last node; idempotent."""
         if self._shutdown:
             return
         self._shutdown = True
-        try:
-            self._guard.set(True)
-        except Exception:
-            pass
-        # wait for a spin_once in another thread to finish before deleting entities
-        if self._spin_lock.acquire(timeout=1.0):
-            self._spin_lock.release()
-        self._readers.clear()
-        self._timers.clear()
-        self._p.remove_node(self)
+        self._ex.wake()
+        # entities go once no spin_once runs (deferred when called from a callback or a signal handler)
+        self._ex.remove_node(self, lambda: self._p.remove_node(self))
 
     @property
     def is_shutdown(self) -> bool:
@@ -425,7 +438,7 @@ class DdsNode:
         """
         if self._group is not None:
             raise TransportError(f"{self.fully_qualified_name}: parameters already declared (group {self._group!r})")
-        values = initial_parameters(group, self._ros_args, self.name)
+        values = initial_parameters(group, self._ros_args, self.name, strict=not self._ignore_undeclared)
         self._group = group
         self._specs = {p.name: p for p in SCHEMA.groups[group]}
         self._values = values
@@ -554,6 +567,16 @@ class DdsNode:
     def _srv_set_parameters_atomically(self, req: Any, rep: Any) -> None:
         reason = self._try_set({p.name: pv.from_value_msg(p.value) for p in req.parameters})
         rep.result = msgs.SetParametersResult(successful=reason is None, reason=reason or "")
+
+
+def _qos(qos: QoS, user_data: bytes, ignore_local: bool) -> Any:
+    """The DDS QoS of an endpoint; intra-process endpoints ignore their own participant."""
+    q = wire.dds_qos(qos, user_data)
+    if ignore_local:
+        from cyclonedds.qos import Policy, Qos
+
+        q += Qos(Policy.IgnoreLocal.Participant)
+    return q
 
 
 def _user_data(qos: Any) -> bytes:

@@ -1,0 +1,200 @@
+"""The DDS transport's executor: one thread runs the callbacks of one or more nodes.
+
+Like rclpy's ``SingleThreadedExecutor``: :meth:`DdsExecutor.spin_once` waits
+on one wait set (every reader of every node attached, plus a guard condition)
+until data arrives or the next timer is due, then runs on the calling thread,
+one at a time: the samples taken from DDS, the due timers, and the queued
+intra-process deliveries.
+
+Intra-process (composition). An executor made with ``intra_process=True``
+hosts several nodes in one process, as a ROS 2 component container with
+``use_intra_process_comms`` does. A message published on a topic that a node
+of the same executor subscribes to is handed to that subscription through an
+in-memory FIFO (the message object itself; CDR bytes, encoded once, for raw
+subscriptions) and never crosses DDS, so a sensor -> estimator -> controller ->
+plant chain costs no socket, no context switch and no (de)serialisation.
+The DDS endpoints still exist (``ros2 topic info`` lists them; remote
+publishers and subscribers are served as usual): they carry
+``IgnoreLocal.Participant`` so the process does not also receive its own
+samples over DDS, and a publisher writes to DDS only while a remote
+subscriber is matched. Published messages are shared, not copied: do not
+modify a message after publishing it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from typing import TYPE_CHECKING, Any, Callable
+
+from cyclonedds.core import GuardCondition, InstanceState, SampleState, ViewState, WaitSet
+from cyclonedds._clayer import ddspy_take
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .node import DdsNode, DdsTimer
+
+__all__ = ["DdsExecutor", "LocalSubscription"]
+
+_ANY = SampleState.Any | ViewState.Any | InstanceState.Any
+_TAKE_N = 256
+#: the longest a blocking wait lasts, so that Python signal handlers run promptly
+MAX_WAIT_NS = 200_000_000
+
+
+class LocalSubscription:
+    """An intra-process subscription: ``raw`` ones get CDR bytes, the others the message."""
+
+    __slots__ = ("node", "callback", "raw")
+
+    def __init__(self, node: "DdsNode", callback: Callable[[Any], None], raw: bool):
+        self.node = node
+        self.callback = callback
+        self.raw = raw
+
+
+class DdsExecutor:
+    """Dispatches the DDS readers, timers and intra-process queue of its nodes on one thread."""
+
+    def __init__(self, participant: Any, *, intra_process: bool = False):
+        self.participant = participant
+        self.intra_process = intra_process
+        self.ws = WaitSet(participant.dp)
+        self.guard = GuardCondition(participant.dp)
+        self.ws.attach(self.guard)
+        self.nodes: list["DdsNode"] = []
+        #: (DataReader ref, handler(data, info), ReadCondition, node)
+        self.readers: list[tuple[Any, Callable[[bytes, Any], None], Any, "DdsNode"]] = []
+        self.timers: list["DdsTimer"] = []
+        #: pending intra-process deliveries, (LocalSubscription, argument), FIFO over all topics
+        self.queue: deque = deque()
+        #: DDS topic name -> intra-process subscriptions (the list object is shared with publishers)
+        self.local: dict[str, list[LocalSubscription]] = {}
+        self._lock = threading.Lock()
+        self._owner: int | None = None  # thread inside spin_once
+        self._deferred: list[tuple["DdsNode", Callable[[], None]]] = []
+        self._stopped = False
+
+    # -- membership ---------------------------------------------------------------------
+    def add_node(self, node: "DdsNode") -> None:
+        self.nodes.append(node)
+
+    def add_reader(self, reader: Any, handler: Callable[[bytes, Any], None], cond: Any, node: "DdsNode") -> None:
+        self.ws.attach(cond)
+        self.readers.append((reader._ref, handler, cond, node))
+
+    def add_timer(self, timer: "DdsTimer") -> None:
+        self.timers.append(timer)
+
+    def local_subscriptions(self, dds_topic: str) -> list[LocalSubscription]:
+        """The (shared, live) list of intra-process subscriptions of a topic."""
+        return self.local.setdefault(dds_topic, [])
+
+    def remove_node(self, node: "DdsNode", then: Callable[[], None]) -> None:
+        """Forget a node's readers, timers and intra-process subscriptions, then call ``then()``.
+
+        From a callback or a signal handler on the spinning thread this happens when the
+        current :meth:`spin_once` has finished; from another thread it waits for that.
+        """
+        if self._owner == threading.get_ident():
+            self._deferred.append((node, then))
+            return
+        with self._lock:
+            self._forget(node)
+        then()
+
+    def _forget(self, node: "DdsNode") -> None:
+        for entry in [e for e in self.readers if e[3] is node]:
+            try:
+                self.ws.detach(entry[2])
+            except Exception:
+                pass
+            self.readers.remove(entry)
+        self.timers = [t for t in self.timers if t.node is not node]
+        for subs in self.local.values():
+            subs[:] = [s for s in subs if s.node is not node]
+        if node in self.nodes:
+            self.nodes.remove(node)
+        if not self.nodes:
+            self._stopped = True
+
+    def wake(self) -> None:
+        try:
+            self.guard.set(True)
+        except Exception:
+            pass
+
+    @property
+    def stopped(self) -> bool:
+        return self._stopped
+
+    # -- dispatch ------------------------------------------------------------------------
+    def spin_once(self, timeout_s: float | None = 0.1) -> None:
+        """Wait for data, a timer deadline or ``timeout_s``; then run what is ready."""
+        with self._lock:
+            if self._stopped:
+                return
+            self._owner = threading.get_ident()
+            try:
+                self._dispatch(timeout_s)
+            finally:
+                self._owner = None
+                while self._deferred:  # nodes shut down from a callback or a signal handler
+                    node, then = self._deferred.pop(0)
+                    self._forget(node)
+                    then()
+
+    def _dispatch(self, timeout_s: float | None) -> None:
+        queue = self.queue
+        now = time.monotonic_ns()
+        deadline = now + (MAX_WAIT_NS if timeout_s is None else max(0, int(timeout_s * 1e9)))
+        for t in self.timers:
+            if t.next_ns < deadline and not t.cancelled:
+                deadline = t.next_ns
+        if any(n._pending_replies for n in self.nodes):
+            deadline = min(deadline, now + 5_000_000)
+        wait = min(deadline - now, MAX_WAIT_NS) if not queue else 0
+        # a zero wait still polls: a loop that runs late must not starve its DDS readers
+        triggered = self.ws.wait(max(wait, 0))
+        if self._stopped:
+            return
+        if triggered:
+            self.guard.set(False)
+            self._take()
+        now = time.monotonic_ns()
+        for t in self.timers:
+            if t.next_ns <= now and not t.cancelled and not t.node._shutdown:
+                t._run(now)
+        while queue:  # intra-process deliveries, including those the callbacks add
+            sub, arg = queue.popleft()
+            if not sub.node._shutdown:
+                sub.callback(arg)
+        for n in self.nodes:
+            if n._pending_replies:
+                n._flush_replies()
+
+    def _take(self) -> None:
+        """Run the callbacks of every sample waiting in a DDS reader."""
+        for ref, handler, _cond, node in self.readers:
+            while True:
+                got = ddspy_take(ref, _ANY, _TAKE_N)
+                if isinstance(got, int) or not got:
+                    break
+                for data, info in got:
+                    if info.valid_data and not node._shutdown:
+                        handler(data, info)
+                if len(got) < _TAKE_N:
+                    break
+
+    def spin(self) -> None:
+        """Dispatch until every node has shut down (waits are bounded so signals are handled)."""
+        while not self._stopped:
+            self.spin_once(None)
+
+    def shutdown(self) -> None:
+        """Shut every node of this executor down."""
+        for n in list(self.nodes):
+            n.shutdown()
+        self._stopped = True
+        self.wake()
+

@@ -2,8 +2,11 @@
 
     ros2 launch dem_ros sim.launch.py
     ros2 launch dem_ros sim.launch.py params_file:=/path/to/my.yaml record:=true
+    ros2 launch dem_ros sim.launch.py compose:=true
 
 Every node reads the same params file (default: the package's config/dem_ros.yaml).
+With compose:=true the four nodes run in one ``container`` process on one
+executor (same names, parameters and topics; see dem_ros/nodes/container.py).
 With record:=true the rclpy-free recorder writes a rosbag2 MCAP bag under bag_dir;
 ``ros2 bag record -s mcap -a`` works as well.
 """
@@ -13,7 +16,7 @@ import os
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, ExecuteProcess
-from launch.conditions import IfCondition
+from launch.conditions import IfCondition, UnlessCondition
 from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 
@@ -21,10 +24,15 @@ from launch_ros.actions import Node
 def generate_launch_description():
     default_params = os.path.join(get_package_share_directory("dem_ros"), "config", "dem_ros.yaml")
     params = LaunchConfiguration("params_file")
+    compose = LaunchConfiguration("compose")
     nodes = [
-        Node(package="dem_ros", executable=name, name=name, output="screen", parameters=[params])
+        Node(package="dem_ros", executable=name, name=name, output="screen", parameters=[params],
+             condition=UnlessCondition(compose))
         for name in ("reference", "estimator", "controller", "plant_sim")
     ]
+    # one process, one executor; no name= (it would rename every node of the process)
+    nodes.append(Node(package="dem_ros", executable="container", output="screen", parameters=[params],
+                      condition=IfCondition(compose)))
     recorder = ExecuteProcess(
         cmd=["ros2", "run", "dem_ros", "recorder", "--bag",
              PythonExpression(["'", LaunchConfiguration("bag_dir"), "/' + __import__('time').strftime('%Y%m%d-%H%M%S') + '_ros2'"])],
@@ -35,6 +43,8 @@ def generate_launch_description():
         DeclareLaunchArgument("params_file", default_value=default_params, description="ROS 2 params file for every node"),
         DeclareLaunchArgument("record", default_value="false", description="record every topic to a bag"),
         DeclareLaunchArgument("bag_dir", default_value="bags", description="directory for the bag"),
+        DeclareLaunchArgument("compose", default_value="false",
+                              description="run the nodes in one process (component-container style)"),
         recorder,
         *nodes,
     ])

@@ -8,6 +8,10 @@ the queue is full, the message is dropped and counted; counters are written
 into the bag's ``custom_data`` (``dem_ros.recorder_counters``) on close, so a
 drop is never silent.
 
+:meth:`Recorder.on_object` queues a message object and the function that
+serializes it instead: the writer thread then does the encoding, off the
+caller's thread (used when the recorder shares a process with a 1 kHz loop).
+
 Threading: ``on_message`` may be called from any one thread (or several:
 the per-topic counters are then approximate, the bag is not). ``close()`` is
 idempotent and may be called from a signal handler (see
@@ -44,6 +48,14 @@ class TopicCounters:
     dropped: int = 0
 
 
+class _Deferred:
+    __slots__ = ("msg", "serialize")
+
+    def __init__(self, msg: Any, serialize: Callable[[Any], bytes]):
+        self.msg = msg
+        self.serialize = serialize
+
+
 class Recorder:
     """Record CDR messages of the given topics into a bag directory.
 
@@ -54,6 +66,10 @@ class Recorder:
         queue_size: maximum number of messages waiting for the writer thread.
         compression, chunk_size: passed to :class:`BagWriter`.
         poll_s: writer thread sleep (s) when the queue is empty.
+        kick_on: a topic whose message wakes the writer thread at once. In a
+            1 kHz loop sharing this process (composition) the writer then does
+            its Python work right after the loop's last message of a cycle,
+            while the loop sleeps, instead of contending with it for the GIL.
     """
 
     def __init__(
@@ -66,6 +82,7 @@ class Recorder:
         compression: str = "zstd",
         chunk_size: int = DEFAULT_CHUNK_SIZE,
         poll_s: float = 0.005,
+        kick_on: str | None = None,
     ) -> None:
         if queue_size < 1:
             raise BagError(f"queue_size must be >= 1, got {queue_size}")
@@ -78,6 +95,8 @@ class Recorder:
         self.path = self._writer.path
         self.queue_size = queue_size
         self.poll_s = poll_s
+        self.kick_on = kick_on
+        self._wake = threading.Event()
         self._counters = {t.name: TopicCounters() for t in self.topics}
         self._queue: deque[tuple[str, int, bytes]] = deque()
         self.max_queue_depth = 0
@@ -104,7 +123,16 @@ class Recorder:
             c.dropped += 1
             return False
         q.append((topic_name, recv_time_ns, cdr_bytes))
+        if topic_name == self.kick_on:
+            self._wake.set()
         return True
+
+    def on_object(self, topic_name: str, recv_time_ns: int, msg: Any, serialize: Callable[[Any], bytes]) -> bool:
+        """Like :meth:`on_message`, with ``serialize(msg)`` (CDR bytes) called on the writer thread.
+
+        ``msg`` must not change after this call (published messages do not).
+        """
+        return self.on_message(topic_name, recv_time_ns, _Deferred(msg, serialize))  # type: ignore[arg-type]
 
     # -- writer thread ---------------------------------------------------
     def _run(self) -> None:
@@ -116,12 +144,15 @@ class Recorder:
             if not depth:
                 if self._stop.is_set():
                     return
-                time.sleep(self.poll_s)
+                self._wake.wait(self.poll_s)
+                self._wake.clear()
                 continue
             topic = ""
             try:
                 for _ in range(depth):
                     topic, t, data = q.popleft()
+                    if type(data) is _Deferred:
+                        data = data.serialize(data.msg)
                     w.write(topic, t, data)
                     counters[topic].written += 1
             except BaseException as exc:  # disk full, etc.: stop writing, count the rest as dropped

@@ -15,13 +15,17 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from .. import __version__, contract
 from ..bag import Recorder
-from ..transport import Node, run_node
+from ..transport import Node, run_node, serialize
 
 __all__ = ["RecorderNode", "main", "parse_recorder_args"]
+
+#: reader history of the recorder's subscriptions (samples per topic; 1 s at 1 kHz)
+RECORDER_DEPTH = 1000
 
 
 class RecorderNode:
@@ -32,11 +36,22 @@ class RecorderNode:
         meta = dict(meta)
         meta.setdefault("transport", node.transport)
         topics = list(contract.TOPICS)
-        self.rec = Recorder(bag, topics, meta)
+        # a deeper reader history than the contract's: a recorder stalled for a while (a busy host)
+        # must not lose a burst of samples that its history would otherwise overwrite
+        deep = [replace(t, qos=replace(t.qos, depth=max(t.qos.depth, RECORDER_DEPTH))) for t in topics]
+        # the controller's state is the last message of a loop cycle: write while the loop sleeps
+        self.rec = Recorder(bag, topics, meta, kick_on=contract.CONTROLLER_STATE.name)
         now = node.now_ns
-        on_message = self.rec.on_message
-        for t in topics:
-            node.subscribe_raw(t, lambda data, name=t.name: on_message(name, now(), data))
+        if getattr(node, "intra_process", False):
+            # sharing the process with the loop: take the message objects (no copy) and let the
+            # writer thread serialize them, so the loop's thread does no recording work
+            on_object = self.rec.on_object
+            for t in deep:
+                node.subscribe(t, lambda msg, name=t.name: on_object(name, now(), msg, serialize))
+        else:
+            on_message = self.rec.on_message
+            for t in deep:
+                node.subscribe_raw(t, lambda data, name=t.name: on_message(name, now(), data))
         String = node.msg("std_msgs/msg/String")
         info = String()
         info.data = json.dumps(meta)

@@ -31,6 +31,50 @@ def machine() -> dict:
     return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()}
 
 
+def cpu_times() -> dict[str, int] | None:
+    """Machine-wide CPU ticks from /proc/stat (busy, idle, steal); None where unavailable."""
+    try:
+        with open("/proc/stat") as f:
+            v = [int(x) for x in f.readline().split()[1:]]
+    except (OSError, ValueError):
+        return None
+    steal = v[7] if len(v) > 7 else 0
+    idle = v[3] + (v[4] if len(v) > 4 else 0)
+    return {"busy": sum(v[:8]) - idle - steal, "idle": idle, "steal": steal}
+
+
+def steal_percent(before: dict | None, after: dict | None) -> float | None:
+    """Share of CPU time the hypervisor took from this VM between two :func:`cpu_times` (%)."""
+    if not before or not after:
+        return None
+    d = {k: after[k] - before[k] for k in before}
+    total = sum(d.values())
+    return round(100.0 * d["steal"] / total, 2) if total > 0 else None
+
+
+def timer_floor(seconds: float = 5.0, period_s: float = 1e-3) -> dict[str, float]:
+    """How late this machine wakes a bare 1 kHz loop sleeping to absolute deadlines (us).
+
+    No middleware, no work: the floor under any node's deadline misses. On a VM
+    whose host is busy this alone can exceed a millisecond.
+    """
+
+    period = int(period_s * 1e9)
+    n = max(1, int(seconds / period_s))
+    late = np.empty(n)
+    due = time.monotonic_ns() + period
+    for i in range(n):
+        wait = due - time.monotonic_ns()
+        if wait > 0:
+            time.sleep(wait * 1e-9)
+        late[i] = time.monotonic_ns() - due
+        due += period
+    late /= 1e3
+    p50, p99, p999 = np.percentile(late, [50, 99, 99.9])
+    return {"p50_us": round(float(p50), 1), "p99_us": round(float(p99), 1), "p99_9_us": round(float(p999), 1),
+            "max_us": round(float(late.max()), 1), "over_1ms_percent": round(100.0 * float(np.mean(late > 1000)), 3)}
+
+
 def _peer(cfg, duration: float, ref_arrays):
     """The same loop with scipy.integrate.solve_ivp (RK45, tight tolerances) per 1 ms interval."""
     from scipy.integrate import solve_ivp

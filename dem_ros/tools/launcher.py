@@ -407,8 +407,12 @@ def bench_loop(args) -> dict:
     a = _Args(scenario="S1", params=None, set=None, controller=None, estimator=None, duration=duration,
               transport=args.transport, bag_dir=tempfile.mkdtemp(prefix="dem_ros_bench_"), no_record=True,
               domain_id=None, json=None, compose=compose)
+    from .bench import cpu_times, machine, steal_percent, timer_floor
+
+    floor = timer_floor(5.0)
+    before = cpu_times()
     res = launch(a, quiet=False)
-    from .bench import machine
+    steal = steal_percent(before, cpu_times())
 
     m = machine()
     L = res["loop"]
@@ -418,7 +422,13 @@ def bench_loop(args) -> dict:
     print(f"  latency sensor stamp -> command at plant: p50 {L['latency_us']['p50']:.0f} us, p99 {L['latency_us']['p99']:.0f} us, max {L['latency_us']['max']:.0f} us")
     print("  CPU [% of one core]: " + ", ".join(f"{k} {v:.1f}" for k, v in L["cpu_percent"].items())
           + f"; all nodes {sum(L['cpu_percent'].values()):.1f}")
-    return {"loop": L, "machine": m, "transport": args.transport, "composed": compose, "duration_s": duration}
+    if steal is not None:  # a VM whose host is busy loses whole milliseconds: say so next to the figures
+        print(f"  CPU stolen by the hypervisor during the run: {steal:.1f} % of this VM's time")
+    print(f"  machine floor (a bare 1 kHz sleep loop, 5 s before the run): late p50 {floor['p50_us']:.0f} us,"
+          f" p99 {floor['p99_us']:.0f} us, p99.9 {floor['p99_9_us']:.0f} us, max {floor['max_us']:.0f} us;"
+          f" {floor['over_1ms_percent']:.3f} % of wake-ups > 1 ms late")
+    return {"loop": L, "machine": m, "transport": args.transport, "composed": compose, "duration_s": duration,
+            "hypervisor_steal_percent": steal, "timer_floor": floor}
 
 
 def bench_record(args) -> dict:

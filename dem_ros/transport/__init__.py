@@ -59,6 +59,8 @@ __all__ = [
 ]
 
 TRANSPORTS = ("auto", "rclpy", "dds")
+#: the GIL switch interval of node processes (Python's default is 5 ms)
+SWITCH_INTERVAL_S = 1e-4
 
 
 def rclpy_available() -> bool:
@@ -208,6 +210,9 @@ def run_nodes(
         # 1 kHz loop cannot absorb; afterwards collections only scan what the loop allocates.
         gc.collect()
         gc.freeze()
+        # Helper threads (the bag writer) must hand the GIL back to the executor thread quickly:
+        # with Python's default 5 ms switch interval a waking 1 kHz loop can wait 5 ms for it.
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
         _spin(made, names.index(stop_with) if stop_with in names else None)
         return 0
     except (ConfigError, TransportError) as exc:

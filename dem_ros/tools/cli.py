@@ -227,6 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
     pm.add_argument("name")
     pm.add_argument("value", nargs="?")
     pm.add_argument("--domain-id", type=int, default=None)
+    pm.add_argument("--timeout", type=float, default=5.0, help="seconds to find the node and get its reply (default 5)")
     pm.set_defaults(func=_delegate("launcher", "cmd_param"))
     return p
 

@@ -382,13 +382,13 @@ def cmd_param(args) -> int:
     from ..transport import param_get, param_set
 
     if args.action == "get":
-        print(param_get(args.node, args.name, domain_id=args.domain_id))
+        print(param_get(args.node, args.name, domain_id=args.domain_id, timeout_s=args.timeout))
         return 0
     if args.value is None:
         from .cli import UsageError
 
         raise UsageError("param set needs a VALUE")
-    ok, reason = param_set(args.node, args.name, args.value, domain_id=args.domain_id)
+    ok, reason = param_set(args.node, args.name, args.value, domain_id=args.domain_id, timeout_s=args.timeout)
     if ok:
         print(f"Set parameter successful")
         return 0

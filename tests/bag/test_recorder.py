@@ -83,3 +83,25 @@ def test_writer_failure_surfaces_on_close(tmp_path: Path) -> None:
     c = rec.counters()[MEASUREMENT.name]
     assert c.written == 0 and c.dropped == 50
     assert check(tmp_path / "f").complete  # still finalized
+
+
+def test_objects_are_serialized_on_the_writer_thread(tmp_path: Path) -> None:
+    """on_object: the caller's thread only queues; the writer thread encodes, the bag holds the bytes."""
+    import threading
+
+    caller = threading.get_ident()
+    threads = set()
+
+    def encode(msg: bytes) -> bytes:
+        threads.add(threading.get_ident())
+        return msg
+
+    with Recorder(tmp_path / "r", [MEASUREMENT, COMMAND], kick_on=COMMAND.name) as rec:
+        for k in range(500):
+            assert rec.on_object(MEASUREMENT.name, k * 10**6, MSG, encode)
+            assert rec.on_message(COMMAND.name, k * 10**6 + 1, MSG)
+    assert threads and caller not in threads
+    with BagReader(tmp_path / "r") as r:
+        assert r.topics[MEASUREMENT.name].count == 500
+        raw = [bytes(m[-1]) for m in r.raw_messages([MEASUREMENT.name])]
+    assert len(raw) == 500 and all(d == MSG for d in raw)

@@ -1,7 +1,9 @@
 """``estimator``: the EKF of :mod:`dem_ros.core.estimator` between sensors and controller.
 
 On each ``/dem/measurement`` it takes the voltage applied over the last sample
-(``/dem/applied_voltage`` of the same stamp), runs one predict/update and
+(``/dem/applied_voltage`` of the same stamp; the two topics may arrive in either
+order, so a measurement whose voltage is not there yet waits for it, at most
+until the next measurement), runs one predict/update and
 publishes ``/dem/state_estimate`` with the measurement's stamp. Gap rates are
 used when the sensors deliver them (a non-empty ``velocity``). Non-finite
 sensor values are skipped by the update (counted); type ``none`` passes the
@@ -31,7 +33,9 @@ class EstimatorNode:
         self.has_v: bool | None = None
         self.u_prev = None
         self.u_stamp = -1
+        self.pending = None  # a measurement waiting for its applied voltage
         self.bad = 0
+        self.unpaired = 0  # measurements processed without the voltage of their stamp
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.JS = node.msg("sensor_msgs/msg/JointState")
         self.pub = node.publisher(contract.ESTIMATE)
@@ -48,8 +52,24 @@ class EstimatorNode:
         if len(msg.effort) >= 2:
             self.u_prev = np.array(msg.effort[:2], dtype=float)
             self.u_stamp = stamp_ns(msg)
+            pending = self.pending
+            if pending is not None and stamp_ns(pending) == self.u_stamp:
+                self.pending = None
+                self._step(pending)
 
     def on_measurement(self, msg) -> None:
+        if self.pending is not None:  # its voltage never came: go on with the latest one
+            self.unpaired += 1
+            if self.unpaired in (1, 10, 100, 1000):
+                self.node.logger.warn(f"measurement without the applied voltage of its stamp ({self.unpaired} so far)")
+            pending, self.pending = self.pending, None
+            self._step(pending)
+        if self.u_prev is not None and stamp_ns(msg) != self.u_stamp:
+            self.pending = msg  # the voltage of this sample is still on its way
+            return
+        self._step(msg)
+
+    def _step(self, msg) -> None:
         z, has_v = meas_array(msg)
         if not all_finite(z):
             self.bad += 1

@@ -24,6 +24,8 @@ from .common import all_finite, joint_state, meas_array, stamp_ns
 
 __all__ = ["EstimatorNode", "main"]
 
+KEEP = 32  # applied voltages kept by stamp
+
 
 class EstimatorNode:
     def __init__(self, node: Node):
@@ -31,8 +33,8 @@ class EstimatorNode:
         self.cfg = node.declare_parameters("estimator", self.on_change)
         self.est = None
         self.has_v: bool | None = None
-        self.u_prev = None
-        self.u_stamp = -1
+        self.u_prev = None  # the newest applied voltage
+        self.volts: dict[int, np.ndarray] = {}  # applied voltages by stamp (the newest KEEP)
         self.pending = None  # a measurement waiting for its applied voltage
         self.bad = 0
         self.unpaired = 0  # measurements processed without the voltage of their stamp
@@ -50,10 +52,13 @@ class EstimatorNode:
 
     def on_applied(self, msg) -> None:
         if len(msg.effort) >= 2:
-            self.u_prev = np.array(msg.effort[:2], dtype=float)
-            self.u_stamp = stamp_ns(msg)
+            t = stamp_ns(msg)
+            volts = self.volts
+            volts[t] = self.u_prev = np.array(msg.effort[:2], dtype=float)
+            if len(volts) > KEEP:
+                del volts[next(iter(volts))]  # the oldest
             pending = self.pending
-            if pending is not None and stamp_ns(pending) == self.u_stamp:
+            if pending is not None and stamp_ns(pending) == t:
                 self.pending = None
                 self._step(pending)
 
@@ -64,7 +69,7 @@ class EstimatorNode:
                 self.node.logger.warn(f"measurement without the applied voltage of its stamp ({self.unpaired} so far)")
             pending, self.pending = self.pending, None
             self._step(pending)
-        if self.u_prev is not None and stamp_ns(msg) != self.u_stamp:
+        if self.u_prev is not None and stamp_ns(msg) not in self.volts:
             self.pending = msg  # the voltage of this sample is still on its way
             return
         self._step(msg)
@@ -78,8 +83,8 @@ class EstimatorNode:
         if self.est is None or has_v != self.has_v:
             self.est = make_estimator(self.cfg, None, has_v)
             self.has_v = has_v
-        u = self.u_prev if self.u_prev is not None else np.zeros(2)
-        xh = self.est.step(z, u)
+        u = self.volts.get(stamp_ns(msg), self.u_prev)
+        xh = self.est.step(z, u if u is not None else np.zeros(2))
         self.pub.publish(joint_state(self.JS, stamp_ns(msg), position=(xh[0], xh[2]), velocity=(xh[1], xh[3]),
                                      effort=(xh[4], xh[5])))
 

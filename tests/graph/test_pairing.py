@@ -29,12 +29,15 @@ def test_estimator_uses_the_voltage_of_each_measurements_stamp(monkeypatch):
         z = 0.008 + 1e-6 * rng.standard_normal((n, 2))
         i = 1.0 + 0.01 * rng.standard_normal((n, 2))
         u = 80.0 + rng.standard_normal((n, 2))
-        for k in range(n):
-            meas = joint_state(JS, k * T, position=z[k], effort=i[k])
-            volt = joint_state(JS, k * T, effort=u[k])
-            first = (volt, meas) if k == 0 or rng.random() < 0.5 else (meas, volt)  # either order
-            pa.publish(first[0]) if first[0] is volt else pm.publish(first[0])
-            pa.publish(first[1]) if first[1] is volt else pm.publish(first[1])
+        # arrival order across the two topics: a measurement before its voltage, or after the next
+        # sample's voltage (the plant runs one sample ahead with command_delay 1), never two samples off
+        events = [(k + rng.uniform(-0.9, 0.3), pa, joint_state(JS, k * T, effort=u[k])) for k in range(n)]
+        events += [(k + rng.uniform(-0.1, 0.9), pm, joint_state(JS, k * T, position=z[k], effort=i[k]))
+                   for k in range(n)]
+        events.sort(key=lambda e: e[0])
+        assert events[0][1] is pa  # (the very first voltage comes first: the filter starts from it)
+        for _, pub, msg in events:
+            pub.publish(msg)
             ex.spin_once(0.0)
         assert node.unpaired == 0
         ref = make_estimator(default_config()["estimator"], None, False)

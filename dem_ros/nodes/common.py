@@ -64,22 +64,39 @@ def meas_array(msg: Any) -> tuple[np.ndarray, bool]:
 
 
 class LatencyStats:
-    """Streaming latency samples (ns) kept in a preallocated ring for percentiles."""
+    """Streaming latencies (ns) as a histogram: constant memory, and a summary that costs the same
+    after one second or one day (the 1 kHz loop calls it every second).
 
-    def __init__(self, capacity: int = 1 << 18):
-        self.buf = np.zeros(capacity, dtype=np.int64)
+    Percentiles are resolved to ``bin_ns`` (1 us) up to ``bins * bin_ns`` (20 ms); beyond that the
+    exact maximum is reported. Negative values count in the first bin.
+    """
+
+    def __init__(self, bin_ns: int = 1000, bins: int = 20_000):
+        self.bin_ns = int(bin_ns)
+        self.hist = np.zeros(bins + 1, dtype=np.int64)  # the last bin: everything beyond
+        self._last = bins
         self.n = 0
+        self.max_ns = 0
 
     def add(self, ns: int) -> None:
-        self.buf[self.n % self.buf.size] = ns
+        i = ns // self.bin_ns
+        self.hist[self._last if i > self._last else (i if i > 0 else 0)] += 1
         self.n += 1
+        if ns > self.max_ns:
+            self.max_ns = ns
+
+    def percentiles_us(self, ps) -> list[float]:
+        """The ``ps``-th percentiles (0..100) in us: the centre of the bin holding each rank."""
+        if self.n == 0:
+            return [math.nan for _ in ps]
+        ranks = [max(1, math.ceil(p / 100.0 * self.n)) for p in ps]
+        idx = np.searchsorted(np.cumsum(self.hist), ranks)
+        return [self.max_ns / 1e3 if i >= self._last else min((i + 0.5) * self.bin_ns, self.max_ns) / 1e3
+                for i in idx.tolist()]
 
     def summary_us(self) -> dict[str, float]:
-        m = min(self.n, self.buf.size)
-        if m == 0:
-            return {"p50": math.nan, "p99": math.nan, "max": math.nan}
-        a = self.buf[:m] / 1e3
-        return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)), "max": float(a.max())}
+        p50, p99 = self.percentiles_us((50, 99))
+        return {"p50": p50, "p99": p99, "max": self.max_ns / 1e3 if self.n else math.nan}
 
 
 def diag_array(cls_array: type, cls_status: type, cls_kv: type, t_ns: int, name: str, level: int, message: str, values: dict) -> Any:

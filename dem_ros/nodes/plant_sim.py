@@ -228,8 +228,9 @@ class PlantSimNode:
             "failed": self.plant.fault is not None, "fault": self.plant.fault or "",
         }
 
-    def publish_diag(self, level: int, message: str) -> None:
-        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), "plant_sim: loop", level, message, self.stats()))
+    def publish_diag(self, level: int, message: str, stats: dict | None = None) -> None:
+        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), "plant_sim: loop", level, message,
+                                         stats if stats is not None else self.stats()))
 
     def status(self) -> None:
         if not self.started or self.finished:
@@ -239,7 +240,7 @@ class PlantSimNode:
         print(f"t = {s['t_sim_s']:7.1f} s  gaps {x[0] * 1e3:6.3f} / {x[2] * 1e3:6.3f} mm  misses {s['deadline_misses']}"
               f"  latency p50 {s['latency_p50_us']:.0f} us p99 {s['latency_p99_us']:.0f} us  x{s['realtime_factor']:.2f} real time",
               flush=True)
-        self.publish_diag(0 if s["deadline_misses"] == 0 else 1, "running")
+        self.publish_diag(0 if s["deadline_misses"] == 0 else 1, "running", s)
 
     def finish(self, message: str, level: int) -> None:
         self.finished = True

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["FRAME", "FRAME_PREROLL", "QoS", "Topic", "TOPICS", "MAGNETS", "REFERENCE_NAMES", "CONTROLLER_STATE_NAMES"]
+__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "MAGNETS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic"]
 
 FRAME = "dem"
 FRAME_PREROLL = "dem/preroll"

@@ -18,6 +18,14 @@ from .recorder import Recorder, TopicCounters, finalize_on_signals
 from .writer import BagWriter
 
 __all__ = [
-    "BagError", "BagWriter", "BagReader", "TopicInfo", "Recorder", "TopicCounters",
-    "finalize_on_signals", "check", "CheckReport", "main_check",
+    "BagError",
+    "BagReader",
+    "BagWriter",
+    "CheckReport",
+    "Recorder",
+    "TopicCounters",
+    "TopicInfo",
+    "check",
+    "finalize_on_signals",
+    "main_check",
 ]

@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import mmap
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
 
 from .errors import BagError
 
-__all__ = ["MAGIC", "Schema", "Channel", "ChunkInfo", "Truncation", "McapFile"]
+__all__ = ["MAGIC", "Channel", "ChunkInfo", "McapFile", "Schema", "Truncation"]
 
 MAGIC = b"\x89MCAP0\r\n"
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 5, 6

@@ -36,8 +36,15 @@ from dem_ros.contract import QoS
 from .errors import BagError
 
 __all__ = [
-    "METADATA_VERSION", "STORAGE_ID", "qos_to_v8_string", "qos_from_string", "typestore",
-    "msgdef", "type_hash", "metadata_dict", "dump_metadata_yaml",
+    "METADATA_VERSION",
+    "STORAGE_ID",
+    "dump_metadata_yaml",
+    "metadata_dict",
+    "msgdef",
+    "qos_from_string",
+    "qos_to_v8_string",
+    "type_hash",
+    "typestore",
 ]
 
 METADATA_VERSION = 8
@@ -125,14 +132,14 @@ def _check_type(type_name: str) -> None:
         )
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def msgdef(type_name: str) -> str:
     """``ros2msg`` schema text for ``type_name`` (with ``MSG:`` dependency sections)."""
     _check_type(type_name)
     return str(typestore().generate_msgdef(type_name, ros_version=2)[0])
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def type_hash(type_name: str) -> str:
     """RIHS01 type description hash, as Jazzy stores in ``type_description_hash``."""
     _check_type(type_name)

@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import json
 import struct
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Iterable, Iterator
+from typing import Any
 
 import numpy as np
 import yaml
@@ -27,7 +28,7 @@ from . import _rosfmt
 from ._mcap import McapFile, Truncation
 from .errors import BagError
 
-__all__ = ["BagReader", "TopicInfo", "JOINT_STATE"]
+__all__ = ["JOINT_STATE", "BagReader", "TopicInfo"]
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 

@@ -24,12 +24,12 @@ import json
 import signal
 import sys
 import threading
-import time
 from collections import deque
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import FrameType
-from typing import Any, Callable, Iterable
+from typing import Any
 
 from dem_ros.contract import Topic
 

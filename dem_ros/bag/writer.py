@@ -40,7 +40,7 @@ from dem_ros.contract import QoS
 from . import _rosfmt
 from .errors import BagError
 
-__all__ = ["BagWriter", "COMPRESSIONS"]
+__all__ = ["COMPRESSIONS", "BagWriter"]
 
 COMPRESSIONS = ("zstd", "lz4", "none")
 #: rosbag2_storage_mcap's default chunk size (mcap C++ McapWriterOptions: 768 KiB).

@@ -27,12 +27,12 @@ them. Innovation, gain and covariance are kept for inspection.
 
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 from numba import njit
 
-from .model import IP, IQ, IK, dynamics, plant_vector
+from .model import IK, IP, IQ, dynamics, plant_vector
 from .params import SCHEMA
 
 __all__ = ["KalmanEstimator", "PassThrough", "make_estimator"]

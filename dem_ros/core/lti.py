@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 from scipy.linalg import expm
 
-__all__ = ["companion", "zoh", "AllPoleFilter", "filter_step"]
+__all__ = ["AllPoleFilter", "companion", "filter_step", "zoh"]
 
 
 def companion(coeffs: np.ndarray, gain: float) -> tuple[np.ndarray, np.ndarray]:

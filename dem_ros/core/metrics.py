@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["tracking_metrics", "error_metrics"]
+__all__ = ["error_metrics", "tracking_metrics"]
 
 
 def error_metrics(t: np.ndarray, e: np.ndarray, after: float = 40.0) -> dict[str, list[float]]:

@@ -36,16 +36,16 @@ from numba import njit
 
 __all__ = [
     "PlantParams",
-    "plant_vector",
     "derived",
     "dynamics",
-    "rk4",
-    "theta_of",
-    "theta_jacobian",
-    "lie_terms",
-    "regressors",
     "hover_current",
     "hover_state",
+    "lie_terms",
+    "plant_vector",
+    "regressors",
+    "rk4",
+    "theta_jacobian",
+    "theta_of",
 ]
 
 # Layout of the plant parameter vector ``p`` used by the kernels.

@@ -23,19 +23,20 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any
 
 __all__ = [
+    "SCHEMA",
+    "TABLE2",
     "ConfigError",
     "ParamSpec",
     "Schema",
-    "SCHEMA",
-    "TABLE2",
+    "default_config",
     "load_params_file",
     "read_yaml",
-    "default_config",
 ]
 
 

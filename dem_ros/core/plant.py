@@ -7,7 +7,7 @@ offline run of the same scenario see identical disturbances.
 
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 

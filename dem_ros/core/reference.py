@@ -13,7 +13,7 @@ Output layout (shape (8,)): ``[y1, y2, y1', y2', y1'', y2'', y1''', y2''']``
 
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 from numba import njit

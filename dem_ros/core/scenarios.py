@@ -7,15 +7,16 @@ scenario implies, all seeded.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
 from .params import ConfigError, apply_overrides, default_config
 
-__all__ = ["Scenario", "load_scenarios", "get_scenario", "config_dir", "mass_profile", "noise_samples", "perturbation_samples"]
+__all__ = ["Scenario", "config_dir", "get_scenario", "load_scenarios", "mass_profile", "noise_samples", "perturbation_samples"]
 
 
 def config_dir() -> Path:

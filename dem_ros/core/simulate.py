@@ -12,8 +12,9 @@ The result is one :class:`SimResult` with labelled signals in SI units.
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 from numba import njit, prange
@@ -21,7 +22,7 @@ from numba import njit, prange
 from .controllers import CEController, PIDController, make_controller
 from .controllers import kernels as CK
 from .estimator import KalmanEstimator, ekf_step, make_estimator
-from .model import hover_state, plant_vector, rk4, set_mass, IP, IQ
+from .model import IP, IQ, hover_state, plant_vector, rk4, set_mass
 from .reference import reference_trajectory
 from .scenarios import NOISE_UNIT, mass_profile, noise_samples, perturbation_samples
 

@@ -3,14 +3,24 @@
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from ..contract import FRAME, MAGNETS
 
-__all__ = ["stamp_ns", "set_stamp", "joint_state", "named_vector", "meas_array", "all_finite", "clipped",
-           "LatencyStats", "diag_array"]
+__all__ = [
+    "LatencyStats",
+    "all_finite",
+    "clipped",
+    "diag_array",
+    "joint_state",
+    "meas_array",
+    "named_vector",
+    "set_stamp",
+    "stamp_ns",
+]
 
 _isfinite = math.isfinite
 

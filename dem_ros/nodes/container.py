@@ -31,7 +31,7 @@ from .plant_sim import PlantSimNode
 from .recorder import RecorderNode, parse_recorder_args, split_ros_args
 from .reference import ReferenceNode
 
-__all__ = ["main", "LOOP_NODES"]
+__all__ = ["LOOP_NODES", "main"]
 
 #: set-up order = intra-process delivery order on a shared topic (estimator before reference)
 LOOP_NODES = {"estimator": EstimatorNode, "controller": ControllerNode, "reference": ReferenceNode,

@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-__all__ = ["run", "bench_sim", "machine"]
+__all__ = ["bench_sim", "machine", "run"]
 
 
 def machine() -> dict:

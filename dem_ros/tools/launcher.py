@@ -29,7 +29,7 @@ from .. import __version__
 from ..core.metrics import error_metrics
 from ..core.params import SCHEMA
 
-__all__ = ["cmd_launch", "cmd_node", "cmd_param", "run_graph", "graph_summary", "bench_loop", "bench_record"]
+__all__ = ["bench_loop", "bench_record", "cmd_launch", "cmd_node", "cmd_param", "graph_summary", "run_graph"]
 
 NODES = ("recorder", "reference", "estimator", "controller", "plant_sim")
 
@@ -390,7 +390,7 @@ def cmd_param(args) -> int:
         raise UsageError("param set needs a VALUE")
     ok, reason = param_set(args.node, args.name, args.value, domain_id=args.domain_id, timeout_s=args.timeout)
     if ok:
-        print(f"Set parameter successful")
+        print("Set parameter successful")
         return 0
     print(f"Setting parameter failed: {reason}", file=sys.stderr)
     return 1

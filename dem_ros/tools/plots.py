@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 
-__all__ = ["plot_run", "figure", "save"]
+__all__ = ["figure", "plot_run", "save"]
 
 
 def figure(rows: int = 1, cols: int = 1, h: float = 3.0):

@@ -15,7 +15,6 @@
 from __future__ import annotations
 
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -25,7 +24,7 @@ import numpy as np
 from .. import contract
 from ..core.metrics import error_metrics
 
-__all__ = ["analyse", "what_if", "cmd_replay", "cmd_bag"]
+__all__ = ["analyse", "cmd_bag", "cmd_replay", "what_if"]
 
 
 def _arrays(reader, topic: str) -> dict | None:

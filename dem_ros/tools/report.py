@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.controllers import CONTROLLERS
 from ..core.scenarios import load_scenarios
 from ..core.simulate import simulate
 from .plots import figure, overlay, save

@@ -33,29 +33,30 @@ from __future__ import annotations
 import gc
 import signal
 import sys
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 from ..core.params import ConfigError
 from .api import Logger, Node, OnChange, Publisher, RawCallback, TransportError
 
 __all__ = [
-    "Node",
-    "Publisher",
+    "TRANSPORTS",
+    "ConfigError",
     "Logger",
+    "Node",
     "OnChange",
+    "Publisher",
     "RawCallback",
     "TransportError",
-    "ConfigError",
-    "TRANSPORTS",
-    "rclpy_available",
+    "deserialize",
     "make_node",
+    "param_get",
+    "param_list",
+    "param_set",
+    "rclpy_available",
     "run_node",
     "run_nodes",
     "serialize",
-    "deserialize",
-    "param_set",
-    "param_get",
-    "param_list",
 ]
 
 TRANSPORTS = ("auto", "rclpy", "dds")

@@ -7,17 +7,18 @@ wrapper). Node logic only uses what is declared here.
 
 from __future__ import annotations
 
-from typing import Any, Callable, Mapping, Protocol, runtime_checkable
+from collections.abc import Callable, Mapping
+from typing import Any, Protocol, runtime_checkable
 
 from ..contract import Topic
 
 __all__ = [
-    "TransportError",
-    "Publisher",
     "Logger",
     "Node",
     "OnChange",
+    "Publisher",
     "RawCallback",
+    "TransportError",
 ]
 
 

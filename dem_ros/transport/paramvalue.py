@@ -12,9 +12,21 @@ from typing import Any
 from ..core.params import ParamSpec
 
 __all__ = [
-    "NOT_SET", "BOOL", "INTEGER", "DOUBLE", "STRING", "BYTE_ARRAY", "BOOL_ARRAY",
-    "INTEGER_ARRAY", "DOUBLE_ARRAY", "STRING_ARRAY",
-    "spec_type", "to_value_msg", "from_value_msg", "describe", "descriptor_fields",
+    "BOOL",
+    "BOOL_ARRAY",
+    "BYTE_ARRAY",
+    "DOUBLE",
+    "DOUBLE_ARRAY",
+    "INTEGER",
+    "INTEGER_ARRAY",
+    "NOT_SET",
+    "STRING",
+    "STRING_ARRAY",
+    "describe",
+    "descriptor_fields",
+    "from_value_msg",
+    "spec_type",
+    "to_value_msg",
 ]
 
 # rcl_interfaces/msg/ParameterType

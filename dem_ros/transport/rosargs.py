@@ -14,13 +14,14 @@ overrides, validated as a whole by :mod:`dem_ros.core.params`.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from ..core.params import SCHEMA, ConfigError, apply_overrides, default_config, params_from_tree, read_yaml
 
-__all__ = ["RosArgs", "parse_ros_args", "initial_parameters"]
+__all__ = ["RosArgs", "initial_parameters", "parse_ros_args"]
 
 
 @dataclass
@@ -94,9 +95,7 @@ def parse_ros_args(args: Sequence[str] | None) -> RosArgs:
                     out.remaps["/" + key.lstrip("/")] = "/" + to.lstrip("/")
             elif a in _FLAGS_WITH_VALUE:
                 next(it)
-            elif a in _FLAGS or a.startswith("--enable-") or a.startswith("--disable-"):
-                pass
-            elif a.startswith("--log-level="):
+            elif a in _FLAGS or a.startswith("--enable-") or a.startswith("--disable-") or a.startswith("--log-level="):
                 pass
             else:
                 raise ConfigError(f"unknown ROS argument {a!r} after --ros-args")

@@ -1,2 +1,2 @@
 """Fixtures of the bag tests live in bagutil (a unique module name: test dirs share no conftest)."""
-from bagutil import *  # noqa: F401,F403  (fixtures)
+from bagutil import *  # noqa: F403  (fixtures)

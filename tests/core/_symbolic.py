@@ -15,7 +15,7 @@ State x = [d1, d1', d2, d2', i1, i2], input u = [u1, u2], output h = [d1, d2].
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 from types import SimpleNamespace
 
 import numpy as np
@@ -24,7 +24,7 @@ import sympy as sp
 PARAM_NAMES = ("m", "I", "L", "l", "K", "R", "N1", "N2", "g")
 
 
-@lru_cache(maxsize=None)
+@cache
 def plant() -> SimpleNamespace:
     """Symbolic f(x), G(x), h(x) and helpers (cached: built once per session)."""
     m, I, L, l, K, R, N1, N2, g = sp.symbols(" ".join(PARAM_NAMES), positive=True)

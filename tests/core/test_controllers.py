@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from _symbolic import lie_numeric, plant, values
+
 from dem_ros.core.controllers import (
     CONTROLLERS,
     CEController,

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from _symbolic import plant, values
+
 from dem_ros.core.estimator import KalmanEstimator, PassThrough, ekf_step, jacobian, make_estimator
 from dem_ros.core.model import plant_vector
 from dem_ros.core.params import ConfigError, default_config

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import sympy as sp
-
 from _symbolic import lie_numeric, plant, values
+
 from dem_ros.core import model
 from dem_ros.core.params import TABLE2, default_config
 
@@ -61,12 +61,12 @@ def test_dynamics_matches_newton_and_circuit_law(changes):
 
 def test_derived_constants_match_notes_section_1():
     P, Q, A, B, C, D = model.derived(TRUE["L"], TRUE["l"], TRUE["m"], TRUE["I"])
-    assert P == pytest.approx(0.78, abs=1e-12)
-    assert Q == pytest.approx(0.22, abs=1e-12)
-    assert A == pytest.approx(0.156566, abs=5e-7)
-    assert B == pytest.approx(-0.021904, abs=5e-7)
-    assert C == pytest.approx(0.226679, abs=5e-7)
-    assert D == pytest.approx(-0.092017, abs=5e-7)
+    assert pytest.approx(0.78, abs=1e-12) == P
+    assert pytest.approx(0.22, abs=1e-12) == Q
+    assert pytest.approx(0.156566, abs=5e-7) == A
+    assert pytest.approx(-0.021904, abs=5e-7) == B
+    assert pytest.approx(0.226679, abs=5e-7) == C
+    assert pytest.approx(-0.092017, abs=5e-7) == D
     # B changes sign at m = I/(L l) = 11.2 kg
     m_star = TRUE["I"] / (TRUE["L"] * TRUE["l"])
     assert m_star == pytest.approx(11.2, abs=0.05)

@@ -4,14 +4,12 @@ One recorded S1 run (module fixture) is shared by the tests that only read its r
 live parameter changes are made while it runs. Nothing of the middleware is mocked.
 """
 
-import json
 import math
 import os
 import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,7 +18,7 @@ from dem_ros import contract
 from dem_ros.core.scenarios import get_scenario
 from dem_ros.core.simulate import simulate
 from dem_ros.tools import launcher
-from dem_ros.transport import make_node, param_get, param_set
+from dem_ros.transport import make_node
 
 DURATION = 4.0
 PREROLL = 1.0

@@ -6,9 +6,6 @@ import subprocess
 import sys
 import time
 
-import pytest
-
-from dem_ros import contract
 from dem_ros.bag import BagReader, check
 
 

@@ -56,9 +56,10 @@ def test_corrupt_or_foreign_input_is_a_clear_error(tmp_path, make):
         path = tmp_path / "cut.mcap"
         path.write_bytes(data[:300])
     else:  # an MCAP without our topics
+        from rosbags.typesys import Stores, get_typestore
+
         from dem_ros.bag import BagWriter
         from dem_ros.contract import QoS
-        from rosbags.typesys import Stores, get_typestore
 
         ts = get_typestore(Stores.ROS2_JAZZY)
         String = ts.types["std_msgs/msg/String"]

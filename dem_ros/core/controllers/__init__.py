@@ -20,7 +20,7 @@ m_hat, R_hat, K_hat, e_c (2), e (2), adapting, fault.
 
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -29,7 +29,7 @@ from ..model import lie_terms, regressors, theta_jacobian, theta_of
 from ..params import SCHEMA, ConfigError
 from . import kernels as K
 
-__all__ = ["CONTROLLERS", "Controller", "CEController", "PIDController", "make_controller"]
+__all__ = ["CONTROLLERS", "CEController", "Controller", "PIDController", "make_controller"]
 
 CONTROLLERS = {
     "adaptive": K.MODE_ADAPTIVE,

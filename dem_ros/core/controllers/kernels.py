@@ -48,8 +48,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..model import IA, IB, IC, ID, IG, IK, IN1, IN2, IP, IQ, IR, lie_terms, regressors, rk4, theta_jacobian, theta_of
 from ..lti import filter_step
+from ..model import IA, IB, IC, ID, IG, IK, IN1, IN2, IP, IQ, IR, lie_terms, regressors, rk4, theta_jacobian, theta_of
 
 MODE_FIXED, MODE_PAPER, MODE_PAPER_FIX, MODE_ADAPTIVE, MODE_ENHANCED = 0, 1, 2, 3, 4
 

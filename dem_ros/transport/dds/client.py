@@ -11,17 +11,17 @@ import random
 import time
 from typing import Any
 
+from cyclonedds._clayer import ddspy_take, ddspy_write
 from cyclonedds.core import ReadCondition, WaitSet
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
-from cyclonedds._clayer import ddspy_take, ddspy_write
 
 from .. import paramvalue as pv
 from ..api import TransportError
 from . import msgs, wire
 from .node import _ANY, QOS_SERVICES, Participant
 
-__all__ = ["call_service", "param_set", "param_get", "param_list"]
+__all__ = ["call_service", "param_get", "param_list", "param_set"]
 
 
 def _node_fqn(node_name: str) -> str:

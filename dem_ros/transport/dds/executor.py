@@ -33,10 +33,11 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
-from typing import TYPE_CHECKING, Any, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
-from cyclonedds.core import GuardCondition, InstanceState, SampleState, ViewState, WaitSet
 from cyclonedds._clayer import ddspy_take
+from cyclonedds.core import GuardCondition, InstanceState, SampleState, ViewState, WaitSet
 
 if TYPE_CHECKING:  # pragma: no cover
     from .node import DdsNode, DdsTimer
@@ -52,9 +53,9 @@ MAX_WAIT_NS = 200_000_000
 class LocalSubscription:
     """An intra-process subscription: ``raw`` ones get CDR bytes, the others the message."""
 
-    __slots__ = ("node", "callback", "raw")
+    __slots__ = ("callback", "node", "raw")
 
-    def __init__(self, node: "DdsNode", callback: Callable[[Any], None], raw: bool):
+    def __init__(self, node: DdsNode, callback: Callable[[Any], None], raw: bool):
         self.node = node
         self.callback = callback
         self.raw = raw
@@ -69,35 +70,35 @@ class DdsExecutor:
         self.ws = WaitSet(participant.dp)
         self.guard = GuardCondition(participant.dp)
         self.ws.attach(self.guard)
-        self.nodes: list["DdsNode"] = []
+        self.nodes: list[DdsNode] = []
         #: (DataReader ref, handler(data, info), ReadCondition, node)
-        self.readers: list[tuple[Any, Callable[[bytes, Any], None], Any, "DdsNode"]] = []
-        self.timers: list["DdsTimer"] = []
+        self.readers: list[tuple[Any, Callable[[bytes, Any], None], Any, DdsNode]] = []
+        self.timers: list[DdsTimer] = []
         #: pending intra-process deliveries, (LocalSubscription, argument), FIFO over all topics
         self.queue: deque = deque()
         #: DDS topic name -> intra-process subscriptions (the list object is shared with publishers)
         self.local: dict[str, list[LocalSubscription]] = {}
         self._lock = threading.Lock()
         self._owner: int | None = None  # thread inside spin_once
-        self._deferred: list[tuple["DdsNode", Callable[[], None]]] = []
+        self._deferred: list[tuple[DdsNode, Callable[[], None]]] = []
         self._stopped = False
 
     # -- membership ---------------------------------------------------------------------
-    def add_node(self, node: "DdsNode") -> None:
+    def add_node(self, node: DdsNode) -> None:
         self.nodes.append(node)
 
-    def add_reader(self, reader: Any, handler: Callable[[bytes, Any], None], cond: Any, node: "DdsNode") -> None:
+    def add_reader(self, reader: Any, handler: Callable[[bytes, Any], None], cond: Any, node: DdsNode) -> None:
         self.ws.attach(cond)
         self.readers.append((reader._ref, handler, cond, node))
 
-    def add_timer(self, timer: "DdsTimer") -> None:
+    def add_timer(self, timer: DdsTimer) -> None:
         self.timers.append(timer)
 
     def local_subscriptions(self, dds_topic: str) -> list[LocalSubscription]:
         """The (shared, live) list of intra-process subscriptions of a topic."""
         return self.local.setdefault(dds_topic, [])
 
-    def remove_node(self, node: "DdsNode", then: Callable[[], None]) -> None:
+    def remove_node(self, node: DdsNode, then: Callable[[], None]) -> None:
         """Forget a node's readers, timers and intra-process subscriptions, then call ``then()``.
 
         From a callback or a signal handler on the spinning thread this happens when the
@@ -110,7 +111,7 @@ class DdsExecutor:
             self._forget(node)
         then()
 
-    def _forget(self, node: "DdsNode") -> None:
+    def _forget(self, node: DdsNode) -> None:
         for entry in [e for e in self.readers if e[3] is node]:
             try:
                 self.ws.detach(entry[2])

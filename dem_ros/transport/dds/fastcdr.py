@@ -17,11 +17,12 @@ primitive aligned to its size, a sequence = uint32 count + elements, a string
 from __future__ import annotations
 
 import struct
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from . import msgs
 
-__all__ = ["ENCODERS", "DECODERS", "encode_joint_state", "decode_joint_state"]
+__all__ = ["DECODERS", "ENCODERS", "decode_joint_state", "encode_joint_state"]
 
 _HDR = b"\x00\x01\x00\x00"
 _u32 = struct.Struct("<I")

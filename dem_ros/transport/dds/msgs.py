@@ -20,7 +20,7 @@ client to pick its replies) and ``int64 seq`` (the request's sequence number).
 """
 
 from dataclasses import dataclass, field
-from typing import Any, Dict, Type
+from typing import Any
 
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import array, float64, int32, int64, sequence, uint8, uint32, uint64
@@ -28,9 +28,9 @@ from cyclonedds.idl.types import array, float64, int32, int64, sequence, uint8, 
 __all__ = [
     "MESSAGES",
     "SERVICES",
-    "message_class",
     "dds_type_name",
     "gid_types",
+    "message_class",
 ]
 
 
@@ -314,7 +314,7 @@ class GetParameterTypes_Response(IdlStruct, typename="rcl_interfaces::srv::dds_:
 # --------------------------------------------------------------------------- rmw_dds_common
 # The Gid is 24 bytes on Humble and 16 from Iron on, under the same type name:
 # build one set per size, pick with gid_types(size).
-def _make_gid_types(size: int) -> Dict[str, Type[Any]]:
+def _make_gid_types(size: int) -> dict[str, type[Any]]:
     @dataclass
     class Gid(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
         data: array[uint8, size] = field(default_factory=lambda: [0] * size)  # type: ignore[valid-type]
@@ -340,10 +340,10 @@ def _make_gid_types(size: int) -> Dict[str, Type[Any]]:
     }
 
 
-_GID_TYPES: Dict[int, Dict[str, Type[Any]]] = {}
+_GID_TYPES: dict[int, dict[str, type[Any]]] = {}
 
 
-def gid_types(size: int) -> Dict[str, Type[Any]]:
+def gid_types(size: int) -> dict[str, type[Any]]:
     """The rmw_dds_common Gid / NodeEntitiesInfo / ParticipantEntitiesInfo classes for a GID size (16 or 24)."""
     if size not in (16, 24):
         raise ValueError(f"GID size must be 16 (Iron and later) or 24 (Humble), got {size}")
@@ -352,7 +352,7 @@ def gid_types(size: int) -> Dict[str, Type[Any]]:
     return _GID_TYPES[size]
 
 
-MESSAGES: Dict[str, Type[Any]] = {
+MESSAGES: dict[str, type[Any]] = {
     "builtin_interfaces/msg/Time": Time,
     "std_msgs/msg/Header": Header,
     "std_msgs/msg/String": String,
@@ -372,7 +372,7 @@ MESSAGES: Dict[str, Type[Any]] = {
 }
 
 #: service name suffix -> (ROS service type, request class, response class)
-SERVICES: Dict[str, tuple] = {
+SERVICES: dict[str, tuple] = {
     "get_parameters": ("rcl_interfaces/srv/GetParameters", GetParameters_Request, GetParameters_Response),
     "set_parameters": ("rcl_interfaces/srv/SetParameters", SetParameters_Request, SetParameters_Response),
     "set_parameters_atomically": (
@@ -394,7 +394,7 @@ SERVICES: Dict[str, tuple] = {
 }
 
 
-def message_class(ros_type: str) -> Type[Any]:
+def message_class(ros_type: str) -> type[Any]:
     """The IDL class for a ROS type name such as ``sensor_msgs/msg/JointState``."""
     try:
         return MESSAGES[ros_type]

@@ -16,18 +16,18 @@ announced on ``/parameter_events``.
 
 from __future__ import annotations
 
-import os
 import sys
 import threading
 import time
-from typing import Any, Callable, Mapping
+from collections.abc import Callable, Mapping
+from typing import Any
 
+from cyclonedds._clayer import ddspy_write
 from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic as DdsTopic
-from cyclonedds._clayer import ddspy_write
 
 from ... import contract
 from ...contract import QoS, Topic
@@ -38,7 +38,7 @@ from ..rosargs import RosArgs, initial_parameters, parse_ros_args
 from . import fastcdr, msgs, wire
 from .executor import DdsExecutor, LocalSubscription
 
-__all__ = ["DdsNode", "DdsPublisher", "DdsTimer", "Participant", "DdsExecutor"]
+__all__ = ["DdsExecutor", "DdsNode", "DdsPublisher", "DdsTimer", "Participant"]
 
 _ANY = SampleState.Any | ViewState.Any | InstanceState.Any
 #: rmw_qos_profile_services_default
@@ -56,7 +56,7 @@ def _guid_bytes(entity: Any) -> bytes:
 class Participant:
     """The process-wide DDS participant plus the ``ros_discovery_info`` writer."""
 
-    _instance: "Participant | None" = None
+    _instance: Participant | None = None
     _lock = threading.Lock()
 
     def __init__(self, settings: wire.Settings):
@@ -73,7 +73,7 @@ class Participant:
             ) from None
         self.gid = self._gid(_guid_bytes(self.dp))
         self._topics: dict[str, DdsTopic] = {}
-        self._nodes: list["DdsNode"] = []
+        self._nodes: list[DdsNode] = []
         types = msgs.gid_types(settings.gid_size)
         self._Gid = types["Gid"]
         self._NEI = types["NodeEntitiesInfo"]
@@ -86,7 +86,7 @@ class Participant:
 
     # -- process singleton ---------------------------------------------------------
     @classmethod
-    def get(cls, domain_id: int | None = None) -> "Participant":
+    def get(cls, domain_id: int | None = None) -> Participant:
         settings = wire.settings_from_env(domain_id)
         with cls._lock:
             inst = cls._instance
@@ -115,10 +115,10 @@ class Participant:
         return t
 
     # -- graph ---------------------------------------------------------------------
-    def add_node(self, node: "DdsNode") -> None:
+    def add_node(self, node: DdsNode) -> None:
         self._nodes.append(node)
 
-    def remove_node(self, node: "DdsNode") -> None:
+    def remove_node(self, node: DdsNode) -> None:
         if node in self._nodes:
             self._nodes.remove(node)
             self.publish_graph()
@@ -258,7 +258,7 @@ class DdsTimer:
 class _Logger:
     _LEVELS = {"DEBUG": 10, "INFO": 20, "WARN": 30, "ERROR": 40, "FATAL": 50}
 
-    def __init__(self, node: "DdsNode"):
+    def __init__(self, node: DdsNode):
         self._node = node
         self._rosout: DdsPublisher | None = None
 

@@ -15,19 +15,19 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 from ...contract import QoS
 from ..api import TransportError
 
 __all__ = [
     "Settings",
-    "settings_from_env",
     "domain_config",
-    "rmw_domain_config",
     "interface_config",
-    "topic_name",
+    "rmw_domain_config",
     "service_topics",
+    "settings_from_env",
+    "topic_name",
     "type_hash",
     "user_data_for_endpoint",
 ]
@@ -203,7 +203,7 @@ _SRV_DEFS = {
 }
 
 
-@lru_cache(maxsize=None)
+@cache
 def _typestore(distro: str):  # type: ignore[no-untyped-def]
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -216,7 +216,7 @@ def _typestore(distro: str):  # type: ignore[no-untyped-def]
     return store
 
 
-@lru_cache(maxsize=None)
+@cache
 def type_hash(ros_type: str, distro: str = "jazzy") -> str:
     """``RIHS01_<hex>`` of a ROS type (rosidl's type-description hash, via rosbags).
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, float64, int32, int64, sequence, uint8, uint32, uint64
+from cyclonedds.idl.types import array, bounded_str, float64, int32, int64, sequence, uint8, uint32, uint64
 
 __all__ = [
     "MESSAGES",
@@ -34,6 +34,27 @@ __all__ = [
 ]
 
 
+class _Strict:
+    """Mixin: ``cls.deserialize(data)`` is :func:`.fastcdr.decode` - a message or a ``CdrError``, nothing else.
+
+    cyclonedds-python's own deserializer raises whatever the bytes provoke
+    (``struct.error``, ``IndexError``, ``UnicodeDecodeError``, ...) and accepts
+    some invalid input (bool bytes other than 0/1); every decode of received
+    bytes - the nodes' readers, the service servers and clients, typed
+    cyclonedds readers - goes through this method.
+    """
+
+    __slots__ = ()
+
+    @classmethod
+    def deserialize(cls, data: bytes, has_header: bool = True, use_version_2: bool | None = None) -> Any:
+        from .fastcdr import CdrError, decode  # fastcdr imports this module
+
+        if use_version_2:
+            raise CdrError(f"{cls.__name__}: XCDR2 is not used by ROS 2 endpoints")
+        return decode(cls, data, has_header=has_header)
+
+
 def dds_type_name(ros_type: str) -> str:
     """``sensor_msgs/msg/JointState`` -> ``sensor_msgs::msg::dds_::JointState_``."""
     pkg, kind, name = ros_type.split("/")
@@ -42,30 +63,24 @@ def dds_type_name(ros_type: str) -> str:
 
 # --------------------------------------------------------------------------- std / builtin
 @dataclass
-class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+class Time(_Strict, IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
     sec: int32 = 0
     nanosec: uint32 = 0
 
 
 @dataclass
-
-
-class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+class Header(_Strict, IdlStruct, typename="std_msgs::msg::dds_::Header_"):
     stamp: Time = field(default_factory=Time)
     frame_id: str = ""
 
 
 @dataclass
-
-
-class String(IdlStruct, typename="std_msgs::msg::dds_::String_"):
+class String(_Strict, IdlStruct, typename="std_msgs::msg::dds_::String_"):
     data: str = ""
 
 
 @dataclass
-
-
-class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
+class JointState(_Strict, IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
     header: Header = field(default_factory=Header)
     name: sequence[str] = field(default_factory=list)
     position: sequence[float64] = field(default_factory=list)
@@ -75,15 +90,13 @@ class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
 
 # --------------------------------------------------------------------------- diagnostics
 @dataclass
-class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
+class KeyValue(_Strict, IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
     key: str = ""
     value: str = ""
 
 
 @dataclass
-
-
-class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
+class DiagnosticStatus(_Strict, IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
     level: uint8 = 0
     name: str = ""
     message: str = ""
@@ -98,16 +111,14 @@ DiagnosticStatus.STALE = 3  # type: ignore[attr-defined]
 
 
 @dataclass
-
-
-class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
+class DiagnosticArray(_Strict, IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
     header: Header = field(default_factory=Header)
     status: sequence[DiagnosticStatus] = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------- rcl_interfaces
 @dataclass
-class ParameterValue(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterValue_"):
+class ParameterValue(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterValue_"):
     type: uint8 = 0
     bool_value: bool = False
     integer_value: int64 = 0
@@ -121,17 +132,13 @@ class ParameterValue(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterVa
 
 
 @dataclass
-
-
-class Parameter(IdlStruct, typename="rcl_interfaces::msg::dds_::Parameter_"):
+class Parameter(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::Parameter_"):
     name: str = ""
     value: ParameterValue = field(default_factory=ParameterValue)
 
 
 @dataclass
-
-
-class ParameterEvent(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterEvent_"):
+class ParameterEvent(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterEvent_"):
     stamp: Time = field(default_factory=Time)
     node: str = ""
     new_parameters: sequence[Parameter] = field(default_factory=list)
@@ -140,27 +147,21 @@ class ParameterEvent(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterEv
 
 
 @dataclass
-
-
-class FloatingPointRange(IdlStruct, typename="rcl_interfaces::msg::dds_::FloatingPointRange_"):
+class FloatingPointRange(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::FloatingPointRange_"):
     from_value: float64 = 0.0
     to_value: float64 = 0.0
     step: float64 = 0.0
 
 
 @dataclass
-
-
-class IntegerRange(IdlStruct, typename="rcl_interfaces::msg::dds_::IntegerRange_"):
+class IntegerRange(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::IntegerRange_"):
     from_value: int64 = 0
     to_value: int64 = 0
     step: uint64 = 0
 
 
 @dataclass
-
-
-class ParameterDescriptor(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterDescriptor_"):
+class ParameterDescriptor(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterDescriptor_"):
     name: str = ""
     type: uint8 = 0
     description: str = ""
@@ -172,25 +173,19 @@ class ParameterDescriptor(IdlStruct, typename="rcl_interfaces::msg::dds_::Parame
 
 
 @dataclass
-
-
-class SetParametersResult(IdlStruct, typename="rcl_interfaces::msg::dds_::SetParametersResult_"):
+class SetParametersResult(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::SetParametersResult_"):
     successful: bool = False
     reason: str = ""
 
 
 @dataclass
-
-
-class ListParametersResult(IdlStruct, typename="rcl_interfaces::msg::dds_::ListParametersResult_"):
+class ListParametersResult(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::ListParametersResult_"):
     names: sequence[str] = field(default_factory=list)
     prefixes: sequence[str] = field(default_factory=list)
 
 
 @dataclass
-
-
-class Log(IdlStruct, typename="rcl_interfaces::msg::dds_::Log_"):
+class Log(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::Log_"):
     stamp: Time = field(default_factory=Time)
     level: uint8 = 0
     name: str = ""
@@ -203,43 +198,35 @@ class Log(IdlStruct, typename="rcl_interfaces::msg::dds_::Log_"):
 # --------------------------------------------------------------------------- parameter services
 # Every request/reply starts with rmw_cyclonedds' header (guid, seq).
 @dataclass
-class GetParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameters_Request_"):
+class GetParameters_Request(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameters_Request_"):
     guid: uint64 = 0
     seq: int64 = 0
     names: sequence[str] = field(default_factory=list)
 
 
 @dataclass
-
-
-class GetParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameters_Response_"):
+class GetParameters_Response(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameters_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
     values: sequence[ParameterValue] = field(default_factory=list)
 
 
 @dataclass
-
-
-class SetParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParameters_Request_"):
+class SetParameters_Request(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::SetParameters_Request_"):
     guid: uint64 = 0
     seq: int64 = 0
     parameters: sequence[Parameter] = field(default_factory=list)
 
 
 @dataclass
-
-
-class SetParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParameters_Response_"):
+class SetParameters_Response(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::SetParameters_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
     results: sequence[SetParametersResult] = field(default_factory=list)
 
 
 @dataclass
-
-
-class SetParametersAtomically_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Request_"
+class SetParametersAtomically_Request(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Request_"
 ):
     guid: uint64 = 0
     seq: int64 = 0
@@ -247,9 +234,7 @@ class SetParametersAtomically_Request(IdlStruct, typename="rcl_interfaces::srv::
 
 
 @dataclass
-
-
-class SetParametersAtomically_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Response_"
+class SetParametersAtomically_Response(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Response_"
 ):
     guid: uint64 = 0
     seq: int64 = 0
@@ -257,9 +242,7 @@ class SetParametersAtomically_Response(IdlStruct, typename="rcl_interfaces::srv:
 
 
 @dataclass
-
-
-class ListParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::ListParameters_Request_"):
+class ListParameters_Request(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::ListParameters_Request_"):
     guid: uint64 = 0
     seq: int64 = 0
     prefixes: sequence[str] = field(default_factory=list)
@@ -267,45 +250,35 @@ class ListParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::Lis
 
 
 @dataclass
-
-
-class ListParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::ListParameters_Response_"):
+class ListParameters_Response(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::ListParameters_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
     result: ListParametersResult = field(default_factory=ListParametersResult)
 
 
 @dataclass
-
-
-class DescribeParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::DescribeParameters_Request_"):
+class DescribeParameters_Request(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::DescribeParameters_Request_"):
     guid: uint64 = 0
     seq: int64 = 0
     names: sequence[str] = field(default_factory=list)
 
 
 @dataclass
-
-
-class DescribeParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::DescribeParameters_Response_"):
+class DescribeParameters_Response(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::DescribeParameters_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
     descriptors: sequence[ParameterDescriptor] = field(default_factory=list)
 
 
 @dataclass
-
-
-class GetParameterTypes_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameterTypes_Request_"):
+class GetParameterTypes_Request(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameterTypes_Request_"):
     guid: uint64 = 0
     seq: int64 = 0
     names: sequence[str] = field(default_factory=list)
 
 
 @dataclass
-
-
-class GetParameterTypes_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameterTypes_Response_"):
+class GetParameterTypes_Response(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameterTypes_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
     types: sequence[uint8] = field(default_factory=list)
@@ -316,20 +289,18 @@ class GetParameterTypes_Response(IdlStruct, typename="rcl_interfaces::srv::dds_:
 # build one set per size, pick with gid_types(size).
 def _make_gid_types(size: int) -> dict[str, type[Any]]:
     @dataclass
-    class Gid(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+    class Gid(_Strict, IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
         data: array[uint8, size] = field(default_factory=lambda: [0] * size)  # type: ignore[valid-type]
 
     @dataclass
-
-    class NodeEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
-        node_namespace: str = ""
-        node_name: str = ""
+    class NodeEntitiesInfo(_Strict, IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+        node_namespace: bounded_str[256] = ""  # string<=256 in rmw_dds_common
+        node_name: bounded_str[256] = ""
         reader_gid_seq: sequence[Gid] = field(default_factory=list)
         writer_gid_seq: sequence[Gid] = field(default_factory=list)
 
     @dataclass
-
-    class ParticipantEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"):
+    class ParticipantEntitiesInfo(_Strict, IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"):
         gid: Gid = field(default_factory=Gid)
         node_entities_info_seq: sequence[NodeEntitiesInfo] = field(default_factory=list)
 

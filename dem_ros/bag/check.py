@@ -135,6 +135,9 @@ def check(path: Path | str) -> CheckReport:
                 rep.problems.append("metadata.yaml is provisional: the writer was killed before close()")
             elif status == "failed":
                 rep.problems.append(f"recording stopped early: {cd0.get('dem_ros.failure', 'reason not recorded')}")
+        if path.is_dir() and any(path.glob(".*.reserve")):
+            rep.warnings.append("a space-reserve file is left in the bag directory (the writer did not close); "
+                                "it holds no data and may be deleted")
         rep.problems.extend(r.verify_chunks())  # bad chunks named; the rest of the bag is still read
         topics = r.topics
         rep.chunks = len(r.chunks)

@@ -17,6 +17,13 @@ Crash safety:
     * The run metadata goes into an MCAP Metadata record ``dem_ros`` at the
       start of the file, so it survives a kill too.
 
+Full disk (or any write error): the writer keeps a file allocated
+(``.NAME_0.mcap.reserve``) as large as what finalising the bag needs; a
+failed write is cut back to the last complete record, the chunk in progress
+is counted as lost (:attr:`BagWriter.lost`), writing stops (:attr:`BagWriter.failure`),
+and :meth:`BagWriter.close` frees the reserve and writes the summary and the
+final metadata.yaml (``dem_ros.status: failed``, ``dem_ros.failure``).
+
 Run metadata: ``metadata.yaml`` ``custom_data`` (string map, present since
 metadata version 6) carries ``dem_ros.run_info`` (JSON of the metadata dict)
 and ``dem_ros.version``; the same map is in the ``rosbag2`` Metadata record
@@ -26,6 +33,7 @@ and ``dem_ros.version``; the same map is in the ``rosbag2`` Metadata record
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import struct
@@ -46,6 +54,8 @@ __all__ = ["COMPRESSIONS", "BagWriter"]
 COMPRESSIONS = ("zstd", "lz4", "none")
 #: rosbag2_storage_mcap's default chunk size (mcap C++ McapWriterOptions: 768 KiB).
 DEFAULT_CHUNK_SIZE = 768 * 1024
+#: granularity of the space reserved for finalising a bag on a full disk (see BagWriter._ensure_reserve)
+RESERVE_STEP = 32 * 1024
 
 
 class _DirectStream:
@@ -74,6 +84,7 @@ class _DirectStream:
         if self.fd >= 0:
             with contextlib.suppress(OSError):  # if even this fails, the reader stops at the partial record
                 os.ftruncate(self.fd, self.pos)
+            os.lseek(self.fd, self.pos, os.SEEK_SET)  # ftruncate leaves the offset after the partial write
 
     def flush(self) -> None:
         pass
@@ -229,6 +240,12 @@ class _McapWriter:
         self._c_min, self._c_max = 2**64 - 1, 0
         return lost
 
+    def closing_size(self) -> int:
+        """Bytes :meth:`finish` writes after the data (DataEnd, summary, offsets, footer), open chunk excluded."""
+        n = sum(map(len, self.schemas)) + sum(map(len, self.channels))
+        n += sum(map(len, self.chunk_indexes)) + sum(map(len, self.metadata_indexes))
+        return n + 13 + (9 + 50 + 10 * len(self.channel_counts)) + 5 * 26 + 37 + 8
+
     def finish(self) -> None:
         self.finish_chunk()
         self.s.write(_rec(0x0F, _U32.pack(0)))
@@ -313,6 +330,9 @@ class BagWriter:
         if self.run_metadata is not None:
             self.custom_data["dem_ros.run_info"] = json.dumps(self.run_metadata, sort_keys=True)
 
+        self._reserve_path = self.path / f".{self.mcap_name}.reserve"
+        self._reserve_size = 0
+        self._meta_size = 4096  # size of the last metadata.yaml text, for the reserve
         self._stream = _DirectStream(self.path / self.mcap_name)
         self._mcap = _McapWriter(self._stream, compression, chunk_size, f"dem_ros-{__version__}")
         self._mcap.add_metadata("dem_ros", dict(self.custom_data))
@@ -327,6 +347,39 @@ class BagWriter:
         self._last_refresh = time.monotonic()
         self._closed = False
         self._write_metadata_yaml()
+        self._ensure_reserve()
+
+    # -- space reserve ---------------------------------------------------
+    def _ensure_reserve(self) -> None:
+        """Keep a file allocated that is large enough to finalise the bag (summary, final metadata.yaml).
+
+        When the disk fills, writing fails while this space is still ours;
+        :meth:`close` deletes the reserve first, so the bag is finalised with
+        its counters even on a full disk. Grows in steps of ``RESERVE_STEP``.
+        """
+        need = self._mcap.closing_size() + 3 * self._meta_size + RESERVE_STEP // 4
+        if need <= self._reserve_size:
+            return
+        size = -(-need // RESERVE_STEP) * RESERVE_STEP
+        fd = os.open(self._reserve_path, os.O_WRONLY | os.O_CREAT, 0o644)
+        try:
+            try:
+                os.posix_fallocate(fd, 0, size)
+            except OSError as exc:
+                if exc.errno not in (errno.EOPNOTSUPP, errno.EINVAL, errno.ENOSYS):
+                    raise
+                os.lseek(fd, self._reserve_size, os.SEEK_SET)  # no fallocate here: write zeros
+                zeros = bytes(size - self._reserve_size)
+                view = memoryview(zeros)
+                while view:
+                    view = view[os.write(fd, view):]
+        finally:
+            os.close(fd)
+        self._reserve_size = size
+
+    def _release_reserve(self) -> None:
+        self._reserve_path.unlink(missing_ok=True)
+        self._reserve_size = 0
 
     # -- topics ----------------------------------------------------------
     def add_topic(self, name: str, type_name: str, qos: QoS) -> None:
@@ -347,6 +400,7 @@ class BagWriter:
         if type_name not in self._schema:
             self._schema[type_name] = self._mcap.add_schema(type_name, "ros2msg", text.encode())
         qos_string = _rosfmt.qos_to_v8_string(qos)
+        self._ensure_reserve()
         self._channel[name] = self._mcap.add_channel(
             name, "cdr", self._schema[type_name],
             {"offered_qos_profiles": qos_string, "topic_type_hash": rihs},
@@ -424,6 +478,7 @@ class BagWriter:
         return BagError(f"{self.path}: {self.failure}")
 
     def _after_chunk(self, now: float) -> None:
+        self._ensure_reserve()
         if now - self._last_refresh >= self.metadata_refresh_s:
             self._last_refresh = now
             self._write_metadata_yaml()
@@ -445,6 +500,7 @@ class BagWriter:
 
     def _write_metadata_yaml(self) -> None:
         text = _rosfmt.dump_metadata_yaml(self._info())
+        self._meta_size = len(text.encode())
         tmp = self.path / "metadata.yaml.tmp"
         try:
             tmp.write_text(text, encoding="utf-8")
@@ -471,6 +527,7 @@ class BagWriter:
         failed_before = self.failure is not None
         cd = self.custom_data
         cd["dem_ros.mcap_compression"] = self.compression
+        self._release_reserve()  # the space set aside for this
         try:
             self._mcap.finish_chunk()  # counted in the metadata below
             self._mark_status()

@@ -3,6 +3,7 @@ metadata. Each failure is reported (one line, naming what and where), never a tr
 
 from __future__ import annotations
 
+import json
 import os
 import random
 import subprocess
@@ -79,12 +80,15 @@ def test_full_disk_stops_the_recorder_cleanly_reports_at_once_and_keeps_what_was
     rep = check(small_disk / "bag")
     assert not rep.ok
     assert any("No space left on device" in p for p in rep.problems), rep.problems
+    # finalised on the full disk: the reserve made room for the summary and the final metadata.yaml
+    assert rep.complete and not list((small_disk / "bag").glob(".*.reserve"))
     meta = yaml.safe_load((small_disk / "bag" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    if meta["custom_data"].get("dem_ros.status") == "failed":  # the final metadata.yaml fitted on the disk
-        assert "No space left" in meta["custom_data"]["dem_ros.failure"]
-        assert '"dropped"' in meta["custom_data"]["dem_ros.recorder_counters"]
-    else:  # it did not: the provisional one stays, and check says so
-        assert any("provisional" in p for p in rep.problems)
+    cd = meta["custom_data"]
+    assert cd["dem_ros.status"] == "failed" and "No space left" in cd["dem_ros.failure"]
+    saved = json.loads(cd["dem_ros.recorder_counters"])
+    assert {k: v["written"] for k, v in saved.items()} == written
+    assert {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]} == written
+    assert rep.problems == [f"recording stopped early: {cd['dem_ros.failure']}"]
 
 
 def test_full_disk_in_the_writer_raises_one_bag_error_then_refuses(small_disk: Path):
@@ -102,6 +106,7 @@ def test_full_disk_in_the_writer_raises_one_bag_error_then_refuses(small_disk: P
     w.close()  # finalises; the failure was already raised by write()
     with BagReader(small_disk / "w") as r:
         assert sum(1 for _ in r.raw_messages()) == in_file > 0
+    assert check(small_disk / "w").complete
 
 
 def test_recorder_counters_survive_a_full_disk_in_a_child_that_exits(small_disk: Path):

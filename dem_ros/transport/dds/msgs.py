@@ -34,25 +34,27 @@ __all__ = [
 ]
 
 
-class _Strict:
-    """Mixin: ``cls.deserialize(data)`` is :func:`.fastcdr.decode` - a message or a ``CdrError``, nothing else.
+def _deserialize(cls: type, data: bytes, has_header: bool = True, use_version_2: bool | None = None) -> Any:
+    from .fastcdr import CdrError, decode  # fastcdr imports this module
+
+    if use_version_2:
+        raise CdrError(f"{cls.__name__}: XCDR2 is not used by ROS 2 endpoints")
+    return decode(cls, data, has_header=has_header)
+
+
+def _strict(cls: type) -> type:
+    """Class decorator: ``cls.deserialize(data)`` is :func:`.fastcdr.decode` - a message or a ``CdrError``.
 
     cyclonedds-python's own deserializer raises whatever the bytes provoke
-    (``struct.error``, ``IndexError``, ``UnicodeDecodeError``, ...) and accepts
-    some invalid input (bool bytes other than 0/1); every decode of received
-    bytes - the nodes' readers, the service servers and clients, typed
-    cyclonedds readers - goes through this method.
+    (``struct.error``, ``IndexError``, ``UnicodeDecodeError``, ...), accepts
+    some invalid input (bool bytes other than 0/1) and loops for minutes on
+    some (a sequence count of ~4e9 structs); every decode of received bytes -
+    the nodes' readers, the service servers and clients, typed cyclonedds
+    readers - goes through this method. (A decorator, not a base class:
+    cyclonedds' type-object builder walks the bases of a topic type.)
     """
-
-    __slots__ = ()
-
-    @classmethod
-    def deserialize(cls, data: bytes, has_header: bool = True, use_version_2: bool | None = None) -> Any:
-        from .fastcdr import CdrError, decode  # fastcdr imports this module
-
-        if use_version_2:
-            raise CdrError(f"{cls.__name__}: XCDR2 is not used by ROS 2 endpoints")
-        return decode(cls, data, has_header=has_header)
+    cls.deserialize = classmethod(_deserialize)  # type: ignore[attr-defined]
+    return cls
 
 
 def dds_type_name(ros_type: str) -> str:
@@ -62,25 +64,29 @@ def dds_type_name(ros_type: str) -> str:
 
 
 # --------------------------------------------------------------------------- std / builtin
+@_strict
 @dataclass
-class Time(_Strict, IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
     sec: int32 = 0
     nanosec: uint32 = 0
 
 
+@_strict
 @dataclass
-class Header(_Strict, IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
     stamp: Time = field(default_factory=Time)
     frame_id: str = ""
 
 
+@_strict
 @dataclass
-class String(_Strict, IdlStruct, typename="std_msgs::msg::dds_::String_"):
+class String(IdlStruct, typename="std_msgs::msg::dds_::String_"):
     data: str = ""
 
 
+@_strict
 @dataclass
-class JointState(_Strict, IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
+class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
     header: Header = field(default_factory=Header)
     name: sequence[str] = field(default_factory=list)
     position: sequence[float64] = field(default_factory=list)
@@ -89,14 +95,16 @@ class JointState(_Strict, IdlStruct, typename="sensor_msgs::msg::dds_::JointStat
 
 
 # --------------------------------------------------------------------------- diagnostics
+@_strict
 @dataclass
-class KeyValue(_Strict, IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
+class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
     key: str = ""
     value: str = ""
 
 
+@_strict
 @dataclass
-class DiagnosticStatus(_Strict, IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
+class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
     level: uint8 = 0
     name: str = ""
     message: str = ""
@@ -110,15 +118,17 @@ DiagnosticStatus.ERROR = 2  # type: ignore[attr-defined]
 DiagnosticStatus.STALE = 3  # type: ignore[attr-defined]
 
 
+@_strict
 @dataclass
-class DiagnosticArray(_Strict, IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
+class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
     header: Header = field(default_factory=Header)
     status: sequence[DiagnosticStatus] = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------- rcl_interfaces
+@_strict
 @dataclass
-class ParameterValue(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterValue_"):
+class ParameterValue(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterValue_"):
     type: uint8 = 0
     bool_value: bool = False
     integer_value: int64 = 0
@@ -131,14 +141,16 @@ class ParameterValue(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::Pa
     string_array_value: sequence[str] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-class Parameter(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::Parameter_"):
+class Parameter(IdlStruct, typename="rcl_interfaces::msg::dds_::Parameter_"):
     name: str = ""
     value: ParameterValue = field(default_factory=ParameterValue)
 
 
+@_strict
 @dataclass
-class ParameterEvent(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterEvent_"):
+class ParameterEvent(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterEvent_"):
     stamp: Time = field(default_factory=Time)
     node: str = ""
     new_parameters: sequence[Parameter] = field(default_factory=list)
@@ -146,22 +158,25 @@ class ParameterEvent(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::Pa
     deleted_parameters: sequence[Parameter] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-class FloatingPointRange(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::FloatingPointRange_"):
+class FloatingPointRange(IdlStruct, typename="rcl_interfaces::msg::dds_::FloatingPointRange_"):
     from_value: float64 = 0.0
     to_value: float64 = 0.0
     step: float64 = 0.0
 
 
+@_strict
 @dataclass
-class IntegerRange(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::IntegerRange_"):
+class IntegerRange(IdlStruct, typename="rcl_interfaces::msg::dds_::IntegerRange_"):
     from_value: int64 = 0
     to_value: int64 = 0
     step: uint64 = 0
 
 
+@_strict
 @dataclass
-class ParameterDescriptor(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterDescriptor_"):
+class ParameterDescriptor(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterDescriptor_"):
     name: str = ""
     type: uint8 = 0
     description: str = ""
@@ -172,20 +187,23 @@ class ParameterDescriptor(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds
     integer_range: sequence[IntegerRange, 1] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-class SetParametersResult(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::SetParametersResult_"):
+class SetParametersResult(IdlStruct, typename="rcl_interfaces::msg::dds_::SetParametersResult_"):
     successful: bool = False
     reason: str = ""
 
 
+@_strict
 @dataclass
-class ListParametersResult(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::ListParametersResult_"):
+class ListParametersResult(IdlStruct, typename="rcl_interfaces::msg::dds_::ListParametersResult_"):
     names: sequence[str] = field(default_factory=list)
     prefixes: sequence[str] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-class Log(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::Log_"):
+class Log(IdlStruct, typename="rcl_interfaces::msg::dds_::Log_"):
     stamp: Time = field(default_factory=Time)
     level: uint8 = 0
     name: str = ""
@@ -197,88 +215,100 @@ class Log(_Strict, IdlStruct, typename="rcl_interfaces::msg::dds_::Log_"):
 
 # --------------------------------------------------------------------------- parameter services
 # Every request/reply starts with rmw_cyclonedds' header (guid, seq).
+@_strict
 @dataclass
-class GetParameters_Request(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameters_Request_"):
+class GetParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameters_Request_"):
     guid: uint64 = 0
     seq: int64 = 0
     names: sequence[str] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-class GetParameters_Response(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameters_Response_"):
+class GetParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameters_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
     values: sequence[ParameterValue] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-class SetParameters_Request(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::SetParameters_Request_"):
+class SetParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParameters_Request_"):
     guid: uint64 = 0
     seq: int64 = 0
     parameters: sequence[Parameter] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-class SetParameters_Response(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::SetParameters_Response_"):
+class SetParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParameters_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
     results: sequence[SetParametersResult] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-class SetParametersAtomically_Request(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Request_"
+class SetParametersAtomically_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Request_"
 ):
     guid: uint64 = 0
     seq: int64 = 0
     parameters: sequence[Parameter] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-class SetParametersAtomically_Response(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Response_"
+class SetParametersAtomically_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Response_"
 ):
     guid: uint64 = 0
     seq: int64 = 0
     result: SetParametersResult = field(default_factory=SetParametersResult)
 
 
+@_strict
 @dataclass
-class ListParameters_Request(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::ListParameters_Request_"):
+class ListParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::ListParameters_Request_"):
     guid: uint64 = 0
     seq: int64 = 0
     prefixes: sequence[str] = field(default_factory=list)
     depth: uint64 = 0
 
 
+@_strict
 @dataclass
-class ListParameters_Response(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::ListParameters_Response_"):
+class ListParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::ListParameters_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
     result: ListParametersResult = field(default_factory=ListParametersResult)
 
 
+@_strict
 @dataclass
-class DescribeParameters_Request(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::DescribeParameters_Request_"):
+class DescribeParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::DescribeParameters_Request_"):
     guid: uint64 = 0
     seq: int64 = 0
     names: sequence[str] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-class DescribeParameters_Response(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::DescribeParameters_Response_"):
+class DescribeParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::DescribeParameters_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
     descriptors: sequence[ParameterDescriptor] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-class GetParameterTypes_Request(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameterTypes_Request_"):
+class GetParameterTypes_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameterTypes_Request_"):
     guid: uint64 = 0
     seq: int64 = 0
     names: sequence[str] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-class GetParameterTypes_Response(_Strict, IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameterTypes_Response_"):
+class GetParameterTypes_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameterTypes_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
     types: sequence[uint8] = field(default_factory=list)
@@ -288,19 +318,22 @@ class GetParameterTypes_Response(_Strict, IdlStruct, typename="rcl_interfaces::s
 # The Gid is 24 bytes on Humble and 16 from Iron on, under the same type name:
 # build one set per size, pick with gid_types(size).
 def _make_gid_types(size: int) -> dict[str, type[Any]]:
+    @_strict
     @dataclass
-    class Gid(_Strict, IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+    class Gid(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
         data: array[uint8, size] = field(default_factory=lambda: [0] * size)  # type: ignore[valid-type]
 
+    @_strict
     @dataclass
-    class NodeEntitiesInfo(_Strict, IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+    class NodeEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
         node_namespace: bounded_str[256] = ""  # string<=256 in rmw_dds_common
         node_name: bounded_str[256] = ""
         reader_gid_seq: sequence[Gid] = field(default_factory=list)
         writer_gid_seq: sequence[Gid] = field(default_factory=list)
 
+    @_strict
     @dataclass
-    class ParticipantEntitiesInfo(_Strict, IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"):
+    class ParticipantEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"):
         gid: Gid = field(default_factory=Gid)
         node_entities_info_seq: sequence[NodeEntitiesInfo] = field(default_factory=list)
 

@@ -54,6 +54,13 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
         path = record_result(res, Path(args.record))
         print(f"  bag written to {path}")
+    if m.failed:
+        at = f" at t = {m.fail_time_s:.3f} s" if m.fail_time_s is not None else ""
+        pc = cfg["plant_sim"]
+        print(f"dem-ros sim: FAILED{at}: {sc.name} with {m.controller}: a gap left "
+              f"({pc['gap_min']:g}, {pc['gap_max']:g}] m (rail contact or drop) or the state went non-finite",
+              file=sys.stderr)
+        return 1
     return 0
 
 

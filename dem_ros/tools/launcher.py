@@ -270,4 +270,10 @@ def cmd_launch(args: Any) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(metrics.to_dict() | info, indent=2) + "\n")
         print(f"  summary written to {args.json}")
-    return 130 if info["interrupted"] else (1 if metrics.failed else 0)
+    if info["interrupted"]:
+        return 130
+    if metrics.failed or metrics.problems:
+        why = (["the run failed"] if metrics.failed else []) + metrics.problems
+        print(f"dem-ros launch: degraded run: {'; '.join(why)}", file=sys.stderr)
+        return 1
+    return 0

@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -231,6 +232,10 @@ def cmd_replay(args) -> int:
     if args.plot:
         files = plot_replay(series, Path(args.plot), f"{m.scenario} / {m.controller}")
         print(f"  {len(files)} figures written to {args.plot}")
+    if m.failed or m.problems:
+        why = (["the run failed"] if m.failed else []) + m.problems
+        print(f"replay: degraded run: {'; '.join(why)}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -243,4 +248,4 @@ def cmd_bag(args) -> int:
         return main_check([args.bag])
     rep = check(Path(args.bag))
     print(rep.format())
-    return 0
+    return 0 if rep.ok else 1

@@ -104,6 +104,9 @@ class RunMetrics:
     command_latency_at_recorder_us: dict[str, float] | None = None  # p50, p99, max of stamp -> recorder log time
     wall_time_s: float | None = None
     loop: LoopStats | None = None
+    #: what makes a recorded run incomplete or degraded (truncated bag, samples without a reference,
+    #: shorter than planned, recording failed); replay and launch exit non-zero when there is any
+    problems: list[str] = dataclasses.field(default_factory=list)
 
     @classmethod
     def from_sim(cls, res: Any) -> RunMetrics:
@@ -157,7 +160,7 @@ class RunMetrics:
 
     def format(self, extra: Iterable[tuple[str, str]] = ()) -> str:
         """The table: one ``label  value`` line per row, ``extra`` rows appended."""
-        rows = self.rows() + list(extra)
+        rows = self.rows() + list(extra) + [("PROBLEM", p) for p in self.problems]
         w = max(len(k) for k, _ in rows)
         return "\n".join(f"  {k:<{w}}  {v}" for k, v in rows)
 
@@ -246,4 +249,48 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     if loop_hist:
         series["loop"] = [((ln - loop_hist[0][0]) * 1e-9, int(v.get("deadline_misses", 0)), int(v.get("cycles", 0)))
                           for ln, v in loop_hist]
+    epoch = loop.epoch_ns if loop is not None and loop.epoch_ns is not None else None
+    m.problems = run_problems(r, src["stamp_ns"], ref["stamp_ns"], epoch, ts, m.duration_s)
     return m, series
+
+
+def run_problems(r: Any, src_ns: np.ndarray, ref_ns: np.ndarray, epoch_ns: int | None, ts: np.ndarray,
+                 duration_s: float | None) -> list[str]:
+    """What makes a recorded run's metrics incomplete, one line each (empty: nothing).
+
+    Args:
+        r: the open BagReader.
+        src_ns: (N,) stamps [ns] of the true (or measured) gaps; ref_ns: (M,) stamps of the reference.
+        epoch_ns: t = 0 of the experiment (None: no pre-roll recorded).
+        ts: (K,) stamps [ns] the metrics use (both present, from the epoch).
+        duration_s: planned experiment length [s] from the run metadata, or None.
+    """
+    out = []
+    if r.truncated is not None:
+        tr = r.truncated
+        out.append(f"bag truncated ({tr.reason}): {tr.file_size - tr.offset} of {tr.file_size} bytes unreadable"
+                   " - the metrics cover only what was written")
+    status = ((r.metadata_yaml or {}).get("custom_data") or {}).get("dem_ros.status")
+    if status == "failed":
+        reason = r.metadata_yaml["custom_data"].get("dem_ros.failure", "reason not recorded")
+        out.append(f"recording stopped early: {reason}")
+    exp = src_ns if epoch_ns is None else src_ns[src_ns >= epoch_ns]
+    missing = ~np.isin(exp, ref_ns)
+    if missing.any():
+        idx = np.flatnonzero(missing)
+        breaks = np.flatnonzero(np.diff(idx) > 1)
+        starts = np.concatenate(([idx[0]], idx[breaks + 1]))
+        ends = np.concatenate((idx[breaks], [idx[-1]]))
+        k = int(np.argmax(ends - starts))
+        t0 = exp[0]
+        out.append(f"{int(missing.sum())} sample(s) without a reference in {starts.size} stretch(es); longest "
+                   f"{ends[k] - starts[k] + 1} samples from t = {(exp[starts[k]] - t0) * 1e-9:.3f} s"
+                   " (reference node down?) - not in the metrics")
+    if duration_s and ts.size > 1:
+        dt = float(np.median(np.diff(ts))) * 1e-9
+        covered = float(ts[-1] - ts[0]) * 1e-9
+        if covered < duration_s - 1.5 * dt:
+            out.append(f"run covers {covered:.3f} s of the {duration_s:g} s planned (stopped early)")
+    elif duration_s and ts.size <= 1:
+        out.append(f"run has {ts.size} sample(s) with gap and reference of the {duration_s:g} s planned")
+    return out

@@ -1,0 +1,82 @@
+"""Exit codes say what happened: a failed simulation, a truncated or degraded recording, a bag with problems
+exit 1 with the reason on stderr; an intact run exits 0 (the same checks must not flag a good bag)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from dem_ros.bag import BagReader, BagWriter
+from dem_ros.contract import REFERENCE, TOPICS
+from dem_ros.tools.cli import main
+
+SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "sample_S1"
+
+
+def test_sim_with_the_paper_controller_exits_1_with_the_failure_line(capsys):
+    assert main(["sim", "--controller", "paper", "--duration", "0.3"]) == 1
+    err = capsys.readouterr().err
+    assert "dem-ros sim: FAILED at t = " in err and "rail contact or drop" in err
+
+
+def test_replay_of_the_intact_sample_bag_exits_0(capsys):
+    assert main(["replay", str(SAMPLE)]) == 0
+    assert "PROBLEM" not in capsys.readouterr().out
+
+
+def _copy(tmp_path: Path, skip) -> Path:
+    """The sample bag rewritten, without the messages for which ``skip(topic, stamp_ns)`` is true."""
+    out = tmp_path / "copy"
+    with BagReader(SAMPLE) as r:
+        meta = r.run_metadata()
+        types = {t.name: t for t in TOPICS}
+        from dem_ros.transport.dds import fastcdr, msgs
+
+        topics = r.topics  # (a property that parses every channel's QoS: read it once)
+        with BagWriter(out, metadata=meta) as w:
+            for name, info in topics.items():
+                w.add_topic(name, info.type, types[name].qos)
+            for topic, lt, pt, data in r.raw_messages():
+                if topics[topic].type == "sensor_msgs/msg/JointState":
+                    st = fastcdr.decode(msgs.JointState, bytes(data)).header.stamp
+                    if skip(topic, st.sec * 10**9 + st.nanosec):
+                        continue
+                w.write(topic, lt, bytes(data), pt)
+    return out
+
+
+def test_replay_flags_stretches_without_a_reference_and_exits_1(tmp_path, capsys):
+    with BagReader(SAMPLE) as r:
+        ref = r.joint_state_arrays(REFERENCE.name)["stamp_ns"]
+    cut0, cut1 = ref[len(ref) // 2], ref[len(ref) // 2 + 250]  # 250 samples: the reference node down 0.25 s
+    bag = _copy(tmp_path, lambda topic, st: topic == REFERENCE.name and cut0 <= st < cut1)
+    assert main(["replay", str(bag)]) == 1
+    out, err = capsys.readouterr()
+    assert "250 sample(s) without a reference in 1 stretch(es); longest 250 samples" in out
+    assert "replay: degraded run:" in err
+
+
+def test_replay_flags_a_truncated_bag_and_exits_1(tmp_path, capsys):
+    bag = tmp_path / "trunc"
+    shutil.copytree(SAMPLE, bag)
+    mcap = next(bag.glob("*.mcap"))
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[: int(len(data) * 0.6)])  # writer killed at 60 %
+    (bag / "metadata.yaml").unlink()  # as a SIGKILL before the first metadata refresh leaves it
+    assert main(["replay", str(bag)]) == 1
+    out, err = capsys.readouterr()
+    assert "bag truncated" in out and "of the 8 s planned (stopped early)" in out
+    assert "degraded run" in err
+
+
+@pytest.mark.parametrize("action", ["info", "check"])
+def test_bag_info_and_check_exit_1_with_problems(tmp_path, action, capsys):
+    bag = tmp_path / "trunc"
+    shutil.copytree(SAMPLE, bag)
+    mcap = next(bag.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[:-100])
+    assert main(["bag", action, str(bag)]) == 1
+    assert "TRUNCATED" in capsys.readouterr().out
+    assert main(["bag", action, str(SAMPLE)]) == 0

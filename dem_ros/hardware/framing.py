@@ -1,0 +1,146 @@
+"""COBS framing of link frames on a byte stream (a serial line).
+
+Consistent Overhead Byte Stuffing (Cheshire & Baker, IEEE/ACM Trans.
+Networking 7(2), 1999) rewrites a frame so that it contains no 0x00 byte; a
+0x00 then delimits frames on the wire::
+
+    wire = cobs_encode(frame) + b"\\x00"
+
+The encoding splits the frame at its zero bytes; each block is sent as one
+code byte ``c`` (1..255) followed by ``c - 1`` non-zero data bytes. ``c < 255``
+means "a zero followed in the original" (except after the last block);
+``c == 255`` means 254 data bytes and no zero. Overhead: at most
+⌈n / 254⌉ bytes for n bytes of frame, so a 48-byte sensor frame is 49 bytes
+plus the delimiter.
+
+A receiver that starts mid-stream, or sees line noise, loses at most the
+frames up to the next 0x00: :class:`Deframer` resynchronises there and counts
+what it dropped.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+from .link import MAX_FRAME_SIZE
+
+__all__ = ["DEFRAME_REASONS", "DELIMITER", "MAX_ENCODED_SIZE", "CobsError", "Deframer", "cobs_decode", "cobs_encode"]
+
+DELIMITER = 0
+MAX_ENCODED_SIZE = MAX_FRAME_SIZE + (MAX_FRAME_SIZE + 253) // 254
+"""Largest COBS-encoded link frame (delimiter excluded): 49 bytes."""
+
+DEFRAME_REASONS = ("cobs", "oversize")
+"""Why a :class:`Deframer` dropped bytes: invalid COBS, or more bytes than any frame before a delimiter."""
+
+
+class CobsError(ValueError):
+    """The bytes are not a valid COBS encoding (a code byte of zero, or a block overrunning the end)."""
+
+
+def cobs_encode(data: bytes | bytearray | memoryview) -> bytes:
+    """COBS-encode ``data``: the result has no 0x00 byte and ⌈n/254⌉ bytes at most of overhead."""
+    out = bytearray()
+    block = bytearray()
+    for byte in bytes(data):
+        if byte == 0:
+            out.append(len(block) + 1)
+            out += block
+            block.clear()
+        else:
+            block.append(byte)
+            if len(block) == 254:
+                out.append(255)
+                out += block
+                block.clear()
+    out.append(len(block) + 1)
+    out += block
+    return bytes(out)
+
+
+def cobs_decode(data: bytes | bytearray | memoryview) -> bytes:
+    """Invert :func:`cobs_encode` (the delimiter excluded).
+
+    Raises:
+        CobsError: a zero byte inside the encoding, or a code byte pointing past the end.
+    """
+    src = bytes(data)
+    out = bytearray()
+    i, n = 0, len(src)
+    if n == 0:
+        raise CobsError("empty COBS block")
+    while i < n:
+        code = src[i]
+        if code == 0:
+            raise CobsError(f"zero byte at offset {i}")
+        end = i + code
+        if end > n:
+            raise CobsError(f"code byte {code} at offset {i} runs past the end ({n} bytes)")
+        block = src[i + 1 : end]
+        if 0 in block:
+            raise CobsError(f"zero byte at offset {i + 1 + block.index(0)}")
+        out += block
+        i = end
+        if code < 255 and i < n:
+            out.append(0)
+    return bytes(out)
+
+
+class Deframer:
+    """Split a byte stream into COBS-decoded frames, resynchronising on garbage.
+
+    Feed whatever the line delivered (any split, any garbage); get back the
+    decoded frames completed by a 0x00 delimiter. Bytes that cannot be a frame
+    are dropped and counted by reason in :attr:`dropped` (``"cobs"``: the bytes
+    before a delimiter are not valid COBS; ``"oversize"``: more than
+    ``max_encoded`` bytes without a delimiter, discarded up to the next one).
+    Empty segments (back-to-back delimiters, used by a sender to flush a
+    receiver) are ignored. The frames returned are NOT checked further: pass
+    each to :func:`dem_ros.hardware.link.decode`.
+
+    Memory is bounded: the pending buffer never exceeds ``max_encoded`` bytes.
+    """
+
+    def __init__(self, max_encoded: int = MAX_ENCODED_SIZE) -> None:
+        if max_encoded < 2:
+            raise ValueError(f"max_encoded={max_encoded} must be at least 2")
+        self.max_encoded = max_encoded
+        self.dropped: Counter[str] = Counter({r: 0 for r in DEFRAME_REASONS})
+        self.frames = 0
+        self._buf = bytearray()
+        self._skipping = False  # inside an oversize run: discard up to the next delimiter
+
+    def reset(self) -> None:
+        """Forget a partial frame (e.g. after reopening the port); counters stay."""
+        self._buf.clear()
+        self._skipping = False
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[bytes]:
+        """Append received bytes; return the frames they complete, in order."""
+        out: list[bytes] = []
+        mv = bytes(data)
+        start = 0
+        while start <= len(mv):
+            z = mv.find(b"\x00", start)
+            chunk = mv[start:] if z < 0 else mv[start:z]
+            if not self._skipping:
+                if len(self._buf) + len(chunk) > self.max_encoded:
+                    self.dropped["oversize"] += 1
+                    self._buf.clear()
+                    self._skipping = True
+                else:
+                    self._buf += chunk
+            if z < 0:
+                break
+            # a delimiter: close the current segment
+            if self._skipping:
+                self._skipping = False
+            elif self._buf:
+                try:
+                    out.append(cobs_decode(self._buf))
+                    self.frames += 1
+                except CobsError:
+                    self.dropped["cobs"] += 1
+            self._buf.clear()
+            start = z + 1
+        return out

@@ -9,7 +9,7 @@
  *   [0] version u8  [1] type u8  [2..3] length u16 (whole frame, CRC included)
  *   payload (fixed per type)    last 4 bytes: CRC-32 (IEEE, as zlib.crc32) of all before it
  * Sizes: hello 24, sensor 48, command 24 bytes.
- * Serial lines carry COBS(frame) followed by a 0x00 delimiter; UDP one frame per datagram.
+ * Serial lines carry 0x00, COBS(frame), 0x00 for each frame; UDP one frame per datagram.
  *
  * Floats are IEEE-754 binary32 (the platform's float must be binary32, as on every
  * Cortex-M, AVR with avr-gcc's 32-bit float, RISC-V and x86).

@@ -392,6 +392,7 @@ static int run_fuzz(unsigned long seed, unsigned long count)
             size_t g = rnd() % 60;
             for (j = 0; j < g; ++j) stream[s++] = (uint8_t)rnd();
         }
+        stream[s++] = 0; /* the wire form: 0x00 COBS(frame) 0x00 */
         if (dem_cobs_encode(fr, n, stream + s, 64, &m) != DEM_OK) { printf("cobs encode failed\n"); return 3; }
         if (rnd() % 16 == 0) stream[s + rnd() % m] ^= (uint8_t)(1u << (rnd() % 8));
         s += m;

@@ -15,9 +15,9 @@ URLs:
     ``side="pc"`` connects to the board at HOST:PORT from an ephemeral port.
 ``serial:///dev/PATH[?baud=N]``
     A serial line (USB CDC or UART) via pyserial, raw 8N1, COBS-framed with a
-    0x00 delimiter (:mod:`dem_ros.hardware.framing`). Default 921600 baud: a
-    sensor frame is 50 bytes on the wire (49 COBS + delimiter), i.e. 500 kbit/s
-    at 1 kHz with 10 bits per byte, so a UART needs ≥ 921600 baud (USB CDC
+    0x00 delimiter before and after each frame (:mod:`dem_ros.hardware.framing`).
+    Default 921600 baud: a sensor frame is 51 bytes on the wire (49 COBS + 2
+    delimiters), i.e. 510 kbit/s at 1 kHz with 10 bits per byte, so a UART needs ≥ 921600 baud (USB CDC
     ignores the rate).
 ``pty://``
     A new pseudo-terminal, for emulators (``side="board"`` only): the board
@@ -42,7 +42,7 @@ from collections import Counter, deque
 from typing import Protocol
 from urllib.parse import parse_qs, urlsplit
 
-from .framing import Deframer, cobs_encode
+from .framing import Deframer, wire_frame
 from .link import MAX_FRAME_SIZE, Hello, LinkError, decode
 
 __all__ = [
@@ -210,7 +210,7 @@ class _StreamChannel:
         self.deframer = Deframer()
         self._fd = fd
         self._rx: deque[bytes] = deque()
-        self._tx = bytearray(b"\x00")  # a leading delimiter flushes whatever the receiver holds
+        self._tx = bytearray()
         self._poll = select.poll()
         self._poll.register(fd, select.POLLIN)
         os.set_blocking(fd, False)
@@ -234,7 +234,7 @@ class _StreamChannel:
 
     def send(self, frame: bytes) -> bool:
         self._flush()
-        wire = cobs_encode(frame) + b"\x00"
+        wire = wire_frame(frame)
         if len(self._tx) + len(wire) > TX_BACKLOG:
             self.stats["tx_dropped"] += 1
             return False

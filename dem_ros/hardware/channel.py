@@ -36,6 +36,7 @@ import errno
 import os
 import select
 import socket
+import termios
 import time
 import tty
 from collections import Counter, deque
@@ -253,7 +254,7 @@ class _StreamChannel:
             if e.errno == errno.EIO:  # pty: the other end is closed
                 return "hangup"
             raise ChannelError(f"{self.url}: read failed: {e.strerror}") from None
-        if not data:
+        if not data:  # end of file: the far end hung up (ttys are set VMIN=1, so 0 bytes is not "none")
             return "hangup"
         self.stats["rx_bytes"] += len(data)
         for f in self.deframer.feed(data):
@@ -272,7 +273,7 @@ class _StreamChannel:
             if got == "data":
                 continue
             if got == "hangup":
-                # the far end is closed: poll() would report it at once, forever; wait out the deadline
+                # the far end is gone: poll() would say so at once, forever; wait out the deadline
                 self.stats["rx_hangup"] += 1
                 left = deadline - time.monotonic()
                 if left > 0:
@@ -311,7 +312,13 @@ class SerialChannel(_StreamChannel):
             self._port = serial.Serial(path, baudrate=baud, timeout=0, write_timeout=0, exclusive=True)
         except (serial.SerialException, ValueError) as e:
             raise ChannelError(f"{url}: cannot open: {e}") from None
-        super().__init__(self._port.fileno(), url)
+        fd = self._port.fileno()
+        # pyserial leaves VMIN=0/VTIME=0, under which an empty read means "no data"; with VMIN=1 and
+        # O_NONBLOCK, "no data" is EAGAIN and an empty read means the line hung up
+        attrs = termios.tcgetattr(fd)
+        attrs[6][termios.VMIN], attrs[6][termios.VTIME] = 1, 0
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        super().__init__(fd, url)
 
     def _close_fd(self) -> None:
         self._port.close()

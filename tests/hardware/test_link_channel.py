@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import os
 import socket
+import threading
 import time
 from collections.abc import Iterator
 
@@ -137,6 +138,18 @@ def test_serial_pty_lockstep(pty_pair: tuple[PtyChannel, SerialChannel]) -> None
     lockstep(board, pc, 1000)
     assert sum(pc.deframer.dropped.values()) == 0 and sum(board.deframer.dropped.values()) == 0
     assert pc.stats["rx_bytes"] == 1000 * len(wire_frame(sensor(0)))
+
+
+def test_serial_recv_waits_for_late_data(pty_pair: tuple[PtyChannel, SerialChannel]) -> None:
+    """recv called before the board sends: it waits (an empty tty read is not mistaken for a hangup)."""
+    board, pc = pty_pair
+    timer = threading.Timer(0.05, lambda: board.send(sensor(1)))
+    timer.start()
+    try:
+        got = pc.recv(WAIT_S)
+    finally:
+        timer.join()
+    assert got == sensor(1) and pc.stats["rx_hangup"] == 0
 
 
 def test_serial_noise_on_the_line_costs_no_frame(pty_pair: tuple[PtyChannel, SerialChannel]) -> None:

@@ -176,6 +176,8 @@ class UdpChannel:
             if self.side == "board" and addr != self.peer:
                 if not self._is_hello_request(data):
                     self.stats["foreign"] += 1
+                    if time.monotonic() >= deadline:  # a flood of foreign datagrams cannot hold recv past its deadline
+                        return None
                     continue
                 self.peer = addr
                 self.stats["peer_changes"] += 1

@@ -56,20 +56,13 @@ class CobsError(ValueError):
 def cobs_encode(data: bytes | bytearray | memoryview) -> bytes:
     """COBS-encode ``data``: the result has no 0x00 byte and ⌈n/254⌉ bytes at most of overhead."""
     out = bytearray()
-    block = bytearray()
-    for byte in bytes(data):
-        if byte == 0:
-            out.append(len(block) + 1)
-            out += block
-            block.clear()
-        else:
-            block.append(byte)
-            if len(block) == 254:
-                out.append(255)
-                out += block
-                block.clear()
-    out.append(len(block) + 1)
-    out += block
+    for part in bytes(data).split(b"\x00"):  # each part is followed by a zero, except the last
+        while len(part) >= 254:  # a full block: code 255, no zero implied
+            out.append(255)
+            out += part[:254]
+            part = part[254:]
+        out.append(len(part) + 1)
+        out += part
     return bytes(out)
 
 
@@ -80,21 +73,20 @@ def cobs_decode(data: bytes | bytearray | memoryview) -> bytes:
         CobsError: a zero byte inside the encoding, or a code byte pointing past the end.
     """
     src = bytes(data)
-    out = bytearray()
-    i, n = 0, len(src)
+    n = len(src)
     if n == 0:
         raise CobsError("empty COBS block")
+    z = src.find(0)
+    if z >= 0:
+        raise CobsError(f"zero byte at offset {z}")
+    out = bytearray()
+    i = 0
     while i < n:
         code = src[i]
-        if code == 0:
-            raise CobsError(f"zero byte at offset {i}")
         end = i + code
         if end > n:
             raise CobsError(f"code byte {code} at offset {i} runs past the end ({n} bytes)")
-        block = src[i + 1 : end]
-        if 0 in block:
-            raise CobsError(f"zero byte at offset {i + 1 + block.index(0)}")
-        out += block
+        out += src[i + 1 : end]
         i = end
         if code < 255 and i < n:
             out.append(0)

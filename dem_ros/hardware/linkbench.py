@@ -11,6 +11,7 @@ more time, as a real board's timer interrupt would not)::
 
     python -m dem_ros.hardware.linkbench udp    --rate 1000 --duration 5
     python -m dem_ros.hardware.linkbench serial --rate 1000 --duration 5   # a pty pair + pyserial
+    python -m dem_ros.hardware.linkbench codec     # CPU cost of the Python codec per frame
 
 Reports round-trip percentiles, the share of commands that reached the board
 before its next sample (on time), late and lost commands, the board's wake-up
@@ -156,14 +157,41 @@ def run(transport: str, rate: float, duration: float) -> dict[str, object]:
     }
 
 
+def codec_costs(number: int = 20000) -> dict[str, float]:
+    """Best-of-5 CPU time per call [µs] of the Python codec's per-sample operations."""
+    import timeit
+
+    from .framing import Deframer, wire_frame
+
+    s = encode(SensorFrame(7, 123456, (2048, 2050), (1700, 1701), (50.0, 49.5), 150.0, 0, Mode.RUN))
+    c = CommandFrame(7, (50.0, 49.0), Mode.RUN)
+    w = wire_frame(s)
+    d = Deframer()
+    ops = {
+        "decode(sensor)": lambda: decode(s),
+        "encode(command)": lambda: encode(c),
+        "wire_frame(sensor)": lambda: wire_frame(s),
+        "Deframer.feed(sensor wire)": lambda: d.feed(w),
+    }
+    return {k: min(timeit.repeat(f, number=number, repeat=5)) / number * 1e6 for k, f in ops.items()}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m dem_ros.hardware.linkbench", description=__doc__.splitlines()[0])
-    p.add_argument("transport", choices=["udp", "serial"], help="udp on loopback, or serial over a pty pair")
+    p.add_argument("transport", choices=["udp", "serial", "codec"],
+                   help="udp on loopback, serial over a pty pair, or codec (CPU cost per frame)")
     p.add_argument("--rate", type=float, default=1000.0, help="board sample rate [Hz] (default 1000)")
     p.add_argument("--duration", type=float, default=5.0, help="seconds (default 5)")
     a = p.parse_args(argv)
     if not (1.0 <= a.rate <= 20000.0) or not (0.1 <= a.duration <= 600.0):
         p.error("--rate must be in [1, 20000] Hz and --duration in [0.1, 600] s")
+    if a.transport == "codec":
+        costs = codec_costs()
+        load = os.getloadavg()
+        print(f"codec CPU time per call, best of 5 (load average {load[0]:.2f} {load[1]:.2f})")
+        for k, v in costs.items():
+            print(f"  {k:28s} {v:6.1f} us")
+        return 0
     try:
         r = run(a.transport, a.rate, a.duration)
     except (ChannelError, RuntimeError) as e:

@@ -222,3 +222,26 @@ def test_udp_port_in_use_is_a_clear_error(udp_pair: tuple[UdpChannel, UdpChannel
     board, _ = udp_pair
     with pytest.raises(ChannelError, match="cannot bind"):
         open_channel(f"udp://127.0.0.1:{board.local_address[1]}", "board")
+
+
+# --- the benchmark command runs (its figures are reported, not asserted) --------------------------
+@pytest.mark.parametrize("transport", ["udp", "serial"])
+def test_linkbench_runs(transport: str) -> None:
+    """0.3 s at 1 kHz between two processes: every sample is accounted for (back or lost)."""
+    from dem_ros.hardware.linkbench import run
+
+    r = run(transport, 1000.0, 0.3)
+    assert r["samples"] == 300
+    assert r["commands_received"] + r["lost"] == 300  # type: ignore[operator]
+    assert r["commands_received"] > 0 and r["rejected"] == 0
+
+
+def test_linkbench_cli(capsys: pytest.CaptureFixture[str]) -> None:
+    from dem_ros.hardware.linkbench import main
+
+    assert main(["udp", "--duration", "0.2"]) == 0
+    out = capsys.readouterr().out
+    assert "link udp at 1000 Hz for 0.2 s (load average" in out and "round trip" in out
+    with pytest.raises(SystemExit):
+        main(["udp", "--rate", "0"])
+    assert "--rate must be in" in capsys.readouterr().err

@@ -302,3 +302,66 @@ def test_deframer_ignores_empty_segments() -> None:
     d = Deframer()
     assert d.feed(b"\x00\x00\x00" + _wire(b"ab") + b"\x00\x00") == [b"ab"]
     assert sum(d.dropped.values()) == 0
+
+
+# --- docs/hardware-link.md says what the code does ------------------------------------------------
+DOC = Path(__file__).resolve().parents[2] / "docs" / "hardware-link.md"
+
+
+def _doc_section(title: str) -> str:
+    text = DOC.read_text()
+    start = text.index(title)
+    end = text.find("\n### ", start + 1)
+    end2 = text.find("\n## ", start + 1)
+    return text[start:min(e for e in (end, end2, len(text)) if e > 0)]
+
+
+def _table_rows(section: str, first_header: str) -> list[list[str]]:
+    lines = section[section.index(f"| {first_header} |"):].splitlines()
+    rows = []
+    for line in lines[2:]:
+        if not line.startswith("|"):
+            break
+        rows.append([c.strip().strip("`") for c in line.strip("|").split("|")])
+    return rows
+
+
+@pytest.mark.parametrize(
+    ("title", "frame", "fmt_of"),
+    [
+        ("### Sensor frame", SensorFrame(0, 0, (0, 0), (0, 0), (0.0, 0.0), 0.0, 0, Mode.OFF),
+         {"u32": "<I", "u64": "<Q", "u16": "<H", "f32": "<f", "u8": "<B"}),
+        ("### Command frame", CommandFrame(0, (0.0, 0.0), Mode.OFF), {"u32": "<I", "f32": "<f", "u8": "<B"}),
+        ("### Hello", Hello(1, 0, 0, 0, 0.0, 0), {"u32": "<I", "f32": "<f", "u8": "<B", "u16": "<H"}),
+    ],
+)
+def test_doc_byte_tables_match_the_codec(title: str, frame: object, fmt_of: dict[str, str]) -> None:
+    """Each field row (offset, size, type, name) of the document: setting that field moves exactly those bytes."""
+    rows = _table_rows(_doc_section(title), "offset")
+    base = encode(frame)  # type: ignore[arg-type]
+    covered = 0
+    for offset, size, typ, name, *_ in rows:
+        if typ not in fmt_of or name in ("crc", "reserved"):
+            continue
+        field, _, idx = name.partition("[")
+        value: object = 7.5 if typ == "f32" else (3 if field == "mode" else 5)
+        old = getattr(frame, field)
+        if idx:
+            k = int(idx.rstrip("]"))
+            value = tuple(value if j == k else v for j, v in enumerate(old))
+        changed = encode(replace(frame, **{field: value}))  # type: ignore[type-var]
+        diff = [i for i in range(len(base) - 4) if base[i] != changed[i]]
+        lo, n = int(offset), int(size)
+        assert diff and lo <= min(diff) and max(diff) < lo + n, (name, diff, offset, size)
+        assert struct.unpack_from(fmt_of[typ], changed, lo)[0] == (value[k] if idx else value)  # type: ignore[index]
+        covered += n
+    assert covered + 4 + 4 + sum(int(r[1]) for r in rows if r[3] == "reserved") == len(base)
+
+
+def test_doc_status_modes_and_reasons_match_the_code() -> None:
+    status = {r[1]: int(r[0]) for r in _table_rows(_doc_section("**Status bits**"), "bit")}
+    assert status == {s.name: int(s).bit_length() - 1 for s in Status}
+    modes = {r[1]: int(r[0]) for r in _table_rows(_doc_section("**Modes**"), "value")}
+    assert modes == {m.name: int(m) for m in Mode}
+    reasons = [r[0] for r in _table_rows(_doc_section("## 6. Error handling"), "reason")]
+    assert reasons == list(REASONS)

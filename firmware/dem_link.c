@@ -74,7 +74,7 @@ int dem_encode(const dem_frame_t *fr, uint8_t *out, size_t cap, size_t *len)
         wr32(out + 4, h->board_id);
         wr32(out + 8, h->rate_hz);
         out[12] = h->adc_bits;
-        out[13] = 0;
+        out[13] = h->command_delay;
         wr16(out + 14, h->watchdog_ms);
         wrf(out + 16, h->adc_vref);
         seal(out, h->version, DEM_HELLO, size);
@@ -138,7 +138,6 @@ int dem_decode(const uint8_t *p, size_t n, dem_frame_t *fr)
         uint32_t vref;
         if (n != DEM_HELLO_SIZE) return DEM_ERR_SIZE;
         if (version == 0) return DEM_ERR_VERSION;
-        if (p[13] != 0) return DEM_ERR_RESERVED;
         if (p[12] > 16) return DEM_ERR_RANGE;
         vref = rd32(p + 16);
         if (nonfinite_bits(vref)) return DEM_ERR_NONFINITE;
@@ -148,6 +147,7 @@ int dem_decode(const uint8_t *p, size_t n, dem_frame_t *fr)
         h->board_id = rd32(p + 4);
         h->rate_hz = rd32(p + 8);
         h->adc_bits = p[12];
+        h->command_delay = p[13];
         h->watchdog_ms = rd16(p + 14);
         h->adc_vref = u2f(vref);
         return DEM_OK;

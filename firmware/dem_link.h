@@ -76,6 +76,7 @@ typedef struct {
     uint32_t board_id;    /* 0 in the PC's request */
     uint32_t rate_hz;     /* sample rate [Hz]; 0 in the request */
     uint8_t adc_bits;     /* ADC resolution [bit], 0..16; 0 in the request */
+    uint8_t command_delay;/* d [samples]: at tick k the board applies the command answering k-d; 0 in the request */
     uint16_t watchdog_ms; /* the board's link watchdog [ms]; 0 in the request */
     float adc_vref;       /* ADC full scale [V], >= 0 */
 } dem_hello_t;

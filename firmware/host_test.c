@@ -80,11 +80,11 @@ static int fields_match(const record_t *r, const dem_frame_t *f, char *why, size
     if (strcmp(r->type, "hello") == 0) {
         const dem_hello_t *h = &f->f.hello;
         if (f->type != DEM_HELLO) { snprintf(why, nwhy, "type %u", f->type); return 0; }
-        snprintf(got, sizeof got, "%u %lu %lu %u %.9g %u", h->version, (unsigned long)h->board_id,
-                 (unsigned long)h->rate_hz, h->adc_bits, FMTF(h->adc_vref), h->watchdog_ms);
-        snprintf(want, sizeof want, "%s %s %s %s %.9g %s", field(r, "version"), field(r, "board_id"),
+        snprintf(got, sizeof got, "%u %lu %lu %u %.9g %u %u", h->version, (unsigned long)h->board_id,
+                 (unsigned long)h->rate_hz, h->adc_bits, FMTF(h->adc_vref), h->watchdog_ms, h->command_delay);
+        snprintf(want, sizeof want, "%s %s %s %s %.9g %s %s", field(r, "version"), field(r, "board_id"),
                  field(r, "rate_hz"), field(r, "adc_bits"), (double)(float)strtod(field(r, "adc_vref"), NULL),
-                 field(r, "watchdog_ms"));
+                 field(r, "watchdog_ms"), field(r, "command_delay"));
     } else if (strcmp(r->type, "sensor") == 0) {
         const dem_sensor_t *s = &f->f.sensor;
         float a0, a1;
@@ -319,6 +319,7 @@ static size_t valid_frame(uint8_t *out)
         f.f.hello.rate_hz = 1000;
         f.f.hello.adc_bits = (uint8_t)(rnd() % 17);
         f.f.hello.watchdog_ms = 50;
+        f.f.hello.command_delay = (uint8_t)(rnd() % 3);
         f.f.hello.adc_vref = 3.0f;
     }
     if (dem_encode(&f, out, DEM_MAX_FRAME_SIZE, &n) != DEM_OK) {
@@ -352,7 +353,7 @@ static int run_fuzz(unsigned long seed, unsigned long count)
             buf[2] = (uint8_t)n;
             buf[3] = 0;
             if (rnd() % 4) {
-                if (type == DEM_HELLO) buf[13] = 0;
+                if (type == DEM_HELLO) buf[12] = (uint8_t)(buf[12] % 20); /* adc_bits, often valid */
                 else if (type == DEM_SENSOR && n == 48) buf[41] = buf[42] = buf[43] = 0;
                 else buf[17] = buf[18] = buf[19] = 0;
             }

@@ -50,7 +50,7 @@ def _board(url: str, rate: float, n: int, conn: Connection) -> None:
                 break
         except LinkError:
             pass
-    ch.send(encode(Hello(1, 0xBE7C4, int(rate), 12, 3.0, 50)))
+    ch.send(encode(Hello(1, 0xBE7C4, int(rate), 12, 3.0, 50, 1)))
     period_ns = round(1e9 / rate)
     sent = np.zeros(n, dtype=np.int64)
     rtt = np.full(n, -1, dtype=np.int64)  # ns; -1: never arrived

@@ -75,7 +75,8 @@ def expected_frame(rec: dict[str, object]) -> Hello | SensorFrame | CommandFrame
         return float(f[k][n])
 
     if rec["type"] == "hello":
-        return Hello(i("version"), i("board_id"), i("rate_hz"), i("adc_bits"), x("adc_vref"), i("watchdog_ms"))
+        return Hello(i("version"), i("board_id"), i("rate_hz"), i("adc_bits"), x("adc_vref"), i("watchdog_ms"),
+                     i("command_delay"))
     if rec["type"] == "sensor":
         return SensorFrame(
             i("seq"), i("board_time_us"), (i("gap_counts"), i("gap_counts", 1)),
@@ -153,7 +154,7 @@ def test_round_trip_random_frames() -> None:
                         Mode(rng.randrange(6)))
         c = CommandFrame(rng.getrandbits(32), (f32(), f32()), rng.choice([Mode.OFF, Mode.RUN, Mode.HOLD, Mode.LAND]))
         h = Hello(rng.randrange(1, 256), rng.getrandbits(32), rng.getrandbits(32), rng.randrange(17), abs(f32()),
-                  rng.getrandbits(16))
+                  rng.getrandbits(16), rng.getrandbits(8))
         for fr in (s, c, h):
             assert decode(encode(fr)) == fr
 
@@ -183,6 +184,7 @@ def test_float_rounds_to_float32() -> None:
         (Hello(1, 1, 1000, 17, 3.0), "range", "adc_bits=17"),
         (Hello(0, 1, 1000, 12, 3.0), "range", "version=0"),
         (Hello(1, 1, 1000, 12, -1.0), "range", "adc_vref=-1.0"),
+        (Hello(1, 1, 1000, 12, 3.0, 50, 256), "range", "command_delay=256"),
     ],
 )
 def test_encode_refuses_bad_fields(frame: object, reason: str, words: str) -> None:
@@ -200,7 +202,7 @@ def test_encode_refuses_other_objects() -> None:
 def test_hello_request_and_version_refusal() -> None:
     """The PC's request is recognisable; a board of another version decodes so it can be refused by name."""
     assert HELLO_REQUEST.is_request and HELLO_REQUEST.version == PROTOCOL_VERSION
-    board = Hello(PROTOCOL_VERSION + 1, 9, 1000, 12, 3.0, 50)
+    board = Hello(PROTOCOL_VERSION + 1, 9, 1000, 12, 3.0, 50, 1)
     got = decode(encode(board))
     assert got == board and not got.is_request  # type: ignore[union-attr]
     # ... but its sensor frames are refused
@@ -333,7 +335,7 @@ def _table_rows(section: str, first_header: str) -> list[list[str]]:
         ("### Sensor frame", SensorFrame(0, 0, (0, 0), (0, 0), (0.0, 0.0), 0.0, 0, Mode.OFF),
          {"u32": "<I", "u64": "<Q", "u16": "<H", "f32": "<f", "u8": "<B"}),
         ("### Command frame", CommandFrame(0, (0.0, 0.0), Mode.OFF), {"u32": "<I", "f32": "<f", "u8": "<B"}),
-        ("### Hello", Hello(1, 0, 0, 0, 0.0, 0), {"u32": "<I", "f32": "<f", "u8": "<B", "u16": "<H"}),
+        ("### Hello", Hello(1, 0, 0, 0, 0.0, 0, 0), {"u32": "<I", "f32": "<f", "u8": "<B", "u16": "<H"}),
     ],
 )
 def test_doc_byte_tables_match_the_codec(title: str, frame: object, fmt_of: dict[str, str]) -> None:

@@ -41,7 +41,7 @@ def valid_frame(rng: random.Random) -> bytes:
         return encode(CommandFrame(rng.getrandbits(32), (rng.uniform(-150, 150), rng.uniform(-150, 150)),
                                    Mode(rng.randrange(4))))
     return encode(Hello(1, rng.getrandbits(32), rng.choice([0, 1000, 2000]), rng.randrange(17),
-                        rng.uniform(0, 5), rng.getrandbits(16)))
+                        rng.uniform(0, 5), rng.getrandbits(16), rng.randrange(4)))
 
 
 def _reseal(b: bytearray) -> bytes:
@@ -67,7 +67,7 @@ def random_frames(rng: random.Random, n: int = N) -> list[bytes]:
         b[1] = ftype
         b[2:4] = struct.pack("<H", size)
         if rng.random() < 0.75:  # zero the reserved bytes of the type
-            for pos in {1: [13], 2: [41, 42, 43], 3: [17, 18, 19]}.get(ftype, []):
+            for pos in {2: [41, 42, 43], 3: [17, 18, 19]}.get(ftype, []):
                 if pos < size - 4:
                     b[pos] = 0
             if ftype == 2 and size == 48 and rng.random() < 0.8:

@@ -28,8 +28,8 @@ def f32(x: float) -> float:
     return struct.unpack("<f", struct.pack("<f", x))[0]
 
 
-def hello(version: int, board_id: int, rate: int, bits: int, vref: float, wd: int, reserved: int = 0) -> bytes:
-    return seal(struct.pack("<BBHIIBBHf", version, 1, 24, board_id, rate, bits, reserved, wd, vref))
+def hello(version: int, board_id: int, rate: int, bits: int, vref: float, wd: int, delay: int = 0) -> bytes:
+    return seal(struct.pack("<BBHIIBBHf", version, 1, 24, board_id, rate, bits, delay, wd, vref))
 
 
 def sensor(seq, t, g, c, a, bus, status, mode, version=1, reserved=b"\0\0\0") -> bytes:
@@ -78,10 +78,10 @@ def bad(name: str, note: str, data: bytes, reason: str) -> None:
     print("end\n")
 
 
-def ok_hello(name, note, version, board_id, rate, bits, vref, wd):
-    ok(name, note, hello(version, board_id, rate, bits, vref, wd), [
+def ok_hello(name, note, version, board_id, rate, bits, vref, wd, delay):
+    ok(name, note, hello(version, board_id, rate, bits, vref, wd, delay), [
         "type hello", f"version {version}", f"board_id {board_id}", f"rate_hz {rate}",
-        f"adc_bits {bits}", f"adc_vref {fmt(vref)}", f"watchdog_ms {wd}"])
+        f"adc_bits {bits}", f"adc_vref {fmt(vref)}", f"watchdog_ms {wd}", f"command_delay {delay}"])
 
 
 def ok_sensor(name, note, seq, t, g, c, a, bus, status, mode):
@@ -112,11 +112,11 @@ def main() -> None:
 #   end                         ends the record
 # A valid frame re-encodes to exactly its hex bytes.
 """)
-    ok_hello("hello_request", "the PC opens the link: everything but the version zero", 1, 0, 0, 0, 0.0, 0)
-    ok_hello("hello_board", "a board answers: id, 1 kHz, 12-bit ADC at 3.3 V (float32 3.29999995), 50 ms watchdog",
-             1, 0x0DE30001, 1000, 12, 3.3, 50)
+    ok_hello("hello_request", "the PC opens the link: everything but the version zero", 1, 0, 0, 0, 0.0, 0, 0)
+    ok_hello("hello_board", "a board answers: id, 1 kHz, 12-bit ADC at 3.3 V (float32 3.29999995), 50 ms watchdog, "
+             "command delay 1 sample", 1, 0x0DE30001, 1000, 12, 3.3, 50, 1)
     ok_hello("hello_version_2", "a newer board: a hello of any version decodes, so the PC can refuse it by name",
-             2, 7, 2000, 16, 2.5, 20)
+             2, 7, 2000, 16, 2.5, 20, 2)
     ok_sensor("sensor_hover", "hovering at ~5 mm: counts mid-range, 50 V applied, 150 V bus, no status bit, RUN",
               1000, 1_000_000, (2048, 2051), (1700, 1702), (50.0, 49.75), 150.0, 0, 1)
     ok_sensor("sensor_extremes", "last seq before wrap, 2^40+ us, counts 0 and 65535, negative volts, every defined bit",
@@ -153,7 +153,8 @@ def main() -> None:
         "size")
     bad("command_reserved", "a command with a reserved byte set", command(5, (1.0, 1.0), 1, reserved=b"\0\1\0"),
         "reserved")
-    bad("hello_reserved", "a hello with its reserved byte set", hello(1, 1, 1000, 12, 3.0, 50, reserved=1), "reserved")
+    bad("sensor_reserved", "a sensor frame with its last reserved byte set",
+        sensor(1, 1, (1, 1), (1, 1), (0.0, 0.0), 0.0, 0, 1, reserved=b"\0\0\x80"), "reserved")
     bad("sensor_mode_6", "a sensor frame with mode 6", sensor(1, 1, (1, 1), (1, 1), (0.0, 0.0), 0.0, 0, 6), "mode")
     bad("command_mode_landed", "a command may not request LANDED", command(5, (0.0, 0.0), 4), "mode")
     bad("command_mode_fault", "a command may not request FAULT", command(5, (0.0, 0.0), 5), "mode")

@@ -96,12 +96,22 @@ class Channel(Protocol):
         ...
 
 
-def _wait_readable(poller: select.poll, deadline: float) -> bool:
-    """Poll until readable or the monotonic ``deadline`` (s) passes."""
+_FD_SETSIZE = 1024  # select() takes descriptors below this
+
+
+def _wait_readable(fd: int, poller: select.poll, deadline: float) -> bool:
+    """Wait until ``fd`` is readable or the monotonic ``deadline`` (s) passes.
+
+    select() takes a timeout in µs; poll() only in whole ms, which would overshoot a
+    sub-millisecond deadline by up to 1 ms (a whole period at 1 kHz), so poll() is only
+    the fallback for descriptors select() cannot take (rounded up: never early).
+    """
     while True:
         left = deadline - time.monotonic()
-        ms = max(0, int(left * 1e3 + 0.999))  # round up: never return before the deadline
-        if poller.poll(ms):
+        if fd < _FD_SETSIZE:
+            if select.select([fd], [], [], max(0.0, left))[0]:
+                return True
+        elif poller.poll(max(0, int(left * 1e3 + 0.999))):
             return True
         if time.monotonic() >= deadline:
             return False
@@ -165,7 +175,7 @@ class UdpChannel:
             try:
                 data, addr = self._sock.recvfrom(_DGRAM_MAX)
             except BlockingIOError:
-                if not _wait_readable(self._poll, deadline):
+                if not _wait_readable(self._sock.fileno(), self._poll, deadline):
                     return None
                 continue
             except ConnectionRefusedError:
@@ -281,7 +291,7 @@ class _StreamChannel:
                 if left > 0:
                     time.sleep(left)
                 return None
-            if not _wait_readable(self._poll, deadline):
+            if not _wait_readable(self._fd, self._poll, deadline):
                 return None
         self.stats["rx_frames"] += 1
         return self._rx.popleft()

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from dem_ros import contract
-from dem_ros.transport.dds import fastcdr, msgs, wire
+from dem_ros.transport.dds import fastcdr, msgs, srvs, wire
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cdrfuzz import corpus, mutate, random_message
@@ -27,8 +27,8 @@ SEED = 20261123
 #: every type a dem_ros process decodes from the wire: topic types, discovery, service requests and replies
 RECEIVED = sorted({t.type for t in contract.TOPICS})
 DISCOVERY = [msgs.gid_types(size)["ParticipantEntitiesInfo"] for size in sorted(set(wire.GID_SIZE.values()))]
-REQUESTS = [req for _, req, _ in msgs.SERVICES.values()]
-REPLIES = [rep for _, _, rep in msgs.SERVICES.values()]
+REQUESTS = [req for req, _ in srvs.SERVICE_CLASSES.values()]  # rcl_interfaces parameter services, std_srvs
+REPLIES = [rep for _, rep in srvs.SERVICE_CLASSES.values()]
 CASES = ([msgs.message_class(t) for t in RECEIVED] + DISCOVERY + REQUESTS + REPLIES)
 
 

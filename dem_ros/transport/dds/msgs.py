@@ -31,6 +31,7 @@ __all__ = [
     "dds_type_name",
     "gid_types",
     "message_class",
+    "strict",
 ]
 
 
@@ -42,7 +43,7 @@ def _deserialize(cls: type, data: bytes, has_header: bool = True, use_version_2:
     return decode(cls, data, has_header=has_header)
 
 
-def _strict(cls: type) -> type:
+def strict(cls: type) -> type:
     """Class decorator: ``cls.deserialize(data)`` is :func:`.fastcdr.decode` - a message or a ``CdrError``.
 
     cyclonedds-python's own deserializer raises whatever the bytes provoke
@@ -64,27 +65,27 @@ def dds_type_name(ros_type: str) -> str:
 
 
 # --------------------------------------------------------------------------- std / builtin
-@_strict
+@strict
 @dataclass
 class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
     sec: int32 = 0
     nanosec: uint32 = 0
 
 
-@_strict
+@strict
 @dataclass
 class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
     stamp: Time = field(default_factory=Time)
     frame_id: str = ""
 
 
-@_strict
+@strict
 @dataclass
 class String(IdlStruct, typename="std_msgs::msg::dds_::String_"):
     data: str = ""
 
 
-@_strict
+@strict
 @dataclass
 class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
     header: Header = field(default_factory=Header)
@@ -95,14 +96,14 @@ class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
 
 
 # --------------------------------------------------------------------------- diagnostics
-@_strict
+@strict
 @dataclass
 class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
     key: str = ""
     value: str = ""
 
 
-@_strict
+@strict
 @dataclass
 class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
     level: uint8 = 0
@@ -118,7 +119,7 @@ DiagnosticStatus.ERROR = 2  # type: ignore[attr-defined]
 DiagnosticStatus.STALE = 3  # type: ignore[attr-defined]
 
 
-@_strict
+@strict
 @dataclass
 class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
     header: Header = field(default_factory=Header)
@@ -126,7 +127,7 @@ class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::Diagnosti
 
 
 # --------------------------------------------------------------------------- rcl_interfaces
-@_strict
+@strict
 @dataclass
 class ParameterValue(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterValue_"):
     type: uint8 = 0
@@ -141,14 +142,14 @@ class ParameterValue(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterVa
     string_array_value: sequence[str] = field(default_factory=list)
 
 
-@_strict
+@strict
 @dataclass
 class Parameter(IdlStruct, typename="rcl_interfaces::msg::dds_::Parameter_"):
     name: str = ""
     value: ParameterValue = field(default_factory=ParameterValue)
 
 
-@_strict
+@strict
 @dataclass
 class ParameterEvent(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterEvent_"):
     stamp: Time = field(default_factory=Time)
@@ -158,7 +159,7 @@ class ParameterEvent(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterEv
     deleted_parameters: sequence[Parameter] = field(default_factory=list)
 
 
-@_strict
+@strict
 @dataclass
 class FloatingPointRange(IdlStruct, typename="rcl_interfaces::msg::dds_::FloatingPointRange_"):
     from_value: float64 = 0.0
@@ -166,7 +167,7 @@ class FloatingPointRange(IdlStruct, typename="rcl_interfaces::msg::dds_::Floatin
     step: float64 = 0.0
 
 
-@_strict
+@strict
 @dataclass
 class IntegerRange(IdlStruct, typename="rcl_interfaces::msg::dds_::IntegerRange_"):
     from_value: int64 = 0
@@ -174,7 +175,7 @@ class IntegerRange(IdlStruct, typename="rcl_interfaces::msg::dds_::IntegerRange_
     step: uint64 = 0
 
 
-@_strict
+@strict
 @dataclass
 class ParameterDescriptor(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterDescriptor_"):
     name: str = ""
@@ -187,21 +188,21 @@ class ParameterDescriptor(IdlStruct, typename="rcl_interfaces::msg::dds_::Parame
     integer_range: sequence[IntegerRange, 1] = field(default_factory=list)
 
 
-@_strict
+@strict
 @dataclass
 class SetParametersResult(IdlStruct, typename="rcl_interfaces::msg::dds_::SetParametersResult_"):
     successful: bool = False
     reason: str = ""
 
 
-@_strict
+@strict
 @dataclass
 class ListParametersResult(IdlStruct, typename="rcl_interfaces::msg::dds_::ListParametersResult_"):
     names: sequence[str] = field(default_factory=list)
     prefixes: sequence[str] = field(default_factory=list)
 
 
-@_strict
+@strict
 @dataclass
 class Log(IdlStruct, typename="rcl_interfaces::msg::dds_::Log_"):
     stamp: Time = field(default_factory=Time)
@@ -215,7 +216,7 @@ class Log(IdlStruct, typename="rcl_interfaces::msg::dds_::Log_"):
 
 # --------------------------------------------------------------------------- parameter services
 # Every request/reply starts with rmw_cyclonedds' header (guid, seq).
-@_strict
+@strict
 @dataclass
 class GetParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameters_Request_"):
     guid: uint64 = 0
@@ -223,7 +224,7 @@ class GetParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::GetP
     names: sequence[str] = field(default_factory=list)
 
 
-@_strict
+@strict
 @dataclass
 class GetParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameters_Response_"):
     guid: uint64 = 0
@@ -231,7 +232,7 @@ class GetParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::Get
     values: sequence[ParameterValue] = field(default_factory=list)
 
 
-@_strict
+@strict
 @dataclass
 class SetParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParameters_Request_"):
     guid: uint64 = 0
@@ -239,7 +240,7 @@ class SetParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::SetP
     parameters: sequence[Parameter] = field(default_factory=list)
 
 
-@_strict
+@strict
 @dataclass
 class SetParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParameters_Response_"):
     guid: uint64 = 0
@@ -247,7 +248,7 @@ class SetParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::Set
     results: sequence[SetParametersResult] = field(default_factory=list)
 
 
-@_strict
+@strict
 @dataclass
 class SetParametersAtomically_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Request_"
 ):
@@ -256,7 +257,7 @@ class SetParametersAtomically_Request(IdlStruct, typename="rcl_interfaces::srv::
     parameters: sequence[Parameter] = field(default_factory=list)
 
 
-@_strict
+@strict
 @dataclass
 class SetParametersAtomically_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Response_"
 ):
@@ -265,7 +266,7 @@ class SetParametersAtomically_Response(IdlStruct, typename="rcl_interfaces::srv:
     result: SetParametersResult = field(default_factory=SetParametersResult)
 
 
-@_strict
+@strict
 @dataclass
 class ListParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::ListParameters_Request_"):
     guid: uint64 = 0
@@ -274,7 +275,7 @@ class ListParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::Lis
     depth: uint64 = 0
 
 
-@_strict
+@strict
 @dataclass
 class ListParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::ListParameters_Response_"):
     guid: uint64 = 0
@@ -282,7 +283,7 @@ class ListParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::Li
     result: ListParametersResult = field(default_factory=ListParametersResult)
 
 
-@_strict
+@strict
 @dataclass
 class DescribeParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::DescribeParameters_Request_"):
     guid: uint64 = 0
@@ -290,7 +291,7 @@ class DescribeParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_:
     names: sequence[str] = field(default_factory=list)
 
 
-@_strict
+@strict
 @dataclass
 class DescribeParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::DescribeParameters_Response_"):
     guid: uint64 = 0
@@ -298,7 +299,7 @@ class DescribeParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_
     descriptors: sequence[ParameterDescriptor] = field(default_factory=list)
 
 
-@_strict
+@strict
 @dataclass
 class GetParameterTypes_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameterTypes_Request_"):
     guid: uint64 = 0
@@ -306,7 +307,7 @@ class GetParameterTypes_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::
     names: sequence[str] = field(default_factory=list)
 
 
-@_strict
+@strict
 @dataclass
 class GetParameterTypes_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameterTypes_Response_"):
     guid: uint64 = 0
@@ -318,12 +319,12 @@ class GetParameterTypes_Response(IdlStruct, typename="rcl_interfaces::srv::dds_:
 # The Gid is 24 bytes on Humble and 16 from Iron on, under the same type name:
 # build one set per size, pick with gid_types(size).
 def _make_gid_types(size: int) -> dict[str, type[Any]]:
-    @_strict
+    @strict
     @dataclass
     class Gid(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
         data: array[uint8, size] = field(default_factory=lambda: [0] * size)  # type: ignore[valid-type]
 
-    @_strict
+    @strict
     @dataclass
     class NodeEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
         node_namespace: bounded_str[256] = ""  # string<=256 in rmw_dds_common
@@ -331,7 +332,7 @@ def _make_gid_types(size: int) -> dict[str, type[Any]]:
         reader_gid_seq: sequence[Gid] = field(default_factory=list)
         writer_gid_seq: sequence[Gid] = field(default_factory=list)
 
-    @_strict
+    @strict
     @dataclass
     class ParticipantEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"):
         gid: Gid = field(default_factory=Gid)

@@ -16,6 +16,7 @@ from . import msgs
 __all__ = ["SERVICE_CLASSES", "service_classes"]
 
 
+@msgs.strict
 @dataclass
 class Trigger_Request(IdlStruct, typename="std_srvs::srv::dds_::Trigger_Request_"):
     guid: uint64 = 0
@@ -24,6 +25,7 @@ class Trigger_Request(IdlStruct, typename="std_srvs::srv::dds_::Trigger_Request_
     structure_needs_at_least_one_member: uint8 = 0
 
 
+@msgs.strict
 @dataclass
 class Trigger_Response(IdlStruct, typename="std_srvs::srv::dds_::Trigger_Response_"):
     guid: uint64 = 0
@@ -32,6 +34,7 @@ class Trigger_Response(IdlStruct, typename="std_srvs::srv::dds_::Trigger_Respons
     message: str = ""
 
 
+@msgs.strict
 @dataclass
 class SetBool_Request(IdlStruct, typename="std_srvs::srv::dds_::SetBool_Request_"):
     guid: uint64 = 0
@@ -39,6 +42,7 @@ class SetBool_Request(IdlStruct, typename="std_srvs::srv::dds_::SetBool_Request_
     data: bool = False
 
 
+@msgs.strict
 @dataclass
 class SetBool_Response(IdlStruct, typename="std_srvs::srv::dds_::SetBool_Response_"):
     guid: uint64 = 0

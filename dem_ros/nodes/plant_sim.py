@@ -48,6 +48,7 @@ class PlantSimNode:
         self.cfg = node.declare_parameters("plant_sim", self.on_change)
         c = self.cfg
         self.dt_ns = int(round(c["dt"] * 1e9))
+        self.early_ns = self.dt_ns // 2  # a tick this much before ``due`` publishes the sample
         self.plant = DemPlant(c, c["duration"])
         self.n_end = int(round(c["duration"] / c["dt"])) if c["duration"] > 0 else 0
         warm_up()  # kernels resident before we subscribe (no slow first samples)
@@ -136,7 +137,10 @@ class PlantSimNode:
             mode = "lockstep" if self.cfg["lockstep"] else "real time"
             self.node.logger.info(f"levitating at {self.plant.x[0] * 1e3:.3f} mm, {self.plant.u0[0]:.2f} V ({mode});"
                                   f" t = 0 in {self.cfg['preroll']:g} s")
-        while not self.finished and now >= self.due:
+        # The timer's grid and ``due`` are both 1 ms apart but their phases differ by the wake-up
+        # lateness of the first tick: a tick counts for the sample due within half a period
+        # (without this, a timer firing 1 us before ``due`` publishes that sample 1 ms late).
+        while not self.finished and now >= self.due - self.early_ns:
             if not self._advance(now):
                 return  # lockstep: waiting for a command
             self._publish(self.k_next)

@@ -138,6 +138,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--duration", type=float, default=None, help="bench loop/record: seconds (default 60 / 10)")
     b.add_argument("--transport", default="dds", choices=["auto", "rclpy", "dds"])
     b.add_argument("--compose", action="store_true", help="bench loop: all nodes in one process (see dem-ros launch --compose)")
+    b.add_argument("--free-run", action="store_true", help="bench loop: the plant does not wait for late commands (plant_sim.lockstep=false)")
+    b.add_argument("--load", type=int, default=0, metavar="N", help="bench loop: N busy processes beside the graph (default 0)")
+    b.add_argument("--rt", action=argparse.BooleanOptionalAction, default=True,
+                   help="bench loop: real-time process settings for the nodes (SCHED_FIFO, mlockall; default on)")
     b.set_defaults(func=cmd_bench)
 
     c = sub.add_parser("config", help="print the parameter schema or a params file of the defaults")

@@ -92,7 +92,7 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -183,19 +183,20 @@ def _deltas(p: np.ndarray, y1: float, y2: float) -> tuple[float, float]:
 
 
 @njit(cache=True)
-def _observe(p: np.ndarray, Lo: np.ndarray, s: np.ndarray, a: np.ndarray, y: np.ndarray, i: np.ndarray) -> None:
+def _observe(p: np.ndarray, Lo: np.ndarray, s: np.ndarray, a: np.ndarray, y0: float, y1: float, i0: float,
+             i1: float) -> None:
     """One observer step. s (3, 2): [p, v, b] per load point; a (2,): model acceleration of the last step (updated)."""
     T = p[_T]
     for j in range(2):
         acc = a[j] + s[2, j]
         pp = s[0, j] + T * s[1, j] + 0.5 * T * T * acc
         vp = s[1, j] + T * acc
-        e = y[j] - pp
+        e = (y0 if j == 0 else y1) - pp
         s[0, j] = pp + Lo[0] * e
         s[1, j] = vp + Lo[1] * e
         s[2, j] = s[2, j] + Lo[2] * e
     de1, de2 = _deltas(p, s[0, 0], s[0, 1])
-    _model_accel(p, de1, de2, i[0], i[1], a)
+    _model_accel(p, de1, de2, i0, i1, a)
 
 
 @njit(cache=True)
@@ -318,7 +319,7 @@ class Supervisor:
         self._hold_ns = round(c["hold_timeout"] * 1e9)
         self.estimate = np.zeros((3, 2))
         self._acc = np.zeros(2)
-        self._i_last = np.zeros(2)
+        self._i_last = (0.0, 0.0)
         self._ref = np.zeros((3, 2))
         self._ui = np.zeros(2)
         self._obs_ready = False
@@ -347,7 +348,7 @@ class Supervisor:
         r[1, :] = np.clip(s[1, :], 0.0, self._p[_VREF])
         r[2, :] = REF_ACCEL
         # bumpless: the current loop's integral starts at what the nominal R misses of the last voltage
-        self._ui[:] = self._u_last - self._p[_R] * self._i_last
+        self._ui[:] = self._u_last - self._p[_R] * np.asarray(self._i_last)
 
     def estop(self, reason: str) -> None:
         """Emergency stop: a latched fault that lands the plate (never a 0 V cut at hover)."""
@@ -368,14 +369,14 @@ class Supervisor:
         self.land(reason)
 
     # -- the sample ---------------------------------------------------------------------------
-    def step(self, t_ns: int, y: np.ndarray, i: np.ndarray, u_cmd: np.ndarray | None,
+    def step(self, t_ns: int, y: Sequence[float], i: Sequence[float], u_cmd: Sequence[float] | None,
              requested: Mode = Mode.RUN) -> np.ndarray:
         """Voltages (2,) [V] to apply over [t, t + T).
 
         Args:
             t_ns: sample time [ns] (any monotonic clock).
-            y (2,): measured load-point gaps [d1, d2] [m].
-            i (2,): measured coil currents [A].
+            y (2,): measured load-point gaps [d1, d2] [m] (any sequence of two numbers).
+            i (2,): measured coil currents [A] (any sequence of two numbers).
             u_cmd (2,): a command that arrived for this sample [V], or None.
             requested: the mode the commander asks for (RUN; LAND or OFF start a landing).
         """
@@ -388,18 +389,16 @@ class Supervisor:
             self.mode = Mode.FAULT
             self.u = np.zeros(2)
             return self.u
-        yv = np.array((y0, y1))
-        iv = np.array((i0, i1))
-        self._i_last = iv
+        self._i_last = (i0, i1)
         if not self._obs_ready:
-            self.estimate[0, :] = yv
+            self.estimate[0, :] = (y0, y1)
             self.estimate[1:, :] = 0.0
             de1, de2 = _deltas(self._p, y0, y1)
             _model_accel(self._p, de1, de2, i0, i1, self._acc)
             self.estimate[2, :] = -self._acc  # bumpless: at rest, the model misses -a_m
             self._obs_ready = True
         else:
-            _observe(self._p, self._Lo, self.estimate, self._acc, yv, iv)
+            _observe(self._p, self._Lo, self.estimate, self._acc, y0, y1, i0, i1)
         mode = self.mode
         if mode == Mode.FAULT:
             self.u = np.zeros(2)
@@ -461,7 +460,7 @@ class Supervisor:
         if mode == Mode.LANDED and max(abs(i0), abs(i1)) < I_OFF:
             u[:] = 0.0
         else:
-            _land_law(self._p, self.estimate, self._ref, self._ui, iv, mode == Mode.LANDED, u)
+            _land_law(self._p, self.estimate, self._ref, self._ui, np.array(self._i_last), mode == Mode.LANDED, u)
         self.u = u
         return u
 

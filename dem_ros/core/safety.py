@@ -31,7 +31,8 @@ Modes (:class:`Mode`, the values of the device link's mode byte)::
 
 Faults latch with a reason (``fault``); ``reason`` explains the current mode;
 ``counters`` count samples and events (``holds``, ``hold_events``, ``clipped``,
-``rejected``, ``landings``, ``trips``, ``estops``, ``landed``).
+``rejected``, ``landings``, ``trips``, ``estops``, ``landed``) and keep ``longest_hold_us``
+(the longest hold that ended without a landing, or is still going).
 
 The landing law (uses only what a board has: measured gaps y (2,) [m] and coil
 currents i (2,) [A], nominal parameters m, R, K, L, l, I, N1, N2, g)
@@ -330,7 +331,7 @@ class Supervisor:
         self.reason = ""
         self.fault = ""
         self.counters = dict.fromkeys(
-            ("holds", "hold_events", "clipped", "rejected", "landings", "trips", "estops", "landed"), 0)
+            ("holds", "hold_events", "longest_hold_us", "clipped", "rejected", "landings", "trips", "estops", "landed"), 0)
 
     # -- commands from outside -------------------------------------------------------------
     def land(self, reason: str) -> None:
@@ -446,8 +447,11 @@ class Supervisor:
             if mode == Mode.RUN:
                 self.mode, self.reason = Mode.HOLD, "command missing"
                 self.counters["hold_events"] += 1
-            if t_ns - self._t_fresh <= self._hold_ns:
+            held = t_ns - self._t_fresh
+            if held <= self._hold_ns:
                 self.counters["holds"] += 1
+                if held > self.counters["longest_hold_us"] * 1000:
+                    self.counters["longest_hold_us"] = held // 1000
                 self.u = self._u_last
                 return self.u
             self.land(f"no command for {(t_ns - self._t_fresh) * 1e-6:.1f} ms (hold_timeout "

@@ -208,6 +208,8 @@ class PlantSimNode:
         self.u_applied = board.step(self.epoch + (k - 1) * self.dt_ns, (z[0], z[2]), (z[4], z[5]), cmd)
         if board.mode != prev:
             self._board_event(prev, k - 1)
+            if self.finished:
+                return False  # LANDED: the plate rests on its support (not simulated): the run ends here
         p = self.plant
         if k <= 0:
             p.hold(self.u_applied)  # pre-roll: true dynamics, no scenario disturbances, clock at 0
@@ -233,7 +235,7 @@ class PlantSimNode:
             return
         if b.mode == Mode.LAND:
             x = self.plant.x
-            log.error(f"{when}: safe landing from gaps {x[0] * 1e3:.3f} / {x[2] * 1e3:.3f} mm to"
+            (log.error if b.fault else log.warn)(f"{when}: safe landing from gaps {x[0] * 1e3:.3f} / {x[2] * 1e3:.3f} mm to"
                       f" {self.cfg['landing_gap'] * 1e3:g} mm at <= {self.cfg['landing_speed'] * 1e3:g} mm/s: {b.reason}")
             self.publish_diag(2 if b.fault else 1, f"landing: {b.reason}")
         elif b.mode == Mode.LANDED:
@@ -280,6 +282,7 @@ class PlantSimNode:
         c = b.counters
         return {
             "board_mode": b.mode.name, "holds": c["holds"], "hold_events": c["hold_events"],
+            "longest_hold_ms": c["longest_hold_us"] / 1000,
             "clipped": c["clipped"], "trips": c["trips"], "landing": c["landings"] > 0 or b.mode == Mode.LANDED,
             "landed": c["landed"] > 0, "landing_reason": b.reason if c["landings"] else "",
             "board_fault": b.fault, "lockstep_timeouts": self.lockstep_landing,

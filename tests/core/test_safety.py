@@ -107,7 +107,7 @@ def test_hold_then_land_after_hold_timeout():
     for k in range(1, 11):  # 10 ms without a command: the last voltage is held
         np.testing.assert_array_equal(s.step(k * T_NS, y, i, None), u)
         assert s.mode == Mode.HOLD
-    assert s.counters["holds"] == 10 and s.counters["hold_events"] == 1
+    assert s.counters["holds"] == 10 and s.counters["hold_events"] == 1 and s.counters["longest_hold_us"] == 10_000
     s.step(11 * T_NS, y, i, u)  # a fresh command: back to RUN
     assert s.mode == Mode.RUN and s.reason == ""
     for k in range(12, 22):

@@ -163,7 +163,10 @@ def test_a_30ms_stall_is_held_without_landing(short_stall):
     assert s.loop is not None and s.loop.cycles == 3000 and not s.loop.landing and s.loop.holds >= 25
     assert "landing: no" in s.format()
     assert r["plant_log"].count("command missing") == 1  # logged once, then counted
-    print(f"\n30 ms stall: measured {why}, holds {last['holds']}, misses {last['deadline_misses']}, landing no")
+    # the physics margin: the longest hold (stall + the controller's catch-up) against hold_timeout
+    assert float(last["longest_hold_ms"]) >= 25.0, (why, last)
+    print(f"\n30 ms stall: measured {why}, holds {last['holds']}, longest hold {last['longest_hold_ms']} ms"
+          f" (hold_timeout {r['cfg']['plant_sim']['hold_timeout'] * 1e3:g} ms), misses {last['deadline_misses']}, landing no")
     gaps, _ = _truth(r["bag"])
     assert gaps.min() > 0.0045, why  # S1 never goes below 5 mm; the hold did not push the plate to the rail
 
@@ -190,5 +193,7 @@ def test_a_500ms_stall_lands_the_plate_safely(long_stall):
     assert rates.max() <= cfg["landing_speed"], (why, rates.max())  # descent (positive down)
     assert rates.min() > -cfg["landing_speed"], (why, rates.min())  # nor a jump toward the rail
     assert gaps[-1].min() >= cfg["landing_gap"], gaps[-1]  # on its support
+    assert rates[-1].max() <= cfg["landing_speed"]  # touchdown
     print(f"\n500 ms stall: measured {why}, holds {last['holds']}, peak descent {rates.max() * 1e3:.2f} mm/s,"
-          f" min gap {gaps.min() * 1e3:.3f} mm, landed at {gaps[-1].min() * 1e3:.3f} mm")
+          f" touchdown {rates[-1].max() * 1e3:.2f} mm/s, min gap {gaps.min() * 1e3:.3f} mm, landed at"
+          f" {gaps[-1].min() * 1e3:.3f} mm")

@@ -178,6 +178,7 @@ class PlantSimNode:
         src = k - 1 - self.cfg["command_delay"]  # the sample whose command is held over [t_k-1, t_k]
         slot = src % RING
         board = self.board
+        prev = board.mode
         if src < -self.n_pre:
             cmd = self.plant.u0  # before the loop closed the board held the hover voltage
         elif self.cmd_stamp[slot] == self.epoch + src * self.dt_ns:
@@ -203,7 +204,6 @@ class PlantSimNode:
                     self.misses += 1
                 else:
                     self.preroll_misses += 1
-        prev = board.mode
         z = self.z_board  # the board computes [t_k-1, t_k) from its sample of t_k-1
         self.u_applied = board.step(self.epoch + (k - 1) * self.dt_ns, (z[0], z[2]), (z[4], z[5]), cmd)
         if board.mode != prev:

@@ -70,9 +70,9 @@ def _controller_pid(params: Path, timeout: float = 120.0) -> int:
     raise AssertionError("controller process not found")
 
 
-def _run_with_stall(root: Path, stall_s: float, duration: float, offset: int) -> dict:
+def _run_with_stall(root: Path, stall_s: float, duration: float, offset: int, lockstep: bool = False) -> dict:
     cfg = get_scenario("S1").config()
-    cfg["plant_sim"]["lockstep"] = False
+    cfg["plant_sim"]["lockstep"] = lockstep
     cfg["plant_sim"]["start_delay"] = 2.0
     bag = root / "run"
     logs = root / "logs"
@@ -140,6 +140,16 @@ def _truth(bag: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(g, float), np.asarray(v, float)
 
 
+def test_launch_free_run_flag_sets_the_parameter():
+    from dem_ros.tools.cli import build_parser
+
+    args = build_parser().parse_args(["launch", "--free-run", "--duration", "1"])
+    cfg, _, _ = launcher._config_from_args(args)
+    assert cfg["plant_sim"]["lockstep"] is False
+    cfg, _, _ = launcher._config_from_args(build_parser().parse_args(["launch"]))
+    assert cfg["plant_sim"]["lockstep"] is True  # lockstep stays the simulator's default
+
+
 @pytest.fixture(scope="module")
 def short_stall(tmp_path_factory):
     return _run_with_stall(tmp_path_factory.mktemp("stall30"), 0.030, duration=3.0, offset=1)
@@ -197,3 +207,16 @@ def test_a_500ms_stall_lands_the_plate_safely(long_stall):
     print(f"\n500 ms stall: measured {why}, holds {last['holds']}, peak descent {rates.max() * 1e3:.2f} mm/s,"
           f" touchdown {rates[-1].max() * 1e3:.2f} mm/s, min gap {gaps.min() * 1e3:.3f} mm, landed at"
           f" {gaps[-1].min() * 1e3:.3f} mm")
+
+
+def test_lockstep_dead_controller_lands_instead_of_cutting(tmp_path):
+    """Lockstep waits for a late command; a controller stopped beyond lockstep_timeout (1 s) gets a landing."""
+    r = _run_with_stall(tmp_path, 2.5, duration=6.0, offset=3, lockstep=True)
+    cfg = r["cfg"]["plant_sim"]
+    diags = _diagnostics(r["bag"])
+    landing = [m for _, m, _ in diags if m.startswith("landing:")]
+    assert len(landing) == 1 and "lockstep_timeout" in landing[0], [d[1] for d in diags]
+    _, message, last = diags[-1]
+    assert message.startswith("finished: landed safely") and last["lockstep_timeouts"] == "1", (message, last)
+    gaps, rates = _truth(r["bag"])
+    assert gaps.min() > 0.0045 and rates.max() <= cfg["landing_speed"] and gaps[-1].min() >= cfg["landing_gap"]

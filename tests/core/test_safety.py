@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from dem_ros.core.model import IP, IQ
 from dem_ros.core.params import SCHEMA, TABLE2, ConfigError, apply_overrides, default_config
@@ -338,3 +340,32 @@ def test_landed_removes_the_current_on_the_support():
     np.testing.assert_array_equal(sup.u, [0.0, 0.0])
     assert sup.mode == Mode.LANDED
     assert cfg["landing_gap"] <= rest.min()
+
+
+# -- whatever arrives, the board's output stays within its limits ------------------------------------------
+
+finite = st.floats(-1e3, 1e3, allow_nan=False)
+sample = st.tuples(
+    st.one_of(st.none(), st.tuples(finite, finite), st.just((float("nan"), 0.0)), st.just((1e9, -1e9))),
+    st.tuples(st.floats(0.002, 0.012), st.floats(0.002, 0.012)),
+    st.tuples(st.floats(0.0, 9.0), st.floats(0.0, 9.0)),
+    st.sampled_from([Mode.RUN, Mode.RUN, Mode.RUN, Mode.LAND, Mode.OFF]),
+)
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(st.lists(sample, min_size=1, max_size=200))
+def test_output_is_always_finite_and_within_u_max(seq):
+    cfg = board_cfg(u_max=150.0)
+    s = Supervisor(cfg, T, mode=Mode.RUN, u0=np.array([80.0, 80.0]))
+    landed_or_landing = False
+    prev_mode, u_prev = s.mode, s.u.copy()
+    for k, (cmd, y, i, req) in enumerate(seq):
+        u = s.step(k * T_NS, y, i, None if cmd is None else np.array(cmd), requested=req)
+        assert u.shape == (2,) and np.all(np.isfinite(u)) and np.all(np.abs(u) <= cfg["u_max"])
+        if landed_or_landing:  # a landing latches: commands never take over again
+            assert s.mode in (Mode.LAND, Mode.LANDED)
+        landed_or_landing = s.mode in (Mode.LAND, Mode.LANDED)
+        if s.mode == Mode.HOLD and prev_mode in (Mode.RUN, Mode.HOLD):  # the last voltage, held
+            np.testing.assert_array_equal(u, u_prev)
+        prev_mode, u_prev = s.mode, u.copy()

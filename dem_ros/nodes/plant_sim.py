@@ -27,7 +27,8 @@ Two timing modes:
   missing command is a counted deadline miss and a board hold (see above).
 
 Before t = 0 the plant levitates in closed loop for ``preroll`` seconds
-(frame_id ``dem/preroll``; a missing command then just holds the voltage).
+(frame_id ``dem/preroll``; a missing command is held by the board as later,
+at most ``hold_timeout``: a graph that cannot keep up lands the plate before t = 0).
 Latency = receive time of a command - publish time of the measurement it
 answers. A hardware driver replaces this node by honouring the same topics.
 """

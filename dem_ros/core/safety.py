@@ -271,7 +271,8 @@ class Supervisor:
         reason: why the supervisor is in this mode ("" in OFF/RUN).
         fault: the latched fault reason ("" when none), cleared by ``clear()``.
         counters: sample and event counts (see the module docstring).
-        u (2,): the voltages applied by the last ``step`` [V].
+        u (2,): the voltages applied by the last ``step`` [V] (the array ``step`` returned;
+            the board may return it again, never changes it in place).
         estimate (3, 2): observer state [gap m, rate m/s, missed acceleration m/s^2] per load point.
     """
 
@@ -279,7 +280,11 @@ class Supervisor:
         missing = [k for k in SAFETY_KEYS + PLANT_KEYS if k not in cfg]
         if missing:
             raise SafetyError(f"supervisor configuration lacks {missing}")
-        c = {k: float(cfg[k]) for k in SAFETY_KEYS + PLANT_KEYS}
+        try:
+            c = {k: float(cfg[k]) for k in SAFETY_KEYS + PLANT_KEYS}
+        except (TypeError, ValueError):
+            bad = {k: cfg[k] for k in SAFETY_KEYS + PLANT_KEYS if not isinstance(cfg[k], (int, float))}
+            raise SafetyError(f"supervisor configuration: not numbers: {bad}") from None
         for k in ("u_max", "i_max", "hold_timeout", "landing_gap", "landing_speed", "m", "R", "K", "L", "l", "I"):
             if not (math.isfinite(c[k]) and c[k] > 0):
                 raise SafetyError(f"{k} = {c[k]!r} must be a positive finite number")

@@ -69,6 +69,8 @@ def test_supervisor_rejects_bad_configuration():
         Supervisor({"u_max": 1.0}, T)
     with pytest.raises(SafetyError, match="u_max"):
         Supervisor(board_cfg(u_max=-1.0), T)
+    with pytest.raises(SafetyError, match=r"not numbers: .*'i_max': 'ten'"):
+        Supervisor(board_cfg(i_max="ten"), T)
     with pytest.raises(SafetyError, match="trip_gap_min < landing_gap"):
         Supervisor(board_cfg(landing_gap=0.001), T)
     with pytest.raises(SafetyError, match="dt"):

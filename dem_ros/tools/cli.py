@@ -157,6 +157,9 @@ def build_parser() -> argparse.ArgumentParser:
     lg.add_argument("--compose", action="store_true",
                     help="all nodes in one process on one executor, topics between them in memory (dds); "
                          "the real-time configuration")
+    lg.add_argument("--free-run", action="store_true",
+                    help="free-running plant (plant_sim.lockstep false): hardware-like timing, a late command is held "
+                         "at most hold_timeout, then the simulated board lands the plate; default: lockstep (exact)")
     lg.add_argument("--params", default=None, help="ROS 2 params file")
     lg.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE")
     lg.add_argument("--bag-dir", default="bags", help="where the run's bag goes (default ./bags)")

@@ -8,3 +8,10 @@
 
 Every node has ``main(args=None)`` (console script / ``dem-ros node NAME``).
 """
+
+__all__ = ["NODES"]
+
+#: every node that ``dem-ros node NAME`` and ``ros2 run dem_ros NAME`` run (module ``dem_ros.nodes.NAME``,
+#: function ``main(args=None)``; ``container`` runs the loop's nodes in one process). The one list:
+#: the CLI, ``tools/node_main.py`` and ``setup.py`` read it.
+NODES = ("plant_sim", "estimator", "controller", "reference", "recorder", "container")

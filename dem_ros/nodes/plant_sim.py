@@ -27,8 +27,10 @@ Two timing modes:
   missing command is a counted deadline miss and a board hold (see above).
 
 Before t = 0 the plant levitates in closed loop for ``preroll`` seconds
-(frame_id ``dem/preroll``; a missing command is held by the board as later,
-at most ``hold_timeout``: a graph that cannot keep up lands the plate before t = 0).
+(frame_id ``dem/preroll``). Until the first command arrives the board keeps the
+initial hover voltage (the simulated plate starts in exact equilibrium, so that
+costs nothing); from then on, and from t = 0 at the latest, a missing command is
+held at most ``hold_timeout``: a graph that cannot keep up lands the plate.
 Latency = receive time of a command - publish time of the measurement it
 answers. A hardware driver replaces this node by honouring the same topics.
 """
@@ -81,6 +83,7 @@ class PlantSimNode:
         board = {**c, **{k: TABLE2[k] for k in ("m", "R", "K")}}
         self.board = Supervisor(board, c["dt"], mode=Mode.RUN, u0=self.plant.u0)
         self.z_board = self.plant.x.tolist()  # what the board measured at the last published sample
+        self.loop_closed = False  # a first command has arrived
         self.started = False
         self.finished = False
         self.n_pre = 0
@@ -181,6 +184,12 @@ class PlantSimNode:
         elif self.cmd_stamp[slot] == self.epoch + src * self.dt_ns:
             cmd = self.cmd_u[slot]
             self.wait_since = None
+            self.loop_closed = True
+        elif not self.loop_closed and k <= 0 and not self.cfg["lockstep"]:
+            # free-running pre-roll before the first command: the simulated plate starts in exact equilibrium
+            # under u0, so holding u0 costs nothing until the loop closes (at the latest by t = 0)
+            cmd = self.plant.u0
+            self.preroll_misses += 1
         else:
             cmd = None
             if self.cfg["lockstep"] and board.mode in (Mode.RUN, Mode.HOLD):

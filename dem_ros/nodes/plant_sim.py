@@ -317,7 +317,8 @@ class PlantSimNode:
 
     def finish(self, message: str, level: int) -> None:
         self.finished = True
-        (self.node.logger.error if level else self.node.logger.info)(message)
+        log = self.node.logger
+        (log.error if level >= 2 else log.warn if level == 1 else log.info)(message)
         self.publish_diag(level, "finished: " + message)
         # give the last samples time to reach subscribers, then stop the node
         self.node.timer(0.3, self.node.shutdown)

@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from .link import CommandFrame, Hello, LinkError, Mode, SensorFrame, decode, encode, seq_diff
+from .link import CommandFrame, Hello, LinkError, Mode, SensorFrame, Status, decode, encode, seq_diff
 
 __all__ = ["Calibration", "DriverError", "DriverState", "HwDriver", "Sample"]
 
@@ -173,6 +173,7 @@ class HwDriver:
             "land_sent": 0, "trips": 0, "watchdog": 0, "estops": 0, "link_loss": 0,
         }
         self.corrupt_reasons: dict[str, int] = {}
+        self.status_counts: dict[str, int] = {}  # samples the board reported each status bit in
 
     # -- lifecycle ---------------------------------------------------------------------------
     def arm(self) -> str:
@@ -253,6 +254,11 @@ class HwDriver:
             return None, None
         self.board_mode = Mode(f.mode)
         self.board_status = f.status
+        if f.status:
+            bits = self.status_counts
+            for flag in Status:
+                if f.status & flag:
+                    bits[flag.name] = bits.get(flag.name, 0) + 1
         self.bus_v = f.bus_v
         board_ns = int(f.board_time_us) * 1000
         if self.offset_ns is None:
@@ -374,4 +380,6 @@ class HwDriver:
         out.update(self.counters)
         for k, v in sorted(self.corrupt_reasons.items()):
             out[f"corrupt: {k}"] = v
+        for k, v in sorted(self.status_counts.items()):
+            out[f"board: {k}"] = v
         return out

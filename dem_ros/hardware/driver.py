@@ -311,7 +311,8 @@ class HwDriver:
             return self._land_frame(seq)
         if self.state == DriverState.ARMED and self.board_mode in (Mode.LANDED, Mode.FAULT):
             return encode(CommandFrame(seq, (0.0, 0.0), Mode.OFF))  # the operator armed: clear the board's latch
-        if self.state == DriverState.ACTIVE and self.last_cmd_seq is not None and self.last_cmd_seq != (seq - 1) % SEQ_MOD:
+        if self.state == DriverState.ACTIVE and self.last_cmd_seq is not None and \
+                self.last_cmd_seq != (seq - self.cfg["command_delay"]) % SEQ_MOD:
             self.counters["hold_samples"] += 1  # the board starts this period without a fresh command: it holds
         return None
 
@@ -337,8 +338,10 @@ class HwDriver:
     def command(self, stamp_ns: int, u, steady_ns: int) -> bytes | None:
         """A controller command (voltages [V], stamped with its measurement) -> a RUN frame, or None.
 
-        Forwarded only when ARMED (-> ACTIVE) or ACTIVE, for a known sample no older than the newest
-        by more than ``command_delay`` periods (it could no longer be applied in time).
+        Forwarded only when ARMED (-> ACTIVE) or ACTIVE, for a sample the board has not yet passed
+        (newest seq - its seq < ``command_delay``: the board applies it at its tick seq + command_delay).
+        A command too late to apply is counted ``commands_stale`` but still proves the controller
+        alive: the watchdog measures the controller, the board's own watchdog the freshness.
         """
         if self.state not in (DriverState.ARMED, DriverState.ACTIVE):
             self.counters["commands_dropped"] += 1
@@ -349,8 +352,13 @@ class HwDriver:
             return None
         seq = self._seq_of(stamp_ns)
         behind = seq_diff(self.last_seq, seq)  # the board applies it at its tick seq + command_delay
-        if behind < 0 or behind >= self.cfg["command_delay"]:
-            self.counters["commands_stale"] += 1  # from the future (a foreign clock) or too old to apply
+        if behind < 0:
+            self.counters["commands_dropped"] += 1  # from the future: not our clock
+            return None
+        if self.state == DriverState.ACTIVE:
+            self.last_cmd_steady = steady_ns  # the controller is alive (the watchdog's question)
+        if behind >= self.cfg["command_delay"]:
+            self.counters["commands_stale"] += 1  # too late to be applied: the board holds (its own watchdog)
             return None
         if self.state == DriverState.ARMED:
             self.state = DriverState.ACTIVE

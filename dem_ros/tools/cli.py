@@ -159,7 +159,18 @@ def build_parser() -> argparse.ArgumentParser:
     lg.add_argument("--no-record", action="store_true", help="do not record a bag")
     lg.add_argument("--json", default=None, help="write the summary as JSON")
     lg.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID for this run")
+    lg.add_argument("--hardware", default=None, metavar="LINK",
+                    help="hw_driver instead of plant_sim, on udp://HOST:PORT or serial:///dev/PATH; 'rig' (UDP) or "
+                         "'rig-serial' (a pty pair) also start the emulator 'dem-ros rig'")
+    lg.add_argument("--fault", action="append", default=None, metavar="SPEC",
+                    help="with --hardware rig: inject a rig fault, e.g. linkloss@10+0.05 (dem-ros rig --help-faults)")
     lg.set_defaults(func=launcher.cmd_launch)
+
+    from ..hardware import rig
+
+    rg = sub.add_parser("rig", help="emulate the DEM rig and its I/O board behind the device link (free-running 1 kHz)")
+    rig.build_parser(rg)
+    rg.set_defaults(func=rig.cmd_rig)
 
     nd = sub.add_parser("node", help="run one node of the graph")
     nd.add_argument("name", choices=node_main.NODES)

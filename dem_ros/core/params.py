@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = [
+    "SAFETY_SPECS",
     "SCHEMA",
     "TABLE2",
     "ConfigError",
@@ -237,6 +238,33 @@ def _check_reference(v: Mapping[str, Any]) -> str | None:
 #: default gap-sensor calibration: 16-bit ADC over ~0..20 mm, mildly nonlinear (c0..c3; m, m/count, ...)
 _GAP_POLY = (0.0, 2.5e-7, 8.0e-13, 0.0)
 
+# The board's hard limits and watchdog (dem_ros.core.safety.Supervisor): one list, included in every
+# group whose node is (or simulates) the board that drives the coils: plant_sim, hw_driver.
+SAFETY_SPECS = (
+    ParamSpec("u_max", float, 150.0, "V", "coil driver bus: applied voltages are clipped to +-this (hover needs 50-80 V, transients ~120 V)", 1.0, 1e4),
+    ParamSpec("i_max", float, 10.0, "A", "coil current trip: above this the board latches a fault and lands the plate", 0.1, 1e3),
+    ParamSpec("trip_gap_min", float, 0.0015, "m", "gap trip toward the rail: an estimated load-point gap below this latches a fault and lands", 0.0, 0.1),
+    ParamSpec("trip_gap_max", float, 0.013, "m", "gap trip away from the rail: an estimated gap above this latches a fault (the plate is on its support or falling)", 1e-4, 1.0),
+    ParamSpec("hold_timeout", float, 0.05, "s", "a sample without a fresh command holds the last voltage at most this long, then the board lands the plate (unstable poles: e-folding 17-20 ms)", 1e-3, 1.0),
+    ParamSpec("landing_gap", float, 0.011, "m", "landing position: the plate rests on its support at this load-point gap (larger gap = away from the rail)", 1e-4, 0.1),
+    ParamSpec("landing_speed", float, 0.01, "m/s", "a landing descends no faster than this", 1e-4, 1.0),
+)
+
+
+def _check_safety(v: Mapping[str, Any]) -> str | None:
+    if not v["trip_gap_min"] < v["landing_gap"] <= v["trip_gap_max"]:
+        return (f"need trip_gap_min < landing_gap <= trip_gap_max; got {v['trip_gap_min']:g}, "
+                f"{v['landing_gap']:g}, {v['trip_gap_max']:g} m")
+    if "gap_min" in v and not v["gap_min"] < v["trip_gap_min"]:
+        return f"trip_gap_min = {v['trip_gap_min']:g} m must lie above the rail-contact gap_min = {v['gap_min']:g} m"
+    if "gap_max" in v and not v["trip_gap_max"] < v["gap_max"]:
+        return f"trip_gap_max = {v['trip_gap_max']:g} m must lie below gap_max = {v['gap_max']:g} m"
+    if "gap0" in v and not v["trip_gap_min"] < v["gap0"] < v["landing_gap"]:
+        return (f"gap0 = {v['gap0']:g} m must lie between trip_gap_min = {v['trip_gap_min']:g} m and "
+                f"landing_gap = {v['landing_gap']:g} m")
+    return None
+
+
 _CONTROLLERS = ("adaptive", "adaptive_enhanced", "paper", "paper_fixed", "nonlinear_decoupling", "decentralized_pid")
 
 SCHEMA = Schema(
@@ -268,7 +296,8 @@ SCHEMA = Schema(
             ParamSpec("preroll", float, 1.0, "s", "graph: levitate in closed loop this long before t = 0 (frame_id dem/preroll)", 0.0, 600.0),
             ParamSpec("start_delay", float, 3.0, "s", "graph: wait at least this long after start-up before t = 0 (discovery)", 0.0, 600.0),
             ParamSpec("min_subscribers", int, 2, "", "graph: wait (up to 30 s) until this many readers match /dem/measurement (estimator, reference)", 0, 100),
-        ),
+        )
+        + SAFETY_SPECS,
         "reference": (
             ParamSpec("b0", float, 0.25, "s^-3", "reference model numerator, M(s) = b0/(s^3+a2 s^2+a1 s+a0) (Eq. 46)", 1e-9, 1e9),
             ParamSpec("a2", float, 2.0, "s^-1", "reference model denominator coefficient", 1e-9, 1e9),
@@ -353,12 +382,11 @@ SCHEMA = Schema(
             ParamSpec("current2_gain", float, 10.0 / 32768, "A/count", "coil current sensor 2: i = gain (n - offset)", -1e3, 1e3),
             ParamSpec("current2_offset", float, 32768.0, "count", "coil current sensor 2: counts at zero current", -1e6, 1e6),
             ParamSpec("voltage_input", str, "volts", "", "the link's voltage fields are volts, or duty ratios in [-1, 1] of the measured bus voltage", choices=("volts", "duty")),
-            ParamSpec("u_max", float, 150.0, "V", "commands are clipped to +-u_max (the coil driver's limit; counted)", 0.0, 1e4),
-            ParamSpec("i_max", float, 8.0, "A", "a measured |current| above this for trip_samples samples trips the driver (the board lands)", 0.0, 1e3),
-            ParamSpec("gap_min", float, 1e-3, "m", "a measured gap below this (towards the rail) for trip_samples samples trips the driver", 0.0, 0.1),
-            ParamSpec("gap_max", float, 0.016, "m", "a measured gap above this while active for trip_samples samples trips the driver", 1e-4, 1.0),
+            # the board's limits, reused by the driver: commands clipped to u_max; a measured current above
+            # i_max or a measured gap outside [trip_gap_min, trip_gap_max] for trip_samples samples trips
+            # (the board lands); no controller command for hold_timeout (steady clock) -> fault, LAND
+            *SAFETY_SPECS,
             ParamSpec("trip_samples", int, 3, "samples", "consecutive out-of-limit samples that trip (a single spike is counted, not tripped on)", 1, 1000),
-            ParamSpec("hold_timeout", float, 0.02, "s", "active without a controller command this long (steady clock) -> fault, the board lands", 1e-3, 10.0),
             ParamSpec("link_timeout", float, 0.05, "s", "no sensor frame this long while armed or active -> fault (the board's own watchdog lands it)", 1e-3, 10.0),
             ParamSpec("late_threshold", float, 1e-3, "s", "a sensor frame received later than this after its sample is counted late", 1e-6, 1.0),
             ParamSpec("clock_sync_frames", int, 200, "", "frames whose minimum (receive - board time) sets the fixed board -> ROS time offset", 1, 100000),
@@ -380,16 +408,17 @@ SCHEMA = Schema(
             ParamSpec("bus_resistance", float, 0.5, "ohm", "coil drivers: bus source resistance (sag = R_bus (|i1| + |i2|))", 0.0, 1e3),
             ParamSpec("bus_min", float, 100.0, "V", "below this the board reports bus undervoltage", 0.0, 1e4),
             ParamSpec("current_limit", float, 9.0, "A", "coil drivers: hardware current limit (no positive voltage above it)", 0.0, 1e3),
-            ParamSpec("support_gap", float, 0.0125, "m", "the plate's mechanical support: gaps never exceed it", 1e-3, 0.1),
+            ParamSpec("support_gap", float, 0.0112, "m", "the plate's mechanical support: gaps never exceed it", 1e-3, 0.1),
             ParamSpec("start", str, "hover", "", "hover: clamped at the scenario's hover until the first RUN command; landed: on the support, no current", choices=("hover", "landed")),
             ParamSpec("seed", int, 7, "", "seed of the rig's sensor noise and frame corruption", 0, 2**31 - 1),
         ),
     },
     checks={
-        "plant_sim": (_check_plant,),
+        "plant_sim": (_check_plant, _check_safety),
         "reference": (_check_reference,),
         "estimator": (_check_geometry,),
         "controller": (_check_geometry, _check_hurwitz, _check_bounds),
+        "hw_driver": (_check_safety,),
     },
 )
 

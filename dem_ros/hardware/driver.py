@@ -286,7 +286,7 @@ class HwDriver:
             return
         c = self.cfg
         i_bad = bool(np.any(np.abs(s.current) > c["i_max"]))
-        g_bad = bool(np.any(s.gap < c["gap_min"]) or np.any(s.gap > c["gap_max"]))
+        g_bad = bool(np.any(s.gap < c["trip_gap_min"]) or np.any(s.gap > c["trip_gap_max"]))
         self._over["current"] = self._over["current"] + 1 if i_bad else 0
         self._over["gap"] = self._over["gap"] + 1 if g_bad else 0
         if self._over["current"] >= c["trip_samples"]:
@@ -295,7 +295,7 @@ class HwDriver:
         elif self._over["gap"] >= c["trip_samples"]:
             self.counters["trips"] += 1
             self.fault(f"gap limit: gaps {s.gap[0] * 1e3:.3f} / {s.gap[1] * 1e3:.3f} mm outside "
-                       f"[{c['gap_min'] * 1e3:g}, {c['gap_max'] * 1e3:g}] mm")
+                       f"[{c['trip_gap_min'] * 1e3:g}, {c['trip_gap_max'] * 1e3:g}] mm")
 
     # -- PC -> board ---------------------------------------------------------------------------
     def _land_frame(self, seq: int) -> bytes:

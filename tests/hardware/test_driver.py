@@ -144,7 +144,7 @@ def test_commands_flow_only_when_armed_and_the_first_makes_the_driver_active():
     assert d.counters["commands_stale"] == 1
     assert d.command(s2.stamp_ns + 5 * MS, [50.0, 50.0], k * MS) is None  # from the future
     assert d.command(s2.stamp_ns, [np.nan, 50.0], k * MS) is None
-    assert d.counters["commands_dropped"] == 2
+    assert d.counters["commands_dropped"] == 3  # inactive, future, non-finite
 
 
 def test_voltage_is_clipped_to_u_max_and_counted():
@@ -173,6 +173,18 @@ def test_watchdog_holds_for_hold_timeout_then_latches_a_fault_and_lands():
     assert decode(feed(d, k + 23)[1]).mode == Mode.LAND
     d.arm()  # the operator re-arms: cleared
     assert d.state == DriverState.ARMED and d.reason == ""
+
+
+def test_late_commands_are_not_forwarded_but_keep_the_watchdog_fed():
+    d, k = synced({"hold_timeout": 0.02})
+    d.arm()
+    s, _ = feed(d, k)
+    d.command(s.stamp_ns, [50.0, 50.0], k * MS)
+    for j in range(1, 40):  # a slow controller: each command arrives after the next sample
+        s, _ = feed(d, k + j)
+        assert d.command(s.stamp_ns - MS, [50.0, 50.0], (k + j) * MS) is None
+    assert d.state == DriverState.ACTIVE  # 40 ms without a usable command, but the controller lives
+    assert d.counters["commands_stale"] == 39
 
 
 def test_a_silent_link_trips_on_the_steady_clock():

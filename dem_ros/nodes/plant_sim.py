@@ -35,7 +35,7 @@ from .. import contract
 from ..core.plant import DemPlant
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import LatencyStats, all_finite, diag_array, joint_state, stamp_ns
+from .common import JointStates, LatencyStats, all_finite, diag_array, stamp_ns
 
 __all__ = ["PlantSimNode", "main"]
 
@@ -48,10 +48,13 @@ class PlantSimNode:
         self.cfg = node.declare_parameters("plant_sim", self.on_change)
         c = self.cfg
         self.dt_ns = int(round(c["dt"] * 1e9))
+        self.early_ns = self.dt_ns // 2  # a tick this much before ``due`` publishes the sample
         self.plant = DemPlant(c, c["duration"])
         self.n_end = int(round(c["duration"] / c["dt"])) if c["duration"] > 0 else 0
         warm_up()  # kernels resident before we subscribe (no slow first samples)
-        self.JS = node.msg("sensor_msgs/msg/JointState")
+        self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
+        self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
+        self.names_truth = [*contract.MAGNETS, "mass"]
         self.pub_meas = node.publisher(contract.MEASUREMENT)
         self.pub_truth = node.publisher(contract.TRUTH)
         self.pub_applied = node.publisher(contract.APPLIED)
@@ -136,7 +139,10 @@ class PlantSimNode:
             mode = "lockstep" if self.cfg["lockstep"] else "real time"
             self.node.logger.info(f"levitating at {self.plant.x[0] * 1e3:.3f} mm, {self.plant.u0[0]:.2f} V ({mode});"
                                   f" t = 0 in {self.cfg['preroll']:g} s")
-        while not self.finished and now >= self.due:
+        # The timer's grid and ``due`` are both 1 ms apart but their phases differ by the wake-up
+        # lateness of the first tick: a tick counts for the sample due within half a period
+        # (without this, a timer firing 1 us before ``due`` publishes that sample 1 ms late).
+        while not self.finished and now >= self.due - self.early_ns:
             if not self._advance(now):
                 return  # lockstep: waiting for a command
             self._publish(self.k_next)
@@ -199,17 +205,16 @@ class PlantSimNode:
 
     def _publish(self, k: int) -> None:
         p = self.plant
-        t_ns = self.epoch + k * self.dt_ns
-        frame = contract.FRAME if k >= 0 else contract.FRAME_PREROLL
-        JS = self.JS
-        x = p.x
-        z = p.measurement() if k >= 0 else p.measurement_preroll()
+        J = self.js
+        h = J.header(self.epoch + k * self.dt_ns, contract.FRAME if k >= 0 else contract.FRAME_PREROLL)
+        x = p.x.tolist()
+        z = (p.measurement() if k >= 0 else p.measurement_preroll()).tolist()
+        u = self.u_applied
         self.pub_wall[k % RING] = time.monotonic_ns()
-        self.pub_applied.publish(joint_state(JS, t_ns, effort=self.u_applied, frame=frame))
-        self.pub_truth.publish(joint_state(JS, t_ns, position=(x[0], x[2], p.mass), velocity=(x[1], x[3]),
-                                           effort=(x[4], x[5]), names=(*contract.MAGNETS, "mass"), frame=frame))
-        vel = (z[1], z[3]) if self.cfg["measure_velocity"] else ()
-        self.pub_meas.publish(joint_state(JS, t_ns, position=(z[0], z[2]), velocity=vel, effort=(z[4], z[5]), frame=frame))
+        self.pub_applied.publish(J.make(h, self.names, effort=[float(u[0]), float(u[1])]))
+        self.pub_truth.publish(J.make(h, self.names_truth, [x[0], x[2], p.mass], [x[1], x[3]], [x[4], x[5]]))
+        vel = [z[1], z[3]] if self.cfg["measure_velocity"] else []
+        self.pub_meas.publish(J.make(h, self.names, [z[0], z[2]], vel, [z[4], z[5]]))
 
     # -- reporting ----------------------------------------------------------------------------
     def stats(self) -> dict:

@@ -50,6 +50,10 @@ __all__ = ["Calibration", "DriverError", "DriverState", "HwDriver", "Sample"]
 
 SEQ_MOD = 1 << 32  # sequence numbers are uint32 on the wire
 LEVITATING = (Mode.RUN, Mode.HOLD, Mode.LAND)
+#: status bits of hardware faults: trip_samples samples in a row trip the driver (the board lands the plate);
+#: the controller cannot make up for a failed coil driver or a bus that cannot hold the plate
+HARDWARE_FAULTS = (Status.DRIVER0_FAULT | Status.DRIVER1_FAULT | Status.BUS_UNDERVOLTAGE | Status.CURRENT0_LIMIT
+                   | Status.CURRENT1_LIMIT | Status.ESTOP | Status.ADC_FAULT)
 
 
 class DriverError(ValueError):
@@ -167,10 +171,12 @@ class HwDriver:
         self.last_cmd_seq: int | None = None
         self.u_last = np.zeros(2)
         self._over = {"current": 0, "gap": 0}
+        self._sensor_bad = [0, 0]  # consecutive out-of-range samples per gap channel
+        self._gap_valid = np.full(2, np.nan)  # the last valid gap per channel [m]
         self.counters = {
             "frames": 0, "samples": 0, "lost": 0, "duplicated": 0, "reordered": 0, "late": 0, "corrupt": 0,
             "commands_sent": 0, "commands_dropped": 0, "commands_stale": 0, "clipped": 0, "hold_samples": 0,
-            "land_sent": 0, "trips": 0, "watchdog": 0, "estops": 0, "link_loss": 0,
+            "land_sent": 0, "trips": 0, "watchdog": 0, "estops": 0, "link_loss": 0, "sensor_holds": 0,
         }
         self.corrupt_reasons: dict[str, int] = {}
         self.status_counts: dict[str, int] = {}  # samples the board reported each status bit in
@@ -272,12 +278,31 @@ class HwDriver:
         self.drift_ns = latency - self._sync_residual
         if latency > self.cfg["late_threshold"] * 1e9:
             self.counters["late"] += 1
-        s = Sample(f.seq, stamp, self.cal.gap(f.gap_counts), self.cal.current(f.current_counts),
+        gap = self._valid_gaps(self.cal.gap(f.gap_counts), f.status)
+        s = Sample(f.seq, stamp, gap, self.cal.current(f.current_counts),
                    self.cal.voltage(f.applied_v, f.bus_v), float(f.bus_v), self.board_mode, f.status, latency)
         self.counters["samples"] += 1
         self.last_sample = s
         self._limits(s)
         return s, self._reply(f.seq, steady_ns)
+
+    def _valid_gaps(self, gap: np.ndarray, status: int) -> np.ndarray:
+        """A gap channel the board flags out of range (a dead, unplugged or saturated sensor: GAPj_RANGE)
+        is never passed on as a gap: its last valid value is held (counted ``sensor_holds``); after
+        ``trip_samples`` such samples in a row the driver trips (the controller cannot control blind)."""
+        bad = [bool(status & Status.GAP0_RANGE), bool(status & Status.GAP1_RANGE)]
+        for j in (0, 1):
+            if bad[j]:
+                self.counters["sensor_holds"] += 1
+                self._sensor_bad[j] += 1
+                gap[j] = self._gap_valid[j]
+                if self._sensor_bad[j] >= self.cfg["trip_samples"] and self.state == DriverState.ACTIVE:
+                    self.counters["trips"] += 1
+                    self.fault(f"gap sensor {j + 1} out of range for {self._sensor_bad[j]} samples (dead or saturated)")
+            else:
+                self._sensor_bad[j] = 0
+                self._gap_valid[j] = gap[j]
+        return gap
 
     def _limits(self, s: Sample) -> None:
         """Trip on ``trip_samples`` consecutive samples beyond the current or gap limits (while levitating)."""
@@ -289,7 +314,12 @@ class HwDriver:
         g_bad = bool(np.any(s.gap < c["trip_gap_min"]) or np.any(s.gap > c["trip_gap_max"]))
         self._over["current"] = self._over["current"] + 1 if i_bad else 0
         self._over["gap"] = self._over["gap"] + 1 if g_bad else 0
-        if self._over["current"] >= c["trip_samples"]:
+        hw = s.status & HARDWARE_FAULTS
+        self._over["board"] = self._over.get("board", 0) + 1 if hw else 0
+        if self._over["board"] >= c["trip_samples"]:
+            self.counters["trips"] += 1
+            self.fault("board reports " + ", ".join(f.name for f in Status if f & hw) + f" for {self._over['board']} samples")
+        elif self._over["current"] >= c["trip_samples"]:
             self.counters["trips"] += 1
             self.fault(f"current limit: |i| = {np.max(np.abs(s.current)):.3f} A > i_max = {c['i_max']:g} A")
         elif self._over["gap"] >= c["trip_samples"]:

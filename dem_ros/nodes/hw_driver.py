@@ -22,6 +22,8 @@ e-stop, its data the reason); answers and state changes go to ``/dem/hw/state``.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import select
 import sys
 import threading
@@ -33,6 +35,7 @@ from .. import contract
 from ..hardware.channel import ChannelError, open_channel
 from ..hardware.driver import DriverState, HwDriver, Sample
 from ..hardware.link import HELLO_REQUEST, Mode, encode
+from ..realtime import config_from_env
 from ..transport import Node, run_node
 from .common import LatencyStats, diag_array, joint_state, stamp_ns
 
@@ -124,6 +127,10 @@ class HwDriverNode:
     # -- the link ---------------------------------------------------------------------------------
     def _read_loop(self) -> None:
         """Reader thread: every received frame goes through the driver; samples are published at once."""
+        rt = config_from_env()  # the link's thread is on the loop's path: the loop's priority (dem_ros.realtime)
+        if rt.enabled:
+            with contextlib.suppress(OSError):  # not permitted: enter_loop() reports it once for the process
+                os.sched_setscheduler(threading.get_native_id(), os.SCHED_FIFO, os.sched_param(rt.priority))
         poller = select.poll()
         poller.register(self.ch.fileno(), select.POLLIN)
         now_ns = self.node.now_ns

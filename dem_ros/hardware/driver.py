@@ -49,6 +49,7 @@ from .link import CommandFrame, Hello, LinkError, Mode, SensorFrame, Status, dec
 __all__ = ["Calibration", "DriverError", "DriverState", "HwDriver", "Sample"]
 
 SEQ_MOD = 1 << 32  # sequence numbers are uint32 on the wire
+SENT_RING = 64
 LEVITATING = (Mode.RUN, Mode.HOLD, Mode.LAND)
 #: status bits of hardware faults: trip_samples samples in a row trip the driver (the board lands the plate);
 #: the controller cannot make up for a failed coil driver or a bus that cannot hold the plate
@@ -169,6 +170,7 @@ class HwDriver:
         self.last_rx_steady: int | None = None
         self.last_cmd_steady: int | None = None
         self.last_cmd_seq: int | None = None
+        self._sent = [-1] * SENT_RING  # the samples whose command was forwarded, by seq
         self.u_last = np.zeros(2)
         self._over = {"current": 0, "gap": 0}
         self._sensor_bad = [0, 0]  # consecutive out-of-range samples per gap channel
@@ -341,8 +343,8 @@ class HwDriver:
             return self._land_frame(seq)
         if self.state == DriverState.ARMED and self.board_mode in (Mode.LANDED, Mode.FAULT):
             return encode(CommandFrame(seq, (0.0, 0.0), Mode.OFF))  # the operator armed: clear the board's latch
-        if self.state == DriverState.ACTIVE and self.last_cmd_seq is not None and \
-                self.last_cmd_seq != (seq - self.cfg["command_delay"]) % SEQ_MOD:
+        want = (seq - self.cfg["command_delay"]) % SEQ_MOD
+        if self.state == DriverState.ACTIVE and self.last_cmd_seq is not None and self._sent[want % SENT_RING] != want:
             self.counters["hold_samples"] += 1  # the board starts this period without a fresh command: it holds
         return None
 
@@ -394,6 +396,7 @@ class HwDriver:
             self.state = DriverState.ACTIVE
         self.last_cmd_steady = steady_ns
         self.last_cmd_seq = seq
+        self._sent[seq % SENT_RING] = seq
         lim = self.cfg["u_max"]
         uc = np.clip(u, -lim, lim)
         if np.any(uc != u):

@@ -96,8 +96,6 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     workdir.mkdir(parents=True, exist_ok=True)
     cfg = {g: dict(v) for g, v in cfg.items()}
     cfg["plant_sim"]["duration"] = float(duration)
-    if hardware is not None and compose:
-        raise GraphError("--hardware runs a process per node (no --compose)")
     rig = None
     if hardware is not None:
         cfg["hw_driver"]["duration"] = float(duration)
@@ -128,13 +126,17 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     if threading.current_thread() is threading.main_thread():  # Ctrl-C / SIGTERM stop the graph cleanly
         old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     plant_node = "plant_sim" if hardware is None else "hw_driver"
-    lead = "container" if compose else plant_node  # its exit ends the run; its stdout has the status lines
+    lead = "container" if compose and hardware is None else plant_node  # its exit ends the run; its stdout has the status lines
     names = ["container"] if compose else [n if n != "plant_sim" else plant_node for n in NODES if n != "recorder" or bag is not None]
+    if compose and hardware is not None:  # the loop's nodes composed, the driver beside them (it owns the link)
+        names = ["container", "hw_driver"]
     t0 = time.monotonic()
     try:
         for name in names:
             bag_args = ["--bag", str(bag), "--meta", str(meta_file)] if bag is not None else []
             extra = bag_args if name in ("recorder", "container") else []
+            if name == "container" and hardware is not None:
+                extra = [*extra, "--nodes", "estimator,controller,reference"]
             logs[name] = workdir / f"{name}.log"
             out = subprocess.PIPE if name == lead else open(logs[name], "wb")
             node_params = params
@@ -145,7 +147,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
                                            stderr=subprocess.STDOUT, start_new_session=True,
                                            text=(name == lead))
             started[name] = time.monotonic()
-            if name == "controller":  # every other node is up: wait for their "ready"
+            if name == "controller" or (name == "container" and hardware is not None):  # wait for their "ready"
                 _wait_ready({n: logs[n] for n in procs if n != plant_node}, procs, timeout=120.0)
         plant = procs[lead]
         plant_log = open(logs[lead], "w")
@@ -306,6 +308,9 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
     hardware = getattr(args, "hardware", None)
     if hardware is not None:  # a rig measures no gap rates: the offline comparison neither
         cfg["plant_sim"]["measure_velocity"] = False
+        # one command delay: the controller predicts over it, the board applies it, offline simulates it
+        d = cfg["controller"]["command_delay"]
+        cfg["hw_driver"]["command_delay"] = cfg["plant_sim"]["command_delay"] = d
         meta["hardware"] = hardware
     try:
         facts = run_graph(cfg, duration=duration, transport=args.transport, bag=bag, meta=meta, domain_id=args.domain_id,
@@ -319,7 +324,7 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
     if metrics.loop is not None:  # the plant's process exits before the launcher can read its CPU time: it reports it
         cpu = dict(facts["cpu_percent"])
         if metrics.loop.plant_cpu_percent is not None:
-            cpu["container" if compose else ("plant_sim" if hardware is None else "hw_driver")] = metrics.loop.plant_cpu_percent
+            cpu["hw_driver" if hardware is not None else ("container" if compose else "plant_sim")] = metrics.loop.plant_cpu_percent
         metrics.loop.cpu_percent = cpu
     offline = simulate(cfg, controller=cfg["controller"]["type"], estimator=cfg["estimator"]["type"], duration=duration,
                        scenario=sc.name).metrics()

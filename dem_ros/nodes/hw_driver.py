@@ -263,6 +263,66 @@ class HwDriverNode:
         self.ch.close()
 
 
+#: what the driver's answer to each request starts with (``HwDriver.arm/disarm/estop``)
+_ANSWERS = {"arm": ("armed", "already active"), "disarm": ("disarmed",), "estop": ("e-stop",)}
+
+
+def request(verb: str, reason: str = "", *, domain_id: int | None = None, timeout_s: float = 5.0) -> dict[str, str]:
+    """``dem-ros hw arm|disarm|estop|status``: send one request to the running hw_driver, return its state.
+
+    The request goes on ``/dem/hw/request`` (an e-stop on ``/dem/hw/estop``); the answer is the
+    driver's latched ``/dem/hw/state`` (its key/values plus ``state`` and ``level``). A request is
+    repeated until the state shows the answer (each is idempotent), for at most ``timeout_s``.
+
+    Raises:
+        TimeoutError: no hw_driver answered within ``timeout_s``.
+    """
+    import os
+
+    from ..transport import make_node
+
+    if verb not in ("arm", "disarm", "estop", "status"):
+        raise ValueError(f"unknown request {verb!r}: arm, disarm, estop, status")
+    if domain_id is not None:
+        os.environ["ROS_DOMAIN_ID"] = str(domain_id)
+    node = make_node("dem_ros_hw", transport="dds", args=[])
+    states: list = []
+    node.subscribe(contract.HW_STATE, states.append)
+    pub = node.publisher(contract.HW_ESTOP if verb == "estop" else contract.HW_REQUEST)
+    String = node.msg("std_msgs/msg/String")
+    deadline = time.monotonic() + timeout_s
+
+    def values(st) -> dict[str, str]:
+        out = {kv.key: kv.value for kv in st.values}
+        out["state"] = st.message
+        out["level"] = str(st.level[0] if isinstance(st.level, bytes) else st.level)
+        return out
+
+    try:
+        while time.monotonic() < deadline and not states:  # discovery: the latched state arrives
+            node.spin_once(0.05)
+        if not states:
+            raise TimeoutError(f"no hw_driver answered on {contract.HW_STATE.name} within {timeout_s:g} s")
+        if verb == "status":
+            return values(states[-1])
+        msg = String()
+        msg.data = reason if verb == "estop" else verb
+        if verb == "estop" and not reason:
+            msg.data = "dem-ros hw estop"
+        next_send = 0.0
+        while time.monotonic() < deadline:
+            if time.monotonic() >= next_send:
+                pub.publish(msg)
+                next_send = time.monotonic() + 0.3
+            node.spin_once(0.05)
+            v = values(states[-1])
+            if v.get("answer", "").startswith(_ANSWERS[verb]) or (verb == "estop" and v["state"] == "fault"):
+                return v
+        raise TimeoutError(f"hw_driver did not confirm '{verb}' within {timeout_s:g} s (state {values(states[-1])['state']})")
+    finally:
+        node.shutdown()
+
+
 def main(args=None) -> int:
     return run_node("hw_driver", HwDriverNode, args=args)
 

@@ -15,9 +15,11 @@ forwarded command): frames before it carry ``frame_id = dem/preroll``. After ``d
 s the node stops publishing, lands the plate (disarm: LAND) and exits.
 
 State and link statistics: ``/dem/hw/state`` (DiagnosticStatus, latched, 10 Hz and on
-every change) and ``/diagnostics`` (1 Hz). Requests: ``/dem/hw/request`` (std_msgs/String:
-``arm``, ``disarm``, ``estop [reason]``, ``clear``) and ``/dem/hw/estop`` (any message:
-e-stop, its data the reason); answers and state changes go to ``/dem/hw/state``.
+every change) and ``/diagnostics`` (1 Hz). Requests: the services ``~/arm``, ``~/disarm``,
+``~/estop``, ``~/status`` (std_srvs/Trigger), the topic ``/dem/hw/request`` (std_msgs/String:
+``arm``, ``disarm``, ``estop [reason]``, ``clear``; what ``dem-ros hw`` sends) and
+``/dem/hw/estop`` (any message: e-stop, its data the reason); answers and state changes go
+to ``/dem/hw/state``.
 """
 
 from __future__ import annotations
@@ -65,6 +67,8 @@ class HwDriverNode:
         node.subscribe(contract.COMMAND, self.on_command)
         node.subscribe(contract.HW_REQUEST, self.on_request)
         node.subscribe(contract.HW_ESTOP, self.on_estop)
+        for verb in ("arm", "disarm", "estop", "status"):  # ~/arm ... (std_srvs/Trigger), as the request topic
+            node.service(verb, "std_srvs/srv/Trigger", lambda req, res, verb=verb: self.on_service(verb, res))
         self.n_pre = round(c["preroll"] / c["dt"])
         self.n_end = round(c["duration"] / c["dt"]) if c["duration"] > 0 else 0
         self.epoch_seq: int | None = None  # first sample of the experiment (t = 0)
@@ -117,6 +121,21 @@ class HwDriverNode:
                 self.answer = f"unknown request {msg.data!r}: arm, disarm, clear, estop [reason], status"
         self.node.logger.info(f"request {msg.data!r}: {self.answer}")
         self.publish_state(force=True)
+
+    def on_service(self, verb: str, res):
+        with self.lock:
+            if verb == "arm":
+                self.answer = self.drv.arm()
+            elif verb == "disarm":
+                self.answer = self.drv.disarm()
+            elif verb == "estop":
+                self.answer = self.drv.estop("~/estop service")
+            state = self.drv.state
+        res.success = state != DriverState.FAULT or verb == "estop"
+        res.message = f"{state.name.lower()}: {self.answer if verb != 'status' else self.drv.reason or 'no fault'}"
+        self.node.logger.info(f"service {verb}: {res.message}")
+        self.publish_state(force=True)
+        return res
 
     def on_estop(self, msg) -> None:
         with self.lock:

@@ -25,7 +25,7 @@ from dem_ros.hardware.driver import DriverState, HwDriver, Sample
 from dem_ros.hardware.link import HELLO_REQUEST, Mode, encode
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_rig import Loop  # noqa: E402
+from test_rig import Loop
 
 ROOT = Path(__file__).resolve().parents[2]
 #: samples between a measurement and the period its command is applied (board, driver and controller

@@ -38,7 +38,7 @@ from ..hardware.channel import ChannelError, open_channel
 from ..hardware.driver import DriverState, HwDriver, Sample
 from ..hardware.link import HELLO_REQUEST, Mode, encode
 from ..realtime import config_from_env
-from ..transport import Node, run_node
+from ..transport import Node, TransportError, run_node
 from .common import LatencyStats, diag_array, joint_state, stamp_ns
 
 __all__ = ["HwDriverNode", "main"]
@@ -170,7 +170,11 @@ class HwDriverNode:
                         self.ch.send(reply)
                     if sample is not None:
                         self.rx_ns[sample.seq % RING] = steady
-                        self._publish(sample)
+                        try:
+                            self._publish(sample)
+                        except TransportError:  # the node is shutting down under us (SIGINT): stop reading
+                            self.stop.set()
+                            return
                 if not ready:
                     self.drv.check(time.monotonic_ns())
 

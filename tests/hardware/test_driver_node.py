@@ -7,6 +7,7 @@ hover, so nothing here depends on the machine keeping 1 kHz.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import socket
@@ -77,7 +78,7 @@ def test_the_driver_honours_plant_sims_contract_and_its_lifecycle_answers_reques
         assert len(m.velocity) == 0  # a rig measures no gap rates
         assert m.effort[0] == pytest.approx(4.0, abs=0.1)  # the hover current at 8 mm
         stamps = [x.header.stamp.sec * 10**9 + x.header.stamp.nanosec for x in meas]
-        assert all(b > a for a, b in zip(stamps, stamps[1:]))
+        assert all(b > a for a, b in itertools.pairwise(stamps))
         assert any(a.effort[0] == pytest.approx(80.0, abs=0.5) for a in applied)  # the clamp's hover voltage
     finally:
         node.shutdown()

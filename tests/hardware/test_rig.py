@@ -47,7 +47,7 @@ class Loop:
 
 def hover_loop(b: Board, cfg, n: int, drv: HwDriver | None = None, skip=lambda k: False):
     """Close the loop through the link codec and the driver, one board tick at a time (no clock)."""
-    drv = drv or HwDriver(cfg["hw_driver"] | {"clock_sync_frames": 1})
+    drv = drv or HwDriver(cfg["hw_driver"] | {"clock_sync_frames": 1, "arm_samples": 1})
     if drv.state.name == "INACTIVE":
         drv.arm()
     law = Loop(cfg)

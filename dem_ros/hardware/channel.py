@@ -15,9 +15,9 @@ URLs:
     ``side="pc"`` connects to the board at HOST:PORT from an ephemeral port.
 ``serial:///dev/PATH[?baud=N]``
     A serial line (USB CDC or UART) via pyserial, raw 8N1, COBS-framed with a
-    0x00 delimiter (:mod:`dem_ros.hardware.framing`). Default 921600 baud: a
-    sensor frame is 50 bytes on the wire (49 COBS + delimiter), i.e. 500 kbit/s
-    at 1 kHz with 10 bits per byte, so a UART needs ≥ 921600 baud (USB CDC
+    0x00 delimiter before and after each frame (:mod:`dem_ros.hardware.framing`).
+    Default 921600 baud: a sensor frame is 51 bytes on the wire (49 COBS + 2
+    delimiters), i.e. 510 kbit/s at 1 kHz with 10 bits per byte, so a UART needs ≥ 921600 baud (USB CDC
     ignores the rate).
 ``pty://``
     A new pseudo-terminal, for emulators (``side="board"`` only): the board
@@ -36,13 +36,14 @@ import errno
 import os
 import select
 import socket
+import termios
 import time
 import tty
 from collections import Counter, deque
 from typing import Protocol
 from urllib.parse import parse_qs, urlsplit
 
-from .framing import Deframer, cobs_encode
+from .framing import Deframer, wire_frame
 from .link import MAX_FRAME_SIZE, Hello, LinkError, decode
 
 __all__ = [
@@ -95,12 +96,22 @@ class Channel(Protocol):
         ...
 
 
-def _wait_readable(poller: select.poll, deadline: float) -> bool:
-    """Poll until readable or the monotonic ``deadline`` (s) passes."""
+_FD_SETSIZE = 1024  # select() takes descriptors below this
+
+
+def _wait_readable(fd: int, poller: select.poll, deadline: float) -> bool:
+    """Wait until ``fd`` is readable or the monotonic ``deadline`` (s) passes.
+
+    select() takes a timeout in µs; poll() only in whole ms, which would overshoot a
+    sub-millisecond deadline by up to 1 ms (a whole period at 1 kHz), so poll() is only
+    the fallback for descriptors select() cannot take (rounded up: never early).
+    """
     while True:
         left = deadline - time.monotonic()
-        ms = max(0, int(left * 1e3 + 0.999))  # round up: never return before the deadline
-        if poller.poll(ms):
+        if fd < _FD_SETSIZE:
+            if select.select([fd], [], [], max(0.0, left))[0]:
+                return True
+        elif poller.poll(max(0, int(left * 1e3 + 0.999))):
             return True
         if time.monotonic() >= deadline:
             return False
@@ -164,7 +175,7 @@ class UdpChannel:
             try:
                 data, addr = self._sock.recvfrom(_DGRAM_MAX)
             except BlockingIOError:
-                if not _wait_readable(self._poll, deadline):
+                if not _wait_readable(self._sock.fileno(), self._poll, deadline):
                     return None
                 continue
             except ConnectionRefusedError:
@@ -175,6 +186,8 @@ class UdpChannel:
             if self.side == "board" and addr != self.peer:
                 if not self._is_hello_request(data):
                     self.stats["foreign"] += 1
+                    if time.monotonic() >= deadline:  # a flood of foreign datagrams cannot hold recv past its deadline
+                        return None
                     continue
                 self.peer = addr
                 self.stats["peer_changes"] += 1
@@ -210,7 +223,7 @@ class _StreamChannel:
         self.deframer = Deframer()
         self._fd = fd
         self._rx: deque[bytes] = deque()
-        self._tx = bytearray(b"\x00")  # a leading delimiter flushes whatever the receiver holds
+        self._tx = bytearray()
         self._poll = select.poll()
         self._poll.register(fd, select.POLLIN)
         os.set_blocking(fd, False)
@@ -234,7 +247,7 @@ class _StreamChannel:
 
     def send(self, frame: bytes) -> bool:
         self._flush()
-        wire = cobs_encode(frame) + b"\x00"
+        wire = wire_frame(frame)
         if len(self._tx) + len(wire) > TX_BACKLOG:
             self.stats["tx_dropped"] += 1
             return False
@@ -253,7 +266,7 @@ class _StreamChannel:
             if e.errno == errno.EIO:  # pty: the other end is closed
                 return "hangup"
             raise ChannelError(f"{self.url}: read failed: {e.strerror}") from None
-        if not data:
+        if not data:  # end of file: the far end hung up (ttys are set VMIN=1, so 0 bytes is not "none")
             return "hangup"
         self.stats["rx_bytes"] += len(data)
         for f in self.deframer.feed(data):
@@ -272,13 +285,13 @@ class _StreamChannel:
             if got == "data":
                 continue
             if got == "hangup":
-                # the far end is closed: poll() would report it at once, forever; wait out the deadline
+                # the far end is gone: poll() would say so at once, forever; wait out the deadline
                 self.stats["rx_hangup"] += 1
                 left = deadline - time.monotonic()
                 if left > 0:
                     time.sleep(left)
                 return None
-            if not _wait_readable(self._poll, deadline):
+            if not _wait_readable(self._fd, self._poll, deadline):
                 return None
         self.stats["rx_frames"] += 1
         return self._rx.popleft()
@@ -311,7 +324,13 @@ class SerialChannel(_StreamChannel):
             self._port = serial.Serial(path, baudrate=baud, timeout=0, write_timeout=0, exclusive=True)
         except (serial.SerialException, ValueError) as e:
             raise ChannelError(f"{url}: cannot open: {e}") from None
-        super().__init__(self._port.fileno(), url)
+        fd = self._port.fileno()
+        # pyserial leaves VMIN=0/VTIME=0, under which an empty read means "no data"; with VMIN=1 and
+        # O_NONBLOCK, "no data" is EAGAIN and an empty read means the line hung up
+        attrs = termios.tcgetattr(fd)
+        attrs[6][termios.VMIN], attrs[6][termios.VTIME] = 1, 0
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        super().__init__(fd, url)
 
     def _close_fd(self) -> None:
         self._port.close()

@@ -155,7 +155,7 @@ class LinkError(ValueError):
 # --- layouts (struct formats, little-endian, no implicit padding) ---------------------------
 HEADER = struct.Struct("<BBH")  # version, type, length
 _CRC = struct.Struct("<I")
-# board_id u32, rate_hz u32, adc_bits u8, reserved u8, watchdog_ms u16, adc_vref f32
+# board_id u32, rate_hz u32, adc_bits u8, command_delay u8, watchdog_ms u16, adc_vref f32
 _HELLO = struct.Struct("<IIBBHf")
 # seq u32, board_time_us u64, gap_counts 2×u16, current_counts 2×u16, applied_v 2×f32,
 # bus_v f32, status u32, mode u8, reserved 3×u8
@@ -193,7 +193,12 @@ class Hello:
             c · adc_vref / 2**adc_bits volts at the ADC pin.
         watchdog_ms: the board's link watchdog (ms, u16): with no valid command
             for this long the board lands the plate. 0 in a request.
-            (Added by hwlink beyond the PLAN.md API; defaults keep that API.)
+        command_delay: the board's command delay d (samples, u8): at tick k it
+            applies the command answering sample k - d. 0 in a request (and
+            "not stated" from a board that does not report it); a PC whose
+            controller predicts over another delay must refuse the board.
+        (``watchdog_ms`` and ``command_delay`` are additions to the PLAN.md API;
+        their defaults keep that API.)
     """
 
     version: int
@@ -202,6 +207,7 @@ class Hello:
     adc_bits: int
     adc_vref: float
     watchdog_ms: int = 0
+    command_delay: int = 0
 
     @property
     def is_request(self) -> bool:
@@ -353,7 +359,7 @@ def encode(frame: Frame) -> bytes:
             _uint("board_id", frame.board_id, _U32),
             _uint("rate_hz", frame.rate_hz, _U32),
             adc_bits,
-            0,
+            _uint("command_delay", frame.command_delay, 0xFF),
             _uint("watchdog_ms", frame.watchdog_ms, _U16),
             vref,
         )
@@ -390,17 +396,15 @@ def decode(data: bytes | bytearray | memoryview) -> Frame:
     if ftype == FrameType.HELLO:
         if n != HELLO_SIZE:
             raise LinkError("size", f"a hello frame has {HELLO_SIZE} bytes, not {n}")
-        board_id, rate_hz, adc_bits, reserved, watchdog_ms, vref = _HELLO.unpack_from(b, HEADER.size)
+        board_id, rate_hz, adc_bits, delay, watchdog_ms, vref = _HELLO.unpack_from(b, HEADER.size)
         if version == 0:
             raise LinkError("version", "version 0 is not a protocol version")
-        if reserved:
-            raise LinkError("reserved", f"hello reserved byte is {reserved:#04x}")
         if adc_bits > 16:
             raise LinkError("range", f"adc_bits={adc_bits} (at most 16)")
         _finite("adc_vref", vref)
         if vref < 0.0:
             raise LinkError("range", f"adc_vref={vref!r} is negative")
-        return Hello(version, board_id, rate_hz, adc_bits, vref, watchdog_ms)
+        return Hello(version, board_id, rate_hz, adc_bits, vref, watchdog_ms, delay)
     if version != PROTOCOL_VERSION:
         raise LinkError("version", f"protocol version {version}, this codec speaks {PROTOCOL_VERSION}")
     if ftype not in _SIZES:

@@ -8,8 +8,10 @@ What each setting is for (a Python loop on a stock, non-RT Linux kernel):
   the difference between wake-ups > 1 ms late in ~5-10 % of periods and in < 1 % (measured
   here, see the README's "Speed" section). Applied to the loop's thread (the one that calls
   :func:`enter_loop`) and to the DDS threads that receive and deliver samples (cyclonedds
-  ``recv*`` / ``dq.*``), which sit on the same path in a process-per-node graph. Helper
-  threads made by the nodes (the bag writer) stay normal: they work while the loop sleeps.
+  ``recv*`` / ``dq.*``), which sit on the same path in a process-per-node graph. The
+  process's other Python threads (the bag writer) get ``priority - 1``: they share the GIL
+  with the loop, and a helper thread preempted by a busy neighbour while it holds the GIL
+  would keep the loop waiting for it (priority inversion); they sleep between their bursts.
 * **mlockall** (``lock_memory``; ``MCL_CURRENT | MCL_FUTURE | MCL_ONFAULT``): no page the process
   has touched is paged out (or reclaimed and faulted in again) while the loop runs.
   ``MCL_ONFAULT`` (Linux >= 4.4) locks pages as they are used instead of populating every
@@ -194,11 +196,14 @@ def _threads() -> list[tuple[int, str]]:
     return out
 
 
-def _loop_threads() -> list[tuple[int, str]]:
-    """(tid, name) of the loop's thread (the caller, first) and of the DDS threads on the sample path."""
+def _loop_threads(priority: int) -> list[tuple[int, str, int]]:
+    """(tid, name, FIFO priority): the loop's thread (the caller, first) and the DDS threads on the
+    sample path at ``priority``; the process's other Python threads one below it."""
     me = threading.get_native_id()
-    out = [(me, _thread_name(me))]
-    out += [(t, n) for t, n in _threads() if t != me and n.startswith(_DDS_PATH_THREADS)]
+    out = [(me, _thread_name(me), priority)]
+    out += [(t, n, priority) for t, n in _threads() if t != me and n.startswith(_DDS_PATH_THREADS)]
+    out += [(t.native_id, t.name, max(1, priority - 1)) for t in threading.enumerate()
+            if t.native_id is not None and t.native_id != me and t.is_alive()]
     return out
 
 
@@ -210,11 +215,10 @@ def _thread_name(tid: int) -> str:
         return str(tid)
 
 
-def _set_fifo(priority: int, threads: list[tuple[int, str]], g: Granted) -> None:
-    param = os.sched_param(priority)
-    (tid, name), rest = threads[0], threads[1:]
+def _set_fifo(priority: int, threads: list[tuple[int, str, int]], g: Granted) -> None:
+    (tid, name, _), rest = threads[0], threads[1:]
     try:
-        os.sched_setscheduler(tid, os.SCHED_FIFO, param)
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
     except PermissionError:
         lim = resource.getrlimit(resource.RLIMIT_RTPRIO)[0]
         shown = "unlimited" if lim == resource.RLIM_INFINITY else str(lim)
@@ -225,10 +229,10 @@ def _set_fifo(priority: int, threads: list[tuple[int, str]], g: Granted) -> None
         return
     g.fifo_priority = priority
     g.fifo_threads.append(name)
-    for t, n in rest:
+    for t, n, p in rest:
         try:
-            os.sched_setscheduler(t, os.SCHED_FIFO, param)
-            g.fifo_threads.append(n)
+            os.sched_setscheduler(t, os.SCHED_FIFO, os.sched_param(p))
+            g.fifo_threads.append(n if p == priority else f"{n} ({p})")
         except OSError:  # the thread has ended
             pass
 
@@ -262,10 +266,10 @@ def apply(cfg: RtConfig, *, warn=None) -> Granted:
         g.timer_slack_ns = cfg.timer_slack_ns
     else:
         g.missing.append(f"timer slack ({os.strerror(ctypes.get_errno())})")
-    threads = _loop_threads()
+    threads = _loop_threads(cfg.priority)
     if cfg.cpus:
         try:
-            for tid, _ in threads:
+            for tid, _, _ in threads:
                 os.sched_setaffinity(tid, cfg.cpus)
             g.cpus = sorted(cfg.cpus)
         except OSError as exc:

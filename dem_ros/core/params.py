@@ -241,7 +241,7 @@ _GAP_POLY = (0.0, 2.5e-7, 8.0e-13, 0.0)
 # The board's hard limits and watchdog (dem_ros.core.safety.Supervisor): one list, included in every
 # group whose node is (or simulates) the board that drives the coils: plant_sim, hw_driver.
 SAFETY_SPECS = (
-    ParamSpec("u_max", float, 150.0, "V", "coil driver bus: applied voltages are clipped to +-this (hover needs 50-80 V, transients ~120 V)", 1.0, 1e4),
+    ParamSpec("u_max", float, 200.0, "V", "coil driver bus: applied voltages are clipped to +-this (hover 50-80 V, transients ~120 V, scenario S4b asks 155 V)", 1.0, 1e4),
     ParamSpec("i_max", float, 10.0, "A", "coil current trip: above this the board latches a fault and lands the plate", 0.1, 1e3),
     ParamSpec("trip_gap_min", float, 0.0015, "m", "gap trip toward the rail: an estimated load-point gap below this latches a fault and lands", 0.0, 0.1),
     ParamSpec("trip_gap_max", float, 0.013, "m", "gap trip away from the rail: an estimated gap above this latches a fault (the plate is on its support or falling)", 1e-4, 1.0),
@@ -288,11 +288,10 @@ SCHEMA = Schema(
             ParamSpec("perturbation_amplitude", float, 0.0, "V", "perturbation amplitude (uniform: +-a, sine: a)", 0.0, 1e4),
             ParamSpec("perturbation_frequency", float, 50.0, "Hz", "sine perturbation frequency", 0.0, 1e5),
             ParamSpec("seed", int, 1, "", "seed of the noise and perturbation generators", 0, 2**31 - 1),
-            ParamSpec("command_timeout", float, 0.02, "s", "hold the last command at most this long, then apply 0 V (watchdog)", 1e-4, 10.0),
             ParamSpec("command_delay", int, 1, "samples", "the command computed from sample k is held over [t_k+d, t_k+d+1): d = 1 gives the graph a full period to deliver it", 0, 8),
             ParamSpec("duration", float, 0.0, "s", "graph: stop after this much simulated time (0: run until stopped)", 0.0, 1e7),
-            ParamSpec("lockstep", bool, True, "", "graph: wait for the command a sample needs (simulated clock may fall behind wall time); false: hardware-like timing"),
-            ParamSpec("lockstep_timeout", float, 1.0, "s", "lockstep: wait this long for a command before the watchdog applies 0 V (a dead controller)", 1e-3, 600.0),
+            ParamSpec("lockstep", bool, True, "", "graph: wait for the command a sample needs (simulated clock may fall behind wall time); false: free-running, hardware-like timing (a late command is held at most hold_timeout, then the board lands the plate)"),
+            ParamSpec("lockstep_timeout", float, 1.0, "s", "lockstep: wait this long for a command, then the board lands the plate (a dead controller)", 1e-3, 600.0),
             ParamSpec("preroll", float, 1.0, "s", "graph: levitate in closed loop this long before t = 0 (frame_id dem/preroll)", 0.0, 600.0),
             ParamSpec("start_delay", float, 3.0, "s", "graph: wait at least this long after start-up before t = 0 (discovery)", 0.0, 600.0),
             ParamSpec("min_subscribers", int, 2, "", "graph: wait (up to 30 s) until this many readers match /dem/measurement (estimator, reference)", 0, 100),

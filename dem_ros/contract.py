@@ -25,10 +25,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "MAGNETS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic"]
+__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "HW_LOOP_STATUS", "LOOP_STATUS", "MAGNETS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic"]
 
 FRAME = "dem"
 FRAME_PREROLL = "dem/preroll"
+#: the name of the plant's once-a-second loop status on /diagnostics (cycles, deadline misses, latency, epoch_ns)
+LOOP_STATUS = "plant_sim: loop"
+#: the hardware driver's loop status: the same keys, standing in for the plant's on a rig
+HW_LOOP_STATUS = "hw_driver: loop"
 MAGNETS = ("magnet_1", "magnet_2")
 #: y_d [m], y_d' [m/s], y_d'' [m/s^2], y_d''' [m/s^3] for both magnets.
 REFERENCE_NAMES = (

@@ -286,7 +286,7 @@ class PlantSimNode:
         }
 
     def publish_diag(self, level: int, message: str, stats: dict | None = None) -> None:
-        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), "plant_sim: loop", level, message,
+        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), contract.LOOP_STATUS, level, message,
                                          stats if stats is not None else self.stats()))
 
     def status(self) -> None:

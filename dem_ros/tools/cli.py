@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..core.params import SCHEMA, ConfigError
+from ..nodes import NODES
 from ..transport import param_get, param_set
 from . import bench, launcher, node_main, replay
 from .common import CONTROLLER_TYPES, ESTIMATOR_TYPES, UsageError, load_config
@@ -204,7 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
     hw.set_defaults(func=cmd_hw)
 
     nd = sub.add_parser("node", help="run one node of the graph")
-    nd.add_argument("name", choices=node_main.NODES)
+    nd.add_argument("name", choices=NODES)
     nd.add_argument("ros_args", nargs=argparse.REMAINDER, help="--ros-args ... (params file, remaps)")
     nd.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
     nd.set_defaults(func=cmd_node)

@@ -28,9 +28,10 @@ import numpy as np
 import pytest
 
 from dem_ros import contract
+from dem_ros.contract import LOOP_STATUS
 from dem_ros.core.scenarios import get_scenario
 from dem_ros.tools import launcher
-from dem_ros.tools.runmetrics import LOOP_STATUS, RunMetrics
+from dem_ros.tools.runmetrics import RunMetrics
 
 STALL_AT = 1.0  # s of experiment time (the plate follows r1: 8 -> 5 mm from t = 1 s)
 

@@ -241,6 +241,9 @@ class HwDriver:
         rate = round(1e9 / self.dt_ns)
         if h.rate_hz != rate:
             self.fault(f"board samples at {h.rate_hz} Hz, the driver is configured for {rate} Hz (dt)")
+        elif h.command_delay and h.command_delay != self.cfg["command_delay"]:
+            self.fault(f"board applies commands {h.command_delay} samples late, the controller predicts over "
+                       f"{self.cfg['command_delay']} (command_delay)")
         return None
 
     def _seq_check(self, seq: int) -> bool:

@@ -122,10 +122,13 @@ def test_ten_thousand_random_and_mutated_frames_are_rejected_by_count_never_rais
     assert rejected >= 9_990
 
 
-def test_a_board_with_another_rate_is_a_fault():
+def test_a_board_with_another_rate_or_command_delay_is_a_fault():
     d = HwDriver(CFG)
     d.on_bytes(encode(Hello(1, 7, 500, 16, 10.0, 20)), 0, 0)
     assert d.state == DriverState.FAULT and "500 Hz" in d.reason
+    d = HwDriver(CFG)
+    d.on_bytes(encode(Hello(1, 7, 1000, 16, 10.0, 20, 3)), 0, 0)
+    assert d.state == DriverState.FAULT and "3 samples late" in d.reason
 
 
 # -- lifecycle, commands, watchdog, limits ------------------------------------------------------------

@@ -74,7 +74,8 @@ def hover_loop(b: Board, cfg, n: int, drv: HwDriver | None = None, skip=lambda k
 def test_hello_reports_rate_adc_and_watchdog():
     _b, cfg, hello = make()
     assert isinstance(hello, Hello)
-    assert (hello.rate_hz, hello.adc_bits, hello.watchdog_ms) == (1000, 16, round(cfg["plant_sim"]["hold_timeout"] * 1e3))
+    assert (hello.rate_hz, hello.adc_bits, hello.watchdog_ms, hello.command_delay) == \
+        (1000, 16, round(cfg["plant_sim"]["hold_timeout"] * 1e3), cfg["hw_driver"]["command_delay"])
 
 
 def test_sensor_frames_invert_the_drivers_calibration_to_one_count():

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "HW_LOOP_STATUS", "LOOP_STATUS", "MAGNETS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic"]
+__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "HW_LOOP_STATUS", "LOOP_STATUS", "MAGNETS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic", "markdown_table"]
 
 FRAME = "dem"
 FRAME_PREROLL = "dem/preroll"
@@ -146,3 +146,19 @@ HW_ESTOP = Topic(
 
 TOPICS = (MEASUREMENT, TRUTH, APPLIED, ESTIMATE, REFERENCE, COMMAND, CONTROLLER_STATE, DIAGNOSTICS, RUN_INFO, PARAMETER_EVENTS,
           HW_STATE, HW_REQUEST, HW_ESTOP)
+
+
+def markdown_table() -> str:
+    """The contract as a Markdown table (``docs/manual/topics.md`` holds it; a test keeps them equal)."""
+
+    def cell(s: str) -> str:
+        return s.replace("|", "\\|")
+
+    lines = ["| topic | type | fields (SI) | rate | QoS | publisher | subscribers |", "|---|---|---|---|---|---|---|"]
+    for t in TOPICS:
+        q = t.qos
+        qos = f"{'reliable' if q.reliable else 'best effort'}, {'transient local' if q.transient_local else 'volatile'}, depth {q.depth}"
+        rate = f"{t.rate_hz:g} Hz" if t.rate_hz else "on change"
+        lines.append(" | ".join(["", f"`{t.name}`", f"`{t.type}`", cell(t.fields), rate, qos, cell(t.publisher),
+                                 cell(", ".join(t.subscribers)), ""]).strip())
+    return "\n".join(lines) + "\n"

@@ -335,8 +335,18 @@ class Supervisor:
         self.mode = Mode(mode)
         self.reason = ""
         self.fault = ""
+        self._load_kernels()
         self.counters = dict.fromkeys(
             ("holds", "hold_events", "longest_hold_us", "clipped", "rejected", "landings", "trips", "estops", "landed"), 0)
+
+    def _load_kernels(self) -> None:
+        """Load (or compile: seconds) the numba kernels now, on scratch data, never in a sample."""
+        s, a = np.zeros((3, 2)), np.zeros(2)
+        s[0, :] = self.cfg["landing_gap"]
+        de1, de2 = _deltas(self._p, s[0, 0], s[0, 1])
+        _model_accel(self._p, de1, de2, 1.0, 1.0, a)
+        _observe(self._p, self._Lo, s, a, s[0, 0], s[0, 1], 1.0, 1.0)
+        _land_law(self._p, s, np.zeros((3, 2)), np.zeros(2), np.ones(2), False, np.zeros(2))
 
     # -- commands from outside -------------------------------------------------------------
     def land(self, reason: str) -> None:

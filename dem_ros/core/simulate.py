@@ -21,8 +21,9 @@ from numba import njit, prange
 
 from .controllers import CEController, PIDController, make_controller
 from .controllers import kernels as CK
-from .estimator import KalmanEstimator, ekf_step, make_estimator
-from .model import IP, IQ, SM, apply_schedule, initial_state, plant_vector, rk4
+from .estimator import NS, KalmanEstimator, ekf_step, make_estimator
+from .model import IP, IQ, NPP, SM, apply_schedule, initial_state, plant_vector, rk4
+
 from .reference import reference_trajectory
 from .scenarios import NOISE_UNIT, disturbances, plant_schedule, sensor_model
 
@@ -153,14 +154,14 @@ def _estimator_args(est, measure_velocity: bool):
     if isinstance(est, KalmanEstimator):
         return (True,) + est.kernel_args()
     mask = np.array([1.0, float(measure_velocity), 1.0, float(measure_velocity), 1.0, 1.0])
-    return (False, np.zeros(8), np.eye(8), mask, np.zeros(11), 1e-3, np.zeros(3), np.zeros(6))
+    return (False, np.zeros(NS), np.eye(NS), mask, np.zeros(NPP), 1e-3, np.zeros(4), np.zeros(6))
 
 
 def _controller_args(ctrl):
     if isinstance(ctrl, PIDController):
-        dummy = np.zeros(8)
-        return (True, 0, np.zeros(CK.NCP), dummy, dummy.copy(), dummy.copy(), dummy.copy(), np.zeros((8, 8)),
-                np.zeros((3, 18)), np.zeros((CK.NUH, 2)), np.eye(3), np.zeros(3), ctrl.cp, ctrl.integ)
+        dummy = np.zeros(CK.NTH)
+        return (True, 0, np.zeros(CK.NCP), dummy, dummy.copy(), dummy.copy(), dummy.copy(), np.zeros((CK.NTH, CK.NTH)),
+                np.zeros((3, CK.NZ)), np.zeros((CK.NUH, 2)), np.eye(3), np.zeros(3), ctrl.cp, ctrl.integ)
     assert isinstance(ctrl, CEController)
     mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd = ctrl.kernel_args()
     return (False, mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, np.zeros(CK.NPID), np.zeros(2))
@@ -287,7 +288,7 @@ def _batch(
         ppb = pp.copy()
         kf = _closed_loop(
             is_pid, mode, cp.copy(), theta[b], v[b], scale[b], v0[b], Pc[b], Z[b], uh[b], Ad, Bd, pid_cp, integ[b],
-            False, np.zeros(8), np.eye(8), mask, pp, dt, np.zeros(3), np.zeros(6),
+            False, np.zeros(NS), np.eye(NS), mask, pp, dt, np.zeros(4), np.zeros(6),
             x, ppb, L, l, scheds[b], sg, sb, noise, pert, ref, dt, nsub, gap_min, gap_max, delay, u0,
             X, U, D, True,
         )

@@ -24,10 +24,11 @@ from .controllers import kernels as CK
 from .estimator import NS, KalmanEstimator, ekf_step, make_estimator
 from .model import IP, IQ, NPP, SM, apply_schedule, initial_state, plant_vector, rk4
 
-from .reference import reference_trajectory
+from .reference import hover_start, reference_trajectory
+
 from .scenarios import NOISE_UNIT, disturbances, plant_schedule, sensor_model
 
-__all__ = ["SimResult", "simulate", "simulate_batch"]
+__all__ = ["Preroll", "SimResult", "preroll", "simulate", "simulate_batch"]
 
 
 @njit(cache=True)
@@ -178,13 +179,27 @@ def prepare(cfg: Mapping, duration: float, seed: int | None = None):
     return t, r, ref, dist.schedule[:, SM].copy(), dist.noise, dist.pert
 
 
+@dataclass(frozen=True)
+class Preroll:
+    """What the pre-roll leaves behind.
+
+    Attributes:
+        window_z (n, 6): the controller's hover window: the estimates it saw over the last ``hover_window`` s.
+        window_u (n, 2): the voltages applied meanwhile (V).
+        gaps (n_pre, 2): the measured gaps of the whole pre-roll (m), where the reference starts.
+    """
+
+    window_z: np.ndarray
+    window_u: np.ndarray
+    gaps: np.ndarray
+
+
 def preroll(pc: Mapping, est, x0: np.ndarray, u0: np.ndarray, sg: np.ndarray, sb: np.ndarray,
-            window: float, seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+            window: float, seed: int | None = None) -> Preroll:
     """The graph's pre-roll, offline: the plate rests at x0 under u0 for ``preroll`` s before t = 0.
 
     The estimator runs on the sensor readings z = G x0 + b + noise (noise from a separate stream,
-    so the run's own sequences are unchanged); returns the controller's hover window: the last
-    ``window`` s (at least one sample) of what it sees (estimates (n, 6)) and the applied voltages (n, 2).
+    so the run's own sequences are unchanged).
     """
     dt = pc["dt"]
     n_pre = max(round(pc["preroll"] / dt), 1)
@@ -192,10 +207,12 @@ def preroll(pc: Mapping, est, x0: np.ndarray, u0: np.ndarray, sg: np.ndarray, sb
     rng = np.random.default_rng([pc["seed"] if seed is None else seed, 1])
     a = pc["noise_scale"] * NOISE_UNIT
     Zw = np.empty((n_win, 6))
+    gaps = np.empty((n_pre, 2))
     for k in range(n_pre):
         z = sg * x0 + sb + (rng.uniform(-1.0, 1.0, 6) * a if pc["noise_scale"] > 0 else 0.0)
         if not pc["measure_velocity"]:
             z[[1, 3]] = 0.0
+        gaps[k] = z[0], z[2]
         if k == 0:
             est.reset(z)
             xh = est.out
@@ -203,7 +220,7 @@ def preroll(pc: Mapping, est, x0: np.ndarray, u0: np.ndarray, sg: np.ndarray, sb
             xh = est.step(z, u0)
         if k >= n_pre - n_win:
             Zw[k - (n_pre - n_win)] = xh
-    return Zw, np.repeat(u0[None], n_win, axis=0)
+    return Preroll(Zw, np.repeat(u0[None], n_win, axis=0), gaps)
 
 
 def simulate(
@@ -236,14 +253,14 @@ def simulate(
     dt = pc["dt"]
     n = round(duration / dt)
     t = np.arange(n) * dt
-    r, ref = reference_trajectory({**cfg["reference"], "dt": dt}, n)
     dist = disturbances(pc, n, seed)
     x0, u0 = initial_state(pc)
     sg, sb = sensor_model(pc)
     ctrl = make_controller(cfg["controller"], controller)
     est = make_estimator(cfg["estimator"], estimator, pc["measure_velocity"])
-    Zw, Uw = preroll(pc, est, x0, u0, sg, sb, cfg["controller"]["hover_window"], seed)
-    ctrl.reset(Zw, Uw)
+    pre = preroll(pc, est, x0, u0, sg, sb, cfg["controller"]["hover_window"], seed)
+    ctrl.reset(pre.window_z, pre.window_u)
+    r, ref = reference_trajectory({**cfg["reference"], "dt": dt}, n, hover_start(pre.gaps))
     x = x0.copy()
     pp = plant_vector(pc)
     X = np.zeros((n, 6))
@@ -304,13 +321,17 @@ def simulate_batch(cfg: Mapping, mass_offsets: np.ndarray, *, controller: str | 
     fail index (-1 = none).
     """
     pc = cfg["plant_sim"]
-    t, _, ref, _, _, _ = prepare(cfg, duration)
+    n = round(duration / pc["dt"])
+    t = np.arange(n) * pc["dt"]
     scheds = np.stack([plant_schedule({**pc, "mass_delta": float(dm)}, t) for dm in mass_offsets])
     x0, u0 = initial_state(pc)
     ctrl = make_controller(cfg["controller"], controller)
     sg, sb = sensor_model(pc)
-    ctrl.reset(*preroll(pc, make_estimator(cfg["estimator"], "none", pc["measure_velocity"]), x0, u0, sg, sb,
-                        cfg["controller"]["hover_window"]))
+    pre = preroll(pc, make_estimator(cfg["estimator"], "none", pc["measure_velocity"]), x0, u0, sg, sb,
+                  cfg["controller"]["hover_window"])
+    ctrl.reset(pre.window_z, pre.window_u)
+    _, ref = reference_trajectory({**cfg["reference"], "dt": pc["dt"]}, n, hover_start(pre.gaps))
+
     args = list(_controller_args(ctrl))
     B = len(mass_offsets)
     for i in (3, 4, 5, 6, 7, 8, 9, 13):  # per-run state arrays

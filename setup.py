@@ -51,7 +51,6 @@ setup(
         "cyclonedds>=0.10.5",
         "rosbags>=0.10",
         "mcap>=1.1",
-        "pyserial>=3.4",  # the device link over serial lines (dem_ros/hardware/channel.py)
     ],
     extras_require={"test": ["pytest>=7", "sympy>=1.12", "control>=0.10"]},
     zip_safe=True,

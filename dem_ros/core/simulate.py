@@ -21,19 +21,19 @@ from numba import njit, prange
 
 from .controllers import CEController, PIDController, make_controller
 from .controllers import kernels as CK
-from .estimator import KalmanEstimator, ekf_step, make_estimator
-from .model import IP, IQ, hover_state, plant_vector, rk4, set_mass
-from .reference import reference_trajectory
-from .scenarios import NOISE_UNIT, mass_profile, noise_samples, perturbation_samples
+from .estimator import NS, KalmanEstimator, ekf_step, make_estimator
+from .model import IP, IQ, NPP, SM, apply_schedule, initial_state, plant_vector, rk4
+from .reference import hover_start, reference_trajectory
+from .scenarios import NOISE_UNIT, disturbances, plant_schedule, sensor_model
 
-__all__ = ["SimResult", "simulate", "simulate_batch"]
+__all__ = ["Preroll", "SimResult", "preroll", "simulate", "simulate_batch"]
 
 
 @njit(cache=True)
 def _closed_loop(
     is_pid, mode, cp, theta, v, scale, v0, Pc, Z, uh, Ad, Bd, pid_cp, integ,
     est_on, s, Pe, mask, pe, Te, qc, rm,
-    x, pp, L, l, I, mass, noise, pert, ref, dt, nsub, gap_min, gap_max, delay, u0,
+    x, pp, L, l, sched, sg, sb, noise, pert, ref, dt, nsub, gap_min, gap_max, delay, u0,
     X_log, U_log, D_log, log,
 ):
     """Run the loop; returns the index of the first failed sample or -1."""
@@ -50,7 +50,7 @@ def _closed_loop(
     ua = np.empty(2)
     for k in range(n):
         for i in range(6):
-            z[i] = x[i] + noise[k, i]
+            z[i] = sg[i] * x[i] + sb[i] + noise[k, i]
         if est_on:
             ekf_step(s, Pe, z, mask, u_prev, pe, Te, qc, rm, xh)
         else:
@@ -76,7 +76,7 @@ def _closed_loop(
             U_log[k, 1] = u_prev[1]
             for i in range(CK.NDIAG):
                 D_log[k, i] = diag[i]
-        set_mass(pp, mass[k], L, l, I)
+        apply_schedule(pp, sched[k], L, l)
         rk4(x, ua, pp, dt, nsub)
         de1 = pp[IP] * x[0] + pp[IQ] * x[2]
         de2 = pp[IQ] * x[0] + pp[IP] * x[2]
@@ -126,6 +126,7 @@ class SimResult:
     r: np.ndarray  # (N, 2) command (m)
     diag: np.ndarray  # (N, 9) m_hat, R_hat, K_hat, ec1, ec2, e1, e2, adapting, fault
     mass: np.ndarray  # (N,) kg
+    schedule: np.ndarray  # (N, 6) true m, I, N1, N2, R1, R2 (model.S*)
     failed: bool
     fail_time: float | None
     wall_time: float
@@ -152,32 +153,72 @@ def _estimator_args(est, measure_velocity: bool):
     if isinstance(est, KalmanEstimator):
         return (True,) + est.kernel_args()
     mask = np.array([1.0, float(measure_velocity), 1.0, float(measure_velocity), 1.0, 1.0])
-    return (False, np.zeros(8), np.eye(8), mask, np.zeros(11), 1e-3, np.zeros(3), np.zeros(6))
+    return (False, np.zeros(NS), np.eye(NS), mask, np.zeros(NPP), 1e-3, np.zeros(4), np.zeros(6))
 
 
 def _controller_args(ctrl):
     if isinstance(ctrl, PIDController):
-        dummy = np.zeros(8)
-        return (True, 0, np.zeros(CK.NCP), dummy, dummy.copy(), dummy.copy(), dummy.copy(), np.zeros((8, 8)),
-                np.zeros((3, 18)), np.zeros((CK.NUH, 2)), np.eye(3), np.zeros(3), ctrl.cp, ctrl.integ)
+        dummy = np.zeros(CK.NTH)
+        return (True, 0, np.zeros(CK.NCP), dummy, dummy.copy(), dummy.copy(), dummy.copy(), np.zeros((CK.NTH, CK.NTH)),
+                np.zeros((3, CK.NZ)), np.zeros((CK.NUH, 2)), np.eye(3), np.zeros(3), ctrl.cp, ctrl.integ)
     assert isinstance(ctrl, CEController)
     mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd = ctrl.kernel_args()
     return (False, mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, np.zeros(CK.NPID), np.zeros(2))
 
 
 def prepare(cfg: Mapping, duration: float, seed: int | None = None):
-    """Reference, mass, noise and perturbation arrays for a run of ``duration`` s."""
+    """(t, r, ref, mass, noise, pert) of a run of ``duration`` s (see :func:`.scenarios.disturbances`)."""
     pc = cfg["plant_sim"]
     dt = pc["dt"]
-    n = int(round(duration / dt))
+    n = round(duration / dt)
     t = np.arange(n) * dt
     r, ref = reference_trajectory({**cfg["reference"], "dt": dt}, n)
-    rng = np.random.default_rng(pc["seed"] if seed is None else seed)
-    noise = noise_samples(pc, n, rng)
-    if not pc["measure_velocity"]:
-        noise[:, [1, 3]] = 0.0
-    pert = perturbation_samples(pc, t, rng)
-    return t, r, ref, mass_profile(pc, t), noise, pert
+    dist = disturbances(pc, n, seed)
+    return t, r, ref, dist.schedule[:, SM].copy(), dist.noise, dist.pert
+
+
+@dataclass(frozen=True)
+class Preroll:
+    """What the pre-roll leaves behind.
+
+    Attributes:
+        window_z (n, 6): the controller's hover window: the estimates it saw over the last ``hover_window`` s.
+        window_u (n, 2): the voltages applied meanwhile (V).
+        gaps (n_pre, 2): the measured gaps of the whole pre-roll (m), where the reference starts.
+    """
+
+    window_z: np.ndarray
+    window_u: np.ndarray
+    gaps: np.ndarray
+
+
+def preroll(pc: Mapping, est, x0: np.ndarray, u0: np.ndarray, sg: np.ndarray, sb: np.ndarray,
+            window: float, seed: int | None = None) -> Preroll:
+    """The graph's pre-roll, offline: the plate rests at x0 under u0 for ``preroll`` s before t = 0.
+
+    The estimator runs on the sensor readings z = G x0 + b + noise (noise from a separate stream,
+    so the run's own sequences are unchanged).
+    """
+    dt = pc["dt"]
+    n_pre = max(round(pc["preroll"] / dt), 1)
+    n_win = min(max(round(window / dt), 1), n_pre)
+    rng = np.random.default_rng([pc["seed"] if seed is None else seed, 1])
+    a = pc["noise_scale"] * NOISE_UNIT
+    Zw = np.empty((n_win, 6))
+    gaps = np.empty((n_pre, 2))
+    for k in range(n_pre):
+        z = sg * x0 + sb + (rng.uniform(-1.0, 1.0, 6) * a if pc["noise_scale"] > 0 else 0.0)
+        if not pc["measure_velocity"]:
+            z[[1, 3]] = 0.0
+        gaps[k] = z[0], z[2]
+        if k == 0:
+            est.reset(z)
+            xh = est.out
+        else:
+            xh = est.step(z, u0)
+        if k >= n_pre - n_win:
+            Zw[k - (n_pre - n_win)] = xh
+    return Preroll(Zw, np.repeat(u0[None], n_win, axis=0), gaps)
 
 
 def simulate(
@@ -207,24 +248,17 @@ def simulate(
         cfg["controller"]["command_delay"] = int(delay)
     pc = cfg["plant_sim"]
     delay = pc["command_delay"]
-    t, r, ref, mass, noise, pert = prepare(cfg, duration, seed)
-    n = t.size
-    x0, u0 = hover_state(pc, pc["gap0"])
+    dt = pc["dt"]
+    n = round(duration / dt)
+    t = np.arange(n) * dt
+    dist = disturbances(pc, n, seed)
+    x0, u0 = initial_state(pc)
+    sg, sb = sensor_model(pc)
     ctrl = make_controller(cfg["controller"], controller)
     est = make_estimator(cfg["estimator"], estimator, pc["measure_velocity"])
-    z0 = x0 + noise[0]
-    est.reset(z0)
-    if isinstance(est, KalmanEstimator):
-        # the graph levitates for `preroll` s before t = 0: the filter converges on the hover
-        # (noise from a separate stream, so the run's own sequences are unchanged)
-        rng_pre = np.random.default_rng([pc["seed"] if seed is None else seed, 1])
-        for _ in range(int(round(pc["preroll"] / pc["dt"]))):
-            zp = x0 + rng_pre.uniform(-1.0, 1.0, 6) * pc["noise_scale"] * NOISE_UNIT
-            if not pc["measure_velocity"]:
-                zp[[1, 3]] = 0.0
-            est.step(zp, u0)
-        est.step(z0, u0)
-    ctrl.reset(est.out.copy(), u0)
+    pre = preroll(pc, est, x0, u0, sg, sb, cfg["controller"]["hover_window"], seed)
+    ctrl.reset(pre.window_z, pre.window_u)
+    r, ref = reference_trajectory({**cfg["reference"], "dt": dt}, n, hover_start(pre.gaps))
     x = x0.copy()
     pp = plant_vector(pc)
     X = np.zeros((n, 6))
@@ -232,14 +266,17 @@ def simulate(
     D = np.full((n, CK.NDIAG), np.nan)
     k_fail = _closed_loop(
         *_controller_args(ctrl), *_estimator_args(est, pc["measure_velocity"]),
-        x, pp, pc["L"], pc["l"], pc["I"], mass, noise, pert, ref, pc["dt"], pc["substeps"],
+        x, pp, pc["L"], pc["l"], dist.schedule, sg, sb, dist.noise, dist.pert, ref, dt, pc["substeps"],
         pc["gap_min"], pc["gap_max"], int(delay), u0.copy(), X, U, D, True,
     )
+    mass = dist.schedule[:, SM]
+    pert = dist.pert
     failed = k_fail >= 0
     m = k_fail if failed else n
     return SimResult(
         scenario=scenario, controller=ctrl.name, estimator=est.name, config={g: dict(v) for g, v in cfg.items()},
         t=t[:m], x=X[:m], u=U[:m], d=pert[:m], ref=ref[:m], r=r[:m], diag=D[:m], mass=mass[:m],
+        schedule=dist.schedule[:m],
         failed=bool(failed), fail_time=float(k_fail * pc["dt"]) if failed else None,
         wall_time=time.perf_counter() - wall0,
         extra={"delay": int(delay), "final_estimates": _final_estimates(D[:m])},
@@ -249,13 +286,15 @@ def simulate(
 @njit(cache=True, parallel=True)
 def _batch(
     is_pid, mode, cp, theta, v, scale, v0, Pc, Z, uh, Ad, Bd, pid_cp, integ,
-    x0, pp, L, l, I, masses, ref, dt, nsub, gap_min, gap_max, u0, start, delay, out,
+    x0, pp, L, l, scheds, ref, dt, nsub, gap_min, gap_max, u0, start, delay, out,
 ):
-    B = masses.shape[0]
+    B = scheds.shape[0]
     n = ref.shape[0]
     noise = np.zeros((n, 6))
     pert = np.zeros((n, 2))
     mask = np.ones(6)
+    sg = np.ones(6)
+    sb = np.zeros(6)
     for b in prange(B):
         X = np.zeros((n, 6))
         U = np.zeros((n, 2))
@@ -264,8 +303,8 @@ def _batch(
         ppb = pp.copy()
         kf = _closed_loop(
             is_pid, mode, cp.copy(), theta[b], v[b], scale[b], v0[b], Pc[b], Z[b], uh[b], Ad, Bd, pid_cp, integ[b],
-            False, np.zeros(8), np.eye(8), mask, pp, dt, np.zeros(3), np.zeros(6),
-            x, ppb, L, l, I, masses[b], noise, pert, ref, dt, nsub, gap_min, gap_max, delay, u0,
+            False, np.zeros(NS), np.eye(NS), mask, pp, dt, np.zeros(4), np.zeros(6),
+            x, ppb, L, l, scheds[b], sg, sb, noise, pert, ref, dt, nsub, gap_min, gap_max, delay, u0,
             X, U, D, True,
         )
         m = n if kf < 0 else kf
@@ -280,16 +319,22 @@ def simulate_batch(cfg: Mapping, mass_offsets: np.ndarray, *, controller: str | 
     fail index (-1 = none).
     """
     pc = cfg["plant_sim"]
-    t, r, ref, _, _, _ = prepare(cfg, duration)
-    masses = np.stack([mass_profile({**pc, "mass_delta": float(dm)}, t) for dm in mass_offsets])
-    x0, u0 = hover_state(pc, pc["gap0"])
+    n = round(duration / pc["dt"])
+    t = np.arange(n) * pc["dt"]
+    scheds = np.stack([plant_schedule({**pc, "mass_delta": float(dm)}, t) for dm in mass_offsets])
+    x0, u0 = initial_state(pc)
     ctrl = make_controller(cfg["controller"], controller)
-    ctrl.reset(x0, u0)
+    sg, sb = sensor_model(pc)
+    pre = preroll(pc, make_estimator(cfg["estimator"], "none", pc["measure_velocity"]), x0, u0, sg, sb,
+                  cfg["controller"]["hover_window"])
+    ctrl.reset(pre.window_z, pre.window_u)
+    _, ref = reference_trajectory({**cfg["reference"], "dt": pc["dt"]}, n, hover_start(pre.gaps))
+
     args = list(_controller_args(ctrl))
     B = len(mass_offsets)
     for i in (3, 4, 5, 6, 7, 8, 9, 13):  # per-run state arrays
         args[i] = np.ascontiguousarray(np.repeat(args[i][None], B, axis=0))
     out = np.zeros((B, 7))
-    _batch(*args, x0, plant_vector(pc), pc["L"], pc["l"], pc["I"], masses, ref, pc["dt"], pc["substeps"],
-           pc["gap_min"], pc["gap_max"], u0, int(round(40.0 / pc["dt"])), int(pc["command_delay"]), out)
+    _batch(*args, x0, plant_vector(pc), pc["L"], pc["l"], scheds, ref, pc["dt"], pc["substeps"],
+           pc["gap_min"], pc["gap_max"], u0, round(40.0 / pc["dt"]), int(pc["command_delay"]), out)
     return out

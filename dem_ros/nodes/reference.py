@@ -1,7 +1,10 @@
 """``reference``: the reference model M(s) (Eq. 46) driven by the command schedule.
 
 The schedule's t = 0 is the stamp of the first measurement of the experiment
-(``frame_id == "dem"``); before it (pre-roll) the model rests at the initial command. On measurement k it
+(``frame_id == "dem"``); before it (pre-roll) the model rests where the plate
+hovers (:func:`dem_ros.core.reference.hover_start` of the pre-roll's measured
+gaps so far; the offline simulator starts from the same) and at t = 0 it
+starts from there. On measurement k it
 publishes the reference for sample k+1 (stamped t_k + T), one period ahead, so
 the controller has it when measurement k+1 arrives; on the first measurement it
 also publishes sample 0. Lost measurements are caught up sample by sample, so
@@ -15,10 +18,10 @@ import sys
 import numpy as np
 
 from .. import contract
-from ..core.reference import ReferenceModel, command
+from ..core.reference import ReferenceModel, command, hover_start
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import named_vector, stamp_ns
+from .common import JointStates, stamp_ns
 
 __all__ = ["ReferenceNode", "main"]
 
@@ -28,12 +31,14 @@ class ReferenceNode:
         self.node = node
         self.cfg = node.declare_parameters("reference", self.on_change)
         self.model = ReferenceModel(self.cfg)
-        self.dt_ns = int(round(self.cfg["dt"] * 1e9))
+        self.dt_ns = round(self.cfg["dt"] * 1e9)
         self.epoch: int | None = None
         self.pre_seen = False
+        self.pre_gaps: list[tuple[float, float]] = []  # measured gaps of the pre-roll
         self.next_k = 0
         warm_up()  # kernels resident before we subscribe (no stale first samples)
-        self.JS = node.msg("sensor_msgs/msg/JointState")
+        self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
+        self.names = list(contract.REFERENCE_NAMES)  # shared by every message published (never modified)
         self.pub = node.publisher(contract.REFERENCE)
         node.subscribe(contract.MEASUREMENT, self.on_measurement)
         node.logger.info("ready")
@@ -50,27 +55,34 @@ class ReferenceNode:
             t = self.next_k * self.cfg["dt"]
             r = command(self.cfg, t)
             y = self.model.step(r)
-            self.pub.publish(named_vector(self.JS, self.epoch + self.next_k * self.dt_ns, contract.REFERENCE_NAMES,
-                                          np.concatenate([y, r])))
+            self._send(self.epoch + self.next_k * self.dt_ns, y.tolist() + np.asarray(r, float).tolist())
             self.next_k += 1
+
+    def _send(self, t_ns: int, vec: list[float], frame: str = contract.FRAME) -> None:
+        """Publish [y_d (8), r (2)] stamped ``t_ns`` (see ``contract.REFERENCE_NAMES``)."""
+        self.pub.publish(self.js.make(self.js.header(t_ns, frame), self.names, vec))
 
     def on_measurement(self, msg) -> None:
         t = stamp_ns(msg)
         if self.epoch is None and msg.header.frame_id == contract.FRAME_PREROLL:
-            # levitating before t = 0: the model rests at the initial command
+            # levitating before t = 0: the model rests where the plate hovers
+            self.pre_gaps.append((float(msg.position[0]), float(msg.position[1])))
+            self.model.reset(hover_start(np.array(self.pre_gaps)))
             y = self.model.step_hold()
             r = command(self.cfg, -1.0)
-            vec = np.concatenate([y, r])
+            vec = y.tolist() + np.asarray(r, float).tolist()
             if not self.pre_seen:
                 self.pre_seen = True
-                self.pub.publish(named_vector(self.JS, t, contract.REFERENCE_NAMES, vec, frame=contract.FRAME_PREROLL))
-            self.pub.publish(named_vector(self.JS, t + self.dt_ns, contract.REFERENCE_NAMES, vec, frame=contract.FRAME_PREROLL))
+                self._send(t, vec, contract.FRAME_PREROLL)
+            self._send(t + self.dt_ns, vec, contract.FRAME_PREROLL)
             return
         if self.epoch is None:
             self.epoch = t
+            if self.pre_gaps:
+                self.model.reset(hover_start(np.array(self.pre_gaps)))
             if self.pre_seen:
                 self.next_k = 1  # sample 0 went out with the last pre-roll sample (the model at rest)
-        k = int(round((t - self.epoch) / self.dt_ns))
+        k = round((t - self.epoch) / self.dt_ns)
         self._publish_upto(k + 1)
 
 

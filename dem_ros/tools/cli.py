@@ -9,6 +9,8 @@
     dem-ros replay    metrics, plots and what-if re-runs from a bag
     dem-ros bag       check a bag
     dem-ros param     get/set a parameter of a running node
+    dem-ros rig       the DEM rig and its I/O board, emulated behind the device link
+    dem-ros hw        arm | disarm | estop | status of the running hardware driver
     dem-ros config    print the parameter schema or the default params file
 
 Bad input ends with a one-line error and exit status 2, never a traceback.
@@ -23,6 +25,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..core.params import SCHEMA, ConfigError
+from ..nodes import NODES
 from ..transport import param_get, param_set
 from . import bench, launcher, node_main, replay
 from .common import CONTROLLER_TYPES, ESTIMATOR_TYPES, UsageError, load_config
@@ -112,6 +115,21 @@ def cmd_param(args: argparse.Namespace) -> int:
     return 1
 
 
+def cmd_hw(args: argparse.Namespace) -> int:
+    from ..nodes.hw_driver import request
+
+    try:
+        v = request(args.action, args.reason, domain_id=args.domain_id, timeout_s=args.timeout)
+    except TimeoutError as exc:
+        raise UsageError(str(exc)) from None
+    keys = ("state", "reason", "answer", "board_mode", "t_sim_s", "lost", "late", "corrupt", "hold_samples", "trips",
+            "latency_p50_us", "latency_p99_us")
+    for k in keys:
+        if v.get(k, "") != "":
+            print(f"  {k:<16} {v[k]}")
+    return 0 if v["state"] != "fault" or args.action == "estop" else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="dem-ros", description="DEM maglev adaptive control: simulation, ROS 2 graph, recording and analysis.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -145,6 +163,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--duration", type=float, default=None, help="bench loop/record: seconds (default 60 / 10)")
     b.add_argument("--transport", default="dds", choices=["auto", "rclpy", "dds"])
     b.add_argument("--compose", action="store_true", help="bench loop: all nodes in one process (see dem-ros launch --compose)")
+    b.add_argument("--free-run", action="store_true", help="bench loop: the plant does not wait for late commands (plant_sim.lockstep=false)")
+    b.add_argument("--load", type=int, default=0, metavar="N", help="bench loop: N busy processes beside the graph (default 0)")
+    b.add_argument("--rt", action=argparse.BooleanOptionalAction, default=True,
+                   help="bench loop: real-time process settings for the nodes (SCHED_FIFO, mlockall; default on)")
     b.set_defaults(func=cmd_bench)
 
     c = sub.add_parser("config", help="print the parameter schema or a params file of the defaults")
@@ -160,16 +182,37 @@ def build_parser() -> argparse.ArgumentParser:
     lg.add_argument("--compose", action="store_true",
                     help="all nodes in one process on one executor, topics between them in memory (dds); "
                          "the real-time configuration")
+    lg.add_argument("--free-run", action="store_true",
+                    help="free-running plant (plant_sim.lockstep false): hardware-like timing, a late command is held "
+                         "at most hold_timeout, then the simulated board lands the plate; default: lockstep (exact)")
     lg.add_argument("--params", default=None, help="ROS 2 params file")
     lg.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE")
     lg.add_argument("--bag-dir", default="bags", help="where the run's bag goes (default ./bags)")
     lg.add_argument("--no-record", action="store_true", help="do not record a bag")
     lg.add_argument("--json", default=None, help="write the summary as JSON")
     lg.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID for this run")
+    lg.add_argument("--hardware", default=None, metavar="LINK",
+                    help="hw_driver instead of plant_sim, on udp://HOST:PORT or serial:///dev/PATH; 'rig' (UDP) or "
+                         "'rig-serial' (a pty pair) also start the emulator 'dem-ros rig'")
+    lg.add_argument("--fault", action="append", default=None, metavar="SPEC",
+                    help="with --hardware rig: inject a rig fault, e.g. linkloss@10+0.05 (dem-ros rig --help-faults)")
     lg.set_defaults(func=launcher.cmd_launch)
 
+    from ..hardware import rig
+
+    rg = sub.add_parser("rig", help="emulate the DEM rig and its I/O board behind the device link (free-running 1 kHz)")
+    rig.build_parser(rg)
+    rg.set_defaults(func=rig.cmd_rig)
+
+    hw = sub.add_parser("hw", help="the hardware driver: arm | disarm (a controlled landing) | estop | status")
+    hw.add_argument("action", choices=["arm", "disarm", "estop", "status"])
+    hw.add_argument("reason", nargs="?", default="", help="estop: why (recorded with the fault)")
+    hw.add_argument("--domain-id", type=int, default=None)
+    hw.add_argument("--timeout", type=float, default=5.0, help="seconds to find the driver and get its answer (default 5)")
+    hw.set_defaults(func=cmd_hw)
+
     nd = sub.add_parser("node", help="run one node of the graph")
-    nd.add_argument("name", choices=node_main.NODES)
+    nd.add_argument("name", choices=NODES)
     nd.add_argument("ros_args", nargs=argparse.REMAINDER, help="--ros-args ... (params file, remaps)")
     nd.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
     nd.set_defaults(func=cmd_node)

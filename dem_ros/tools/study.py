@@ -742,9 +742,9 @@ def spec_from_args(args: argparse.Namespace) -> StudySpec:
     if sets:
         base = apply_overrides(base, sets, "--set")
     samples = None if args.samples is None else _num(args.samples, "--samples", int, 1, 10**7)
-    axes_text = list(PRESETS[args.preset]) if args.preset else []
-    if args.preset and args.preset not in PRESETS:
+    if args.preset is not None and args.preset not in PRESETS:
         raise ConfigError(f"--preset: unknown {args.preset!r}; known: {', '.join(PRESETS)}")
+    axes_text = list(PRESETS[args.preset]) if args.preset else []
     axes_text += args.axis
     if not axes_text:
         raise ConfigError("give at least one --axis NAME=SPEC or a --preset (e.g. --preset acceptance)")

@@ -1,5 +1,9 @@
 """``dem-ros bench``: speed measured by commands, not by timed tests.
 
+``bench loop``: the node graph (``dem-ros launch`` on S1, no bag) with the plant's
+loop statistics, CPU per node, the hypervisor's steal and this machine's timer floor.
+``bench record``: the recorder's writer at the graph's load (:mod:`dem_ros.bag.bench`).
+
 ``bench sim``: the 100 s S1 scenario at 1 kHz control with 0.1 ms RK4 sub-steps:
 single-run wall time and x real time, the controller's per-call step time as
 the nodes call it (p50, p99), batch throughput, and the same closed loop run
@@ -10,13 +14,18 @@ controller) with the speed ratio and the largest trajectory difference.
 
 from __future__ import annotations
 
+import argparse
 import os
 import platform
+import tempfile
 import time
+from typing import Any
 
 import numpy as np
 
-__all__ = ["bench_sim", "machine", "run"]
+from .launcher import GraphError, launch
+
+__all__ = ["bench_loop", "bench_record", "bench_sim", "machine", "run"]
 
 
 def machine() -> dict:
@@ -182,15 +191,55 @@ def _print_sim(r: dict) -> None:
           f" ours is {p['speedup']:.0f}x faster; max |gap difference| {p['max_abs_diff_um']:.2e} um")
 
 
-def run(what: str, args) -> dict:
+def bench_loop(args: argparse.Namespace) -> dict[str, Any]:
+    duration = args.duration or 60.0
+    compose = bool(getattr(args, "compose", False))
+    a = argparse.Namespace(scenario="S1", params=None, set=None, controller=None, estimator=None, duration=duration,
+                           transport=args.transport, bag_dir=tempfile.mkdtemp(prefix="dem_ros_bench_"), no_record=True,
+                           domain_id=None, json=None, compose=compose)
+    floor = timer_floor(5.0)
+    before = cpu_times()
+    metrics, _ = launch(a, quiet=False)
+    steal = steal_percent(before, cpu_times())
+
+    m = machine()
+    if metrics.loop is None:
+        raise GraphError("the plant reported no loop statistics (see the launch logs)")
+    L = metrics.loop
+    how = "all nodes in one process (--compose)" if compose else "one process per node"
+    print(f"dem-ros bench loop on {m['cpu']} ({m['cores']} cores), transport {args.transport}, {how}, {duration:g} s of S1")
+    print(f"  cycles {L.cycles}, deadline misses {L.deadline_misses} ({100.0 * L.deadline_misses / max(L.cycles, 1):.3f} %)")
+    print(f"  latency sensor stamp -> command at plant: p50 {L.latency_us['p50']:.0f} us, p99 {L.latency_us['p99']:.0f} us,"
+          f" max {L.latency_us['max']:.0f} us")
+    print("  CPU [% of one core]: " + ", ".join(f"{k} {v:.1f}" for k, v in L.cpu_percent.items())
+          + f"; all nodes {sum(L.cpu_percent.values()):.1f}")
+    if steal is not None:  # a VM whose host is busy loses whole milliseconds: say so next to the figures
+        print(f"  CPU stolen by the hypervisor during the run: {steal:.1f} % of this VM's time")
+    print(f"  machine floor (a bare 1 kHz sleep loop, 5 s before the run): late p50 {floor['p50_us']:.0f} us,"
+          f" p99 {floor['p99_us']:.0f} us, p99.9 {floor['p99_9_us']:.0f} us, max {floor['max_us']:.0f} us;"
+          f" {floor['over_1ms_percent']:.3f} % of wake-ups > 1 ms late")
+    return {"loop": metrics.to_dict()["loop"], "machine": m, "transport": args.transport, "composed": compose,
+            "duration_s": duration, "hypervisor_steal_percent": steal, "timer_floor": floor}
+
+
+def bench_record(args: argparse.Namespace) -> dict[str, Any]:
+    from ..bag.bench import bench_record as br
+
+    seconds = args.duration or 10.0
+    r = br(seconds)
+    print(f"dem-ros bench record on {machine()['cpu']}: {seconds:g} s at the graph's load")
+    for k, v in r.items():
+        print(f"  {k}: {v}")
+    r["machine"] = machine()
+    return r
+
+
+def run(what: str, args: argparse.Namespace) -> dict[str, Any]:
+    """Run benchmark ``what`` (sim, loop, record), print its figures, return them."""
     if what == "sim":
         r = bench_sim(args.batch, args.peer_duration)
         _print_sim(r)
         return r
     if what == "loop":
-        from .launcher import bench_loop
-
         return bench_loop(args)
-    from .launcher import bench_record
-
     return bench_record(args)

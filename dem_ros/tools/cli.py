@@ -21,69 +21,28 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
-__all__ = ["main"]
+from ..core.params import SCHEMA, ConfigError
+from ..transport import param_get, param_set
+from . import bench, launcher, node_main, replay
+from .common import CONTROLLER_TYPES, ESTIMATOR_TYPES, UsageError, load_config
+from .runmetrics import RunMetrics
 
-
-class UsageError(Exception):
-    """A user-facing error: printed as one line, exit status 2."""
-
-
-def _load_config(args) -> tuple[dict, Any]:
-    """Scenario (+ optional params file + --set assignments) -> (config, scenario)."""
-    from ..core.params import apply_overrides, load_params_file, parse_assignment
-    from ..core.scenarios import get_scenario
-
-    sc = get_scenario(args.scenario)
-    base = load_params_file(args.params) if getattr(args, "params", None) else None
-    cfg = sc.config(base)
-    sets: dict[str, dict[str, Any]] = {}
-    for text in getattr(args, "set", None) or []:
-        g, n, v = parse_assignment(text)
-        sets.setdefault(g, {})[n] = v
-    if sets:
-        cfg = apply_overrides(cfg, sets, "--set")
-    return cfg, sc
+__all__ = ["build_parser", "main"]
 
 
-def _fmt_pair(v: list[float], nd: int = 2) -> str:
-    return " / ".join("nan" if x != x else f"{x:.{nd}f}" for x in v)
-
-
-def print_metrics(m: dict[str, Any], file=sys.stdout) -> None:
-    rows = [
-        ("scenario", m["scenario"]),
-        ("controller", m["controller"]),
-        ("estimator", m["estimator"]),
-        ("failed", f"yes, at t = {m['fail_time_s']:.3f} s" if m["failed"] else "no"),
-        ("RMS error e1 / e2 [um]", _fmt_pair(m["rms_error_um"])),
-        ("max error e1 / e2 [um]", _fmt_pair(m["max_error_um"])),
-        ("RMS error after 40 s [um]", _fmt_pair(m["rms_error_after_40s_um"])),
-        ("peak |u| [V]", f"{m['peak_voltage_v']:.2f}"),
-        ("peak |i| [A]", f"{m.get('peak_current_a', float('nan')):.3f}"),
-    ]
-    fe = m.get("final_estimates")
-    if fe:
-        rows.append(("final m_hat / R_hat / K_hat", f"{fe['m_kg']:.3f} kg / {fe['R_ohm']:.4f} ohm / {fe['K']:.4e} N m^2/A^2"))
-    rows.append(("wall time [s]", f"{m['wall_time_s']:.2f}"))
-    w = max(len(k) for k, _ in rows)
-    for k, v in rows:
-        print(f"  {k:<{w}}  {v}", file=file)
-
-
-def cmd_sim(args) -> int:
+def cmd_sim(args: argparse.Namespace) -> int:
     from ..core.simulate import simulate
 
-    cfg, sc = _load_config(args)
+    cfg, sc = load_config(args)
     duration = args.duration if args.duration is not None else sc.duration
     res = simulate(cfg, controller=args.controller, estimator=args.estimator, duration=duration,
                    seed=args.seed, delay=args.delay, scenario=sc.name)
-    m = res.metrics()
+    m = RunMetrics.from_sim(res)
     print(f"dem-ros sim: {sc.name} ({sc.description}), {duration:g} s")
-    print_metrics(m)
+    m.print()
     if args.json:
-        Path(args.json).write_text(json.dumps(m, indent=2) + "\n")
+        Path(args.json).write_text(json.dumps(m.to_dict(), indent=2) + "\n")
         print(f"  metrics written to {args.json}")
     if args.plot:
         from .plots import plot_run
@@ -106,9 +65,7 @@ def cmd_report(args) -> int:
     return 0
 
 
-def cmd_bench(args) -> int:
-    from . import bench
-
+def cmd_bench(args: argparse.Namespace) -> int:
     result = bench.run(args.what, args)
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
@@ -116,9 +73,7 @@ def cmd_bench(args) -> int:
     return 0
 
 
-def cmd_config(args) -> int:
-    from ..core.params import SCHEMA
-
+def cmd_config(args: argparse.Namespace) -> int:
     if args.what == "schema":
         for g, specs in SCHEMA.groups.items():
             print(f"[{g}]")
@@ -132,32 +87,36 @@ def cmd_config(args) -> int:
     return 0
 
 
-def _delegate(module: str, func: str):
-    def run(args) -> int:
-        import importlib
+def cmd_node(args: argparse.Namespace) -> int:
+    return node_main.run(args.name, args.ros_args, args.transport)
 
-        try:
-            mod = importlib.import_module(f"dem_ros.tools.{module}")
-        except ModuleNotFoundError as exc:
-            raise UsageError(f"'{args.command}' is not available in this build ({exc.name} missing)") from None
-        return getattr(mod, func)(args)
 
-    return run
+def cmd_param(args: argparse.Namespace) -> int:
+    if args.action == "get":
+        print(param_get(args.node, args.name, domain_id=args.domain_id, timeout_s=args.timeout))
+        return 0
+    if args.value is None:
+        raise UsageError("param set needs a VALUE")
+    ok, reason = param_set(args.node, args.name, args.value, domain_id=args.domain_id, timeout_s=args.timeout)
+    if ok:
+        print("Set parameter successful")
+        return 0
+    print(f"Setting parameter failed: {reason}", file=sys.stderr)
+    return 1
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ..core.controllers import CONTROLLERS
-
     p = argparse.ArgumentParser(prog="dem-ros", description="DEM maglev adaptive control: simulation, ROS 2 graph, recording and analysis.")
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("sim", help="offline closed-loop simulation of one scenario")
     s.add_argument("--scenario", default="S1", help="scenario name from config/scenarios.yaml (default S1)")
-    s.add_argument("--controller", default=None, choices=sorted(CONTROLLERS), help="control law (default: config, 'adaptive')")
-    s.add_argument("--estimator", default=None, choices=["kf", "none"], help="state estimator (default: config, 'kf')")
+    s.add_argument("--controller", default=None, choices=CONTROLLER_TYPES, help="control law (default: config, 'adaptive')")
+    s.add_argument("--estimator", default=None, choices=ESTIMATOR_TYPES, help="state estimator (default: config, 'kf')")
     s.add_argument("--duration", type=float, default=None, help="seconds (default: the scenario's, 100)")
     s.add_argument("--seed", type=int, default=None, help="seed of noise and perturbation (default: config)")
-    s.add_argument("--delay", type=int, default=None, help="command delay in samples for plant and controller (default: config, 0; the node graph runs with 1)")
+    s.add_argument("--delay", type=int, default=None, help="command delay in samples for plant and controller (default: config, plant_sim.command_delay = "
+                   f"{SCHEMA.spec('plant_sim', 'command_delay').default}, as in the node graph)")
     s.add_argument("--params", default=None, help="ROS 2 params file to load on top of the defaults")
     s.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE", help="override a parameter, e.g. k1=60 or plant_sim.m=16")
     s.add_argument("--json", default=None, help="write the metrics as JSON")
@@ -187,8 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     lg = sub.add_parser("launch", help="run the node graph (each node its own process), record a bag, print a summary")
     lg.add_argument("--scenario", default="S1")
-    lg.add_argument("--controller", default=None, choices=sorted(CONTROLLERS))
-    lg.add_argument("--estimator", default=None, choices=["kf", "none"])
+    lg.add_argument("--controller", default=None, choices=CONTROLLER_TYPES)
+    lg.add_argument("--estimator", default=None, choices=ESTIMATOR_TYPES)
     lg.add_argument("--duration", type=float, default=None, help="seconds (default: the scenario's)")
     lg.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
     lg.add_argument("--compose", action="store_true",
@@ -200,27 +159,27 @@ def build_parser() -> argparse.ArgumentParser:
     lg.add_argument("--no-record", action="store_true", help="do not record a bag")
     lg.add_argument("--json", default=None, help="write the summary as JSON")
     lg.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID for this run")
-    lg.set_defaults(func=_delegate("launcher", "cmd_launch"))
+    lg.set_defaults(func=launcher.cmd_launch)
 
     nd = sub.add_parser("node", help="run one node of the graph")
-    nd.add_argument("name", choices=["plant_sim", "estimator", "controller", "reference", "recorder", "container"])
+    nd.add_argument("name", choices=node_main.NODES)
     nd.add_argument("ros_args", nargs=argparse.REMAINDER, help="--ros-args ... (params file, remaps)")
     nd.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
-    nd.set_defaults(func=_delegate("launcher", "cmd_node"))
+    nd.set_defaults(func=cmd_node)
 
     rp = sub.add_parser("replay", help="metrics, figures and what-if re-runs from a recorded bag")
     rp.add_argument("bag")
     rp.add_argument("--json", default=None)
     rp.add_argument("--plot", default=None, metavar="DIR")
-    rp.add_argument("--controller", default=None, choices=sorted(CONTROLLERS), help="what-if: re-run this controller on the recorded measurements")
+    rp.add_argument("--controller", default=None, choices=CONTROLLER_TYPES, help="what-if: re-run this controller on the recorded measurements")
     rp.add_argument("--set", action="append", metavar="NAME=VALUE", help="what-if: change a controller parameter")
     rp.add_argument("--publish", action="store_true", help="play the bag back onto the graph at its recorded rate")
-    rp.set_defaults(func=_delegate("replay", "cmd_replay"))
+    rp.set_defaults(func=replay.cmd_replay)
 
     bg = sub.add_parser("bag", help="inspect bags")
     bg.add_argument("action", choices=["check", "info"])
     bg.add_argument("bag")
-    bg.set_defaults(func=_delegate("replay", "cmd_bag"))
+    bg.set_defaults(func=replay.cmd_bag)
 
     pm = sub.add_parser("param", help="get or set a parameter of a running node (DDS parameter services)")
     pm.add_argument("action", choices=["get", "set"])
@@ -229,13 +188,11 @@ def build_parser() -> argparse.ArgumentParser:
     pm.add_argument("value", nargs="?")
     pm.add_argument("--domain-id", type=int, default=None)
     pm.add_argument("--timeout", type=float, default=5.0, help="seconds to find the node and get its reply (default 5)")
-    pm.set_defaults(func=_delegate("launcher", "cmd_param"))
+    pm.set_defaults(func=cmd_param)
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from ..core.params import ConfigError
-
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

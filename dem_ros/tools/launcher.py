@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -23,13 +24,13 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from .. import __version__
-from ..core.metrics import error_metrics
 from ..core.params import SCHEMA
+from ..core.scenarios import Scenario
+from .common import fmt_pair, load_config, yaml_scalar
+from .runmetrics import RunMetrics
 
-__all__ = ["bench_loop", "bench_record", "cmd_launch", "cmd_node", "cmd_param", "graph_summary", "run_graph"]
+__all__ = ["GraphError", "cmd_launch", "launch", "run_graph", "write_params_file"]
 
 NODES = ("recorder", "reference", "estimator", "controller", "plant_sim")
 
@@ -38,22 +39,12 @@ class GraphError(RuntimeError):
     """The graph could not be started or run; the message says which node and where its log is."""
 
 
-def _yaml(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, float):
-        t = repr(v)
-        return t if ("." in t.split("e")[0] or "inf" in t or "nan" in t) else t.replace("e", ".0e", 1)
-    return str(v)
-
-
-def write_params_file(cfg: dict, path: Path) -> Path:
+def write_params_file(cfg: dict[str, dict[str, Any]], path: Path) -> Path:
+    """The run's full configuration as a ROS 2 params file (every group, every value)."""
     lines = ["# full configuration of one dem-ros launch run (ROS 2 params file)"]
     for group in SCHEMA.groups:
         lines += [f"{group}:", "  ros__parameters:"]
-        lines += [f"    {k}: {_yaml(v)}" for k, v in cfg[group].items()]
+        lines += [f"    {k}: {yaml_scalar(v)}" for k, v in cfg[group].items()]
     path.write_text("\n".join(lines) + "\n")
     return path
 
@@ -204,48 +195,8 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
             "logs": {n: str(p) for n, p in logs.items()}, "recorder": recorder_counts, "domain_id": domain_id, "workdir": str(workdir)}
 
 
-def graph_summary(bag: Path) -> dict:
-    """Tracking metrics and loop statistics of a recorded graph run (from the bag alone)."""
-    from ..bag import BagReader
-
-    r = BagReader(bag)
-    loop = None
-    for topic, _, msg in r.messages(["/diagnostics"]):
-        for st in msg.status:
-            if st.name == "plant_sim: loop":
-                loop = {kv.key: kv.value for kv in st.values}
-                loop["message"] = st.message
-    epoch = int(loop["epoch_ns"]) if loop and "epoch_ns" in loop else None
-    truth = r.joint_state_arrays("/dem/plant/truth")
-    ref = r.joint_state_arrays("/dem/reference")
-    ts, i_t, i_r = np.intersect1d(truth["stamp_ns"], ref["stamp_ns"], return_indices=True)
-    if epoch is not None:  # the experiment, not the pre-roll
-        keep = ts >= epoch
-        ts, i_t, i_r = ts[keep], i_t[keep], i_r[keep]
-    out: dict[str, Any] = {}
-    if ts.size:
-        t = (ts - ts[0]) * 1e-9
-        e = truth["position"][i_t, :2] - ref["position"][i_r, :2]
-        out.update(error_metrics(t, e))
-        out["samples"] = int(ts.size)
-    out["plant_diagnostics"] = loop
-    est = r.joint_state_arrays("/dem/controller/state") if "/dem/controller/state" in r.topics else None
-    if est is not None and est["position"].shape[0]:
-        last = est["position"][-1]
-        names = list(est["name"]) if est.get("name") is not None else []
-        vals = dict(zip(names, last)) if names else {}
-        if all(np.isfinite([vals.get("m_hat", np.nan), vals.get("R_hat", np.nan), vals.get("K_hat", np.nan)])):
-            out["final_estimates"] = {"m_kg": float(vals["m_hat"]), "R_ohm": float(vals["R_hat"]), "K": float(vals["K_hat"])}
-        else:
-            out["final_estimates"] = None
-    out["topics"] = {n: i.count for n, i in r.topics.items()}
-    return out
-
-
-def _config_from_args(args) -> tuple[dict, Any, float]:
-    from .cli import _load_config
-
-    cfg, sc = _load_config(args)
+def _config_from_args(args: Any) -> tuple[dict[str, dict[str, Any]], Scenario, float]:
+    cfg, sc = load_config(args)
     if args.controller:
         cfg["controller"]["type"] = args.controller
     if args.estimator:
@@ -254,7 +205,13 @@ def _config_from_args(args) -> tuple[dict, Any, float]:
     return cfg, sc, duration
 
 
-def launch(args, *, quiet: bool = False) -> dict:
+def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any]]:
+    """Run the graph as ``dem-ros launch`` does: (metrics read back from the bag, launch facts).
+
+    The facts: ``composed``, ``offline_rms_error_um`` (the same configuration
+    simulated offline), ``bag`` (None without recording), ``recorder`` (per-topic
+    counts), ``interrupted``.
+    """
     from ..core.simulate import simulate
 
     cfg, sc, duration = _config_from_args(args)
@@ -276,169 +233,41 @@ def launch(args, *, quiet: bool = False) -> dict:
               f" {duration:g} s, transport {args.transport}", file=sys.stderr)
     compose = bool(getattr(args, "compose", False))
     meta["composed"] = compose
-    facts = run_graph(cfg, duration=duration, transport=args.transport, bag=bag, meta=meta, domain_id=args.domain_id,
-                      status=not quiet, workdir=(bag.parent / (bag.name + "_logs")) if record else None,
-                      compose=compose)
-    summary = graph_summary(bag)
-    loop = summary.get("plant_diagnostics") or {}
-    failed = str(loop.get("failed", "False")) == "True"
+    try:
+        facts = run_graph(cfg, duration=duration, transport=args.transport, bag=bag, meta=meta, domain_id=args.domain_id,
+                          status=not quiet, workdir=(bag.parent / (bag.name + "_logs")) if record else None,
+                          compose=compose)
+        metrics = RunMetrics.from_bag(bag)
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    metrics.wall_time_s = facts["wall_s"]
+    if metrics.loop is not None:  # the plant's process exits before the launcher can read its CPU time: it reports it
+        cpu = dict(facts["cpu_percent"])
+        if metrics.loop.plant_cpu_percent is not None:
+            cpu["container" if compose else "plant_sim"] = metrics.loop.plant_cpu_percent
+        metrics.loop.cpu_percent = cpu
     offline = simulate(cfg, controller=cfg["controller"]["type"], estimator=cfg["estimator"]["type"], duration=duration,
                        scenario=sc.name).metrics()
-    result = {
-        "scenario": sc.name, "controller": meta["controller"], "estimator": meta["estimator"], "transport": args.transport,
-        "composed": compose,
-        "failed": failed, "fail_time_s": float(loop.get("t_sim_s", "nan")) if failed else None,
-        "rms_error_um": summary.get("rms_error_um"), "max_error_um": summary.get("max_error_um"),
-        "rms_error_after_40s_um": summary.get("rms_error_after_40s_um"),
-        "peak_voltage_v": None, "final_estimates": summary.get("final_estimates"), "wall_time_s": facts["wall_s"],
-        "offline_rms_error_um": offline["rms_error_um"],
-        "loop": {
-            "cycles": int(loop.get("cycles", 0)), "deadline_misses": int(loop.get("deadline_misses", 0)),
-            "latency_us": {"p50": float(loop.get("latency_p50_us", "nan")), "p99": float(loop.get("latency_p99_us", "nan")),
-                           "max": float(loop.get("latency_max_us", "nan"))},
-            "cpu_percent": _with_plant_cpu(facts["cpu_percent"], loop, "container" if compose else "plant_sim"),
-            "realtime_factor": float(loop.get("realtime_factor", "nan")),
-            "lockstep": loop.get("lockstep") == "True",
-        },
-        "bag": str(bag) if record else None,
-        "recorder": facts["recorder"],
-        "interrupted": facts["interrupted"],
-    }
-    result["peak_voltage_v"] = _peak_voltage(bag)
+    info = {"composed": compose, "offline_rms_error_um": offline["rms_error_um"], "bag": str(bag) if record else None,
+            "recorder": facts["recorder"], "interrupted": facts["interrupted"]}
     if record and bag.is_dir():  # the run-time summary travels with the bag (replay compares against it)
-        (bag / "summary.json").write_text(json.dumps(result, indent=2) + "\n")
-    if tmp is not None:
-        import shutil
-
-        shutil.rmtree(tmp, ignore_errors=True)
-    return result
+        (bag / "summary.json").write_text(json.dumps(metrics.to_dict() | info, indent=2) + "\n")
+    return metrics, info
 
 
-def _with_plant_cpu(cpu: dict, loop: dict, process: str = "plant_sim") -> dict:
-    """The plant's process exits before the launcher can read its CPU time: the plant reports it."""
-    out = dict(cpu)
-    try:
-        out[process] = round(100.0 * float(loop["cpu_s"]) / float(loop["wall_s"]), 1)
-    except (KeyError, ValueError, ZeroDivisionError):
-        pass
-    return out
-
-
-def _peak_voltage(bag: Path) -> float | None:
-    from ..bag import BagReader
-
-    try:
-        a = BagReader(bag).joint_state_arrays("/dem/command")
-        return float(np.nanmax(np.abs(a["effort"]))) if a["effort"].size else None
-    except Exception:
-        return None
-
-
-def print_summary(res: dict) -> None:
-    from .cli import _fmt_pair
-
-    L = res["loop"]
-    how = "one process (composed)" if res.get("composed") else "a process per node"
-    print(f"  scenario / controller / estimator   {res['scenario']} / {res['controller']} / {res['estimator']} ({res['transport']}, {how})")
-    print(f"  failed                              {'yes, at t = %.3f s' % res['fail_time_s'] if res['failed'] else 'no'}")
-    if res["rms_error_um"]:
-        print(f"  RMS error e1 / e2 [um]              {_fmt_pair(res['rms_error_um'])}   (offline, same timing: {_fmt_pair(res['offline_rms_error_um'])})")
-        print(f"  max error e1 / e2 [um]              {_fmt_pair(res['max_error_um'])}")
-        print(f"  RMS error after 40 s [um]           {_fmt_pair(res['rms_error_after_40s_um'])}")
-    if res.get("final_estimates"):
-        fe = res["final_estimates"]
-        print(f"  final m_hat / R_hat / K_hat         {fe['m_kg']:.3f} kg / {fe['R_ohm']:.4f} ohm / {fe['K']:.4e}")
-    print(f"  loop: cycles {L['cycles']}, deadline misses {L['deadline_misses']}"
-          f" ({100.0 * L['deadline_misses'] / max(L['cycles'], 1):.3f} %), latency p50 {L['latency_us']['p50']:.0f} us,"
-          f" p99 {L['latency_us']['p99']:.0f} us, max {L['latency_us']['max']:.0f} us;"
-          f" x{L.get('realtime_factor', float('nan')):.2f} real time{' (lockstep)' if L.get('lockstep') else ''}")
-    print("  CPU [% of one core]                 " + ", ".join(f"{k} {v:.1f}" for k, v in L["cpu_percent"].items())
-          + f"; total {sum(L['cpu_percent'].values()):.1f}")
-    if res.get("recorder"):
-        rc = res["recorder"]
-        dropped = sum(v["dropped"] for v in rc.values())
-        written = sum(v["written"] for v in rc.values())
-        print(f"  recorded                            {written} messages, {dropped} dropped")
-    if res.get("bag"):
-        print(f"  bag                                 {res['bag']}")
-
-
-def cmd_launch(args) -> int:
-    res = launch(args)
-    print_summary(res)
+def cmd_launch(args: Any) -> int:
+    metrics, info = launch(args)
+    how = "one process (composed)" if info["composed"] else "a process per node"
+    extra = [("processes", how), ("offline RMS error e1 / e2 [um]", f"{fmt_pair(info['offline_rms_error_um'])} (same timing)")]
+    if info["recorder"]:
+        rc = info["recorder"]
+        extra.append(("recorded", f"{sum(v['written'] for v in rc.values())} messages,"
+                                  f" {sum(v['dropped'] for v in rc.values())} dropped"))
+    if info["bag"]:
+        extra.append(("bag", info["bag"]))
+    metrics.print(extra=extra)
     if args.json:
-        Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
+        Path(args.json).write_text(json.dumps(metrics.to_dict() | info, indent=2) + "\n")
         print(f"  summary written to {args.json}")
-    return 130 if res["interrupted"] else (1 if res["failed"] else 0)
-
-
-def cmd_node(args) -> int:
-    from .node_main import run
-
-    return run(args.name, args.ros_args, args.transport)
-
-
-def cmd_param(args) -> int:
-    from ..transport import param_get, param_set
-
-    if args.action == "get":
-        print(param_get(args.node, args.name, domain_id=args.domain_id, timeout_s=args.timeout))
-        return 0
-    if args.value is None:
-        from .cli import UsageError
-
-        raise UsageError("param set needs a VALUE")
-    ok, reason = param_set(args.node, args.name, args.value, domain_id=args.domain_id, timeout_s=args.timeout)
-    if ok:
-        print("Set parameter successful")
-        return 0
-    print(f"Setting parameter failed: {reason}", file=sys.stderr)
-    return 1
-
-
-class _Args:
-    def __init__(self, **kw):
-        self.__dict__.update(kw)
-
-
-def bench_loop(args) -> dict:
-    duration = args.duration or 60.0
-    compose = bool(getattr(args, "compose", False))
-    a = _Args(scenario="S1", params=None, set=None, controller=None, estimator=None, duration=duration,
-              transport=args.transport, bag_dir=tempfile.mkdtemp(prefix="dem_ros_bench_"), no_record=True,
-              domain_id=None, json=None, compose=compose)
-    from .bench import cpu_times, machine, steal_percent, timer_floor
-
-    floor = timer_floor(5.0)
-    before = cpu_times()
-    res = launch(a, quiet=False)
-    steal = steal_percent(before, cpu_times())
-
-    m = machine()
-    L = res["loop"]
-    how = "all nodes in one process (--compose)" if compose else "one process per node"
-    print(f"dem-ros bench loop on {m['cpu']} ({m['cores']} cores), transport {args.transport}, {how}, {duration:g} s of S1")
-    print(f"  cycles {L['cycles']}, deadline misses {L['deadline_misses']} ({100.0 * L['deadline_misses'] / max(L['cycles'], 1):.3f} %)")
-    print(f"  latency sensor stamp -> command at plant: p50 {L['latency_us']['p50']:.0f} us, p99 {L['latency_us']['p99']:.0f} us, max {L['latency_us']['max']:.0f} us")
-    print("  CPU [% of one core]: " + ", ".join(f"{k} {v:.1f}" for k, v in L["cpu_percent"].items())
-          + f"; all nodes {sum(L['cpu_percent'].values()):.1f}")
-    if steal is not None:  # a VM whose host is busy loses whole milliseconds: say so next to the figures
-        print(f"  CPU stolen by the hypervisor during the run: {steal:.1f} % of this VM's time")
-    print(f"  machine floor (a bare 1 kHz sleep loop, 5 s before the run): late p50 {floor['p50_us']:.0f} us,"
-          f" p99 {floor['p99_us']:.0f} us, p99.9 {floor['p99_9_us']:.0f} us, max {floor['max_us']:.0f} us;"
-          f" {floor['over_1ms_percent']:.3f} % of wake-ups > 1 ms late")
-    return {"loop": L, "machine": m, "transport": args.transport, "composed": compose, "duration_s": duration,
-            "hypervisor_steal_percent": steal, "timer_floor": floor}
-
-
-def bench_record(args) -> dict:
-    from ..bag.bench import bench_record as br
-    from .bench import machine
-
-    seconds = args.duration or 10.0
-    r = br(seconds)
-    print(f"dem-ros bench record on {machine()['cpu']}: {seconds:g} s at the graph's load")
-    for k, v in r.items():
-        print(f"  {k}: {v}")
-    r["machine"] = machine()
-    return r
+    return 130 if info["interrupted"] else (1 if metrics.failed else 0)

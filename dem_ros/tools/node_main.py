@@ -5,25 +5,26 @@ from __future__ import annotations
 import importlib
 import sys
 
-from ..nodes import __doc__ as _doc  # noqa: F401
+from ..transport import run_node
 
+__all__ = ["NODES", "main", "run"]
+
+#: what ``dem-ros node NAME`` can run: the graph's nodes and ``container`` (all of them in one process)
 NODES = ("plant_sim", "estimator", "controller", "reference", "recorder", "container")
+#: nodes whose ``main`` parses its own arguments (``--transport``, ``--bag``, ...)
+_OWN_ARGS = ("recorder", "container")
+_CLASSES = {"plant_sim": "PlantSimNode", "estimator": "EstimatorNode", "controller": "ControllerNode",
+            "reference": "ReferenceNode"}
 
 
 def run(name: str, rest: list[str], transport: str = "auto") -> int:
     if name not in NODES:
         print(f"error: unknown node {name!r}; known: {', '.join(NODES)}", file=sys.stderr)
         return 2
-    import os
-
-    os.environ.setdefault("DEM_ROS_TRANSPORT", transport)
     mod = importlib.import_module(f"dem_ros.nodes.{name}")
-    if name in ("recorder", "container"):
-        return mod.main(["--transport", transport, *rest])
-    from ..transport import run_node
-
-    cls = {"plant_sim": "PlantSimNode", "estimator": "EstimatorNode", "controller": "ControllerNode", "reference": "ReferenceNode"}[name]
-    return run_node(name, getattr(mod, cls), args=rest, transport=transport)
+    if name in _OWN_ARGS:
+        return int(mod.main(["--transport", transport, *rest]))
+    return run_node(name, getattr(mod, _CLASSES[name]), args=rest, transport=transport)
 
 
 def main() -> int:

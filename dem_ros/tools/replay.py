@@ -22,82 +22,20 @@ from typing import Any
 import numpy as np
 
 from .. import contract
-from ..core.metrics import error_metrics
+from .runmetrics import RunMetrics, load_run
 
 __all__ = ["analyse", "cmd_bag", "cmd_replay", "what_if"]
 
 
-def _arrays(reader, topic: str) -> dict | None:
+def analyse(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
+    """(metrics, series) of a recorded run; series feed the figures (see :func:`.runmetrics.load_run`)."""
+    return load_run(bag)
+
+
+def _arrays(reader: Any, topic: str) -> dict[str, Any] | None:
     if topic not in reader.topics or reader.topics[topic].count == 0:
         return None
     return reader.joint_state_arrays(topic)
-
-
-def analyse(bag: Path) -> tuple[dict[str, Any], dict[str, Any]]:
-    """(metrics, series) of a recorded run; series feed the figures."""
-    from ..bag import BagError, BagReader
-
-    r = BagReader(bag)
-    truth = _arrays(r, contract.TRUTH.name)
-    ref = _arrays(r, contract.REFERENCE.name)
-    meas = _arrays(r, contract.MEASUREMENT.name)
-    if ref is None or (truth is None and meas is None):
-        have = ", ".join(r.topics) or "none"
-        raise BagError(f"{bag}: not a dem_ros run (needs /dem/reference and /dem/plant/truth or /dem/measurement; has: {have})")
-    loop_hist = []
-    for _, log_ns, msg in r.messages([contract.DIAGNOSTICS.name]):
-        for s in msg.status:
-            if s.name == "plant_sim: loop":
-                loop_hist.append((log_ns, {kv.key: kv.value for kv in s.values}))
-    epoch = int(loop_hist[-1][1]["epoch_ns"]) if loop_hist and "epoch_ns" in loop_hist[-1][1] else None
-    src = truth if truth is not None else meas
-    ts, i_s, i_r = np.intersect1d(src["stamp_ns"], ref["stamp_ns"], return_indices=True)
-    if epoch is not None:  # the experiment, not the pre-roll
-        keep = ts >= epoch
-        ts, i_s, i_r = ts[keep], i_s[keep], i_r[keep]
-    t0 = ts[0] if ts.size else 0
-    t = (ts - t0) * 1e-9
-    gaps = src["position"][i_s, :2]
-    e = gaps - ref["position"][i_r, :2]
-    run = r.run_metadata() or {}
-    m: dict[str, Any] = {
-        "scenario": run.get("scenario"), "controller": run.get("controller"), "estimator": run.get("estimator"),
-        "transport": run.get("transport"), "error_source": "truth" if truth is not None else "measurement",
-        "samples": int(ts.size),
-    }
-    m.update(error_metrics(t, e))
-    cmd = _arrays(r, contract.COMMAND.name)
-    series: dict[str, Any] = {"t": t, "gaps": gaps, "ref": ref["position"][i_r, :2], "e": e}
-    if cmd is not None and cmd["effort"].size:
-        m["peak_voltage_v"] = float(np.nanmax(np.abs(cmd["effort"])))
-        lat = (cmd["log_time_ns"] - cmd["stamp_ns"]) * 1e-3
-        m["command_latency_at_recorder_us"] = {"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
-                                               "max": float(lat.max())}
-        series["cmd_t"] = (cmd["stamp_ns"] - t0) * 1e-9
-        series["cmd"] = cmd["effort"][:, :2]
-        series["cmd_latency_us"] = lat
-    if truth is not None:
-        series["current"] = truth["effort"][i_s, :2]
-        series["mass"] = truth["position"][i_s, 2] if truth["position"].shape[1] > 2 else None
-        m["peak_current_a"] = float(np.nanmax(np.abs(truth["effort"][:, :2])))
-    st = _arrays(r, contract.CONTROLLER_STATE.name)
-    if st is not None and st["position"].shape[0]:
-        names = list(st["name"])
-        last = dict(zip(names, st["position"][-1]))
-        est = np.array([last.get("m_hat", np.nan), last.get("R_hat", np.nan), last.get("K_hat", np.nan)], float)
-        m["final_estimates"] = {"m_kg": float(est[0]), "R_ohm": float(est[1]), "K": float(est[2])} if np.all(np.isfinite(est)) else None
-        series["est_t"] = (st["stamp_ns"] - t0) * 1e-9
-        series["est"] = st["position"][:, :3]
-    if loop_hist:
-        last = loop_hist[-1][1]
-        m["loop"] = {
-            "cycles": int(last.get("cycles", 0)), "deadline_misses": int(last.get("deadline_misses", 0)),
-            "latency_us": {k: float(last.get(f"latency_{k}_us", "nan")) for k in ("p50", "p99", "max")},
-        }
-        m["failed"] = last.get("failed") == "True"
-        series["loop"] = [((ln - loop_hist[0][0]) * 1e-9, int(v.get("deadline_misses", 0)), int(v.get("cycles", 0)))
-                          for ln, v in loop_hist]
-    return m, series
 
 
 def plot_replay(series: dict, out: Path, title: str) -> list[Path]:
@@ -285,26 +223,13 @@ def cmd_replay(args) -> int:
             save(fig, Path(args.plot) / "what_if.png")
         return 0
     m, series = analyse(bag)
-    from .cli import _fmt_pair
-
-    print(f"replay of {bag}: {m.get('scenario')} / {m.get('controller')} / {m.get('estimator')} ({m.get('transport')}), {m['samples']} samples")
-    print(f"  RMS error e1 / e2 [um]        {_fmt_pair(m['rms_error_um'])}   (e from {m['error_source']})")
-    print(f"  max error e1 / e2 [um]        {_fmt_pair(m['max_error_um'])}")
-    print(f"  RMS error after 40 s [um]     {_fmt_pair(m['rms_error_after_40s_um'])}")
-    if "peak_voltage_v" in m:
-        print(f"  peak |u| [V]                  {m['peak_voltage_v']:.2f}")
-    if m.get("loop"):
-        L = m["loop"]
-        print(f"  loop: cycles {L['cycles']}, deadline misses {L['deadline_misses']}, latency p50 {L['latency_us']['p50']:.0f} us,"
-              f" p99 {L['latency_us']['p99']:.0f} us, max {L['latency_us']['max']:.0f} us")
-    if m.get("final_estimates"):
-        fe = m["final_estimates"]
-        print(f"  final m_hat / R_hat / K_hat   {fe['m_kg']:.3f} kg / {fe['R_ohm']:.4f} ohm / {fe['K']:.4e}")
+    print(f"replay of {bag}:")
+    m.print()
     if args.json:
-        Path(args.json).write_text(json.dumps(m, indent=2) + "\n")
+        Path(args.json).write_text(json.dumps(m.to_dict(), indent=2) + "\n")
         print(f"  metrics written to {args.json}")
     if args.plot:
-        files = plot_replay(series, Path(args.plot), f"{m.get('scenario')} / {m.get('controller')}")
+        files = plot_replay(series, Path(args.plot), f"{m.scenario} / {m.controller}")
         print(f"  {len(files)} figures written to {args.plot}")
     return 0
 

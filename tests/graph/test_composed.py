@@ -18,6 +18,7 @@ from dem_ros import contract
 from dem_ros.core.scenarios import get_scenario
 from dem_ros.core.simulate import simulate
 from dem_ros.tools import launcher
+from dem_ros.tools.runmetrics import RunMetrics
 from dem_ros.transport import make_node
 
 DURATION = 6.0
@@ -72,15 +73,14 @@ def composed_run(tmp_path_factory):
 
 
 def test_composed_loop_reproduces_offline(composed_run):
-    s = launcher.graph_summary(composed_run["bag"])
-    loop = s["plant_diagnostics"]
-    assert loop["failed"] == "False", loop
-    assert int(loop["cycles"]) == int(DURATION * 1000)
-    assert s["samples"] == int(DURATION * 1000) + 1
+    s = RunMetrics.from_bag(composed_run["bag"])
+    assert not s.failed, s
+    assert s.loop is not None and s.loop.cycles == int(DURATION * 1000)
+    assert s.samples == int(DURATION * 1000) + 1
     # w changed to 55 during the run (from then on): the acceptance bound still holds
     offline = simulate(composed_run["cfg"], controller="adaptive", estimator="kf", duration=DURATION).metrics()
-    for graph_rms, off_rms in zip(s["rms_error_um"], offline["rms_error_um"]):
-        assert graph_rms <= max(2 * off_rms, off_rms + 10.0), (s["rms_error_um"], offline["rms_error_um"])
+    for graph_rms, off_rms in zip(s.rms_error_um, offline["rms_error_um"], strict=True):
+        assert graph_rms <= max(2 * off_rms, off_rms + 10.0), (s.rms_error_um, offline["rms_error_um"])
 
 
 def test_controller_always_had_the_reference_of_its_sample(composed_run):
@@ -100,7 +100,9 @@ def test_parameters_served_while_the_loop_runs(composed_run):
     from dem_ros.bag import BagReader
 
     reader = BagReader(composed_run["bag"])
-    epoch = int(launcher.graph_summary(composed_run["bag"])["plant_diagnostics"]["epoch_ns"])  # t = 0, wall clock
+    loop = RunMetrics.from_bag(composed_run["bag"]).loop
+    assert loop is not None and loop.epoch_ns is not None
+    epoch = loop.epoch_ns  # t = 0, wall clock
     changes = [(t, p.name, p.value.double_value) for _, t, e in reader.messages(["/parameter_events"])
                for p in e.changed_parameters]
     assert any(name == "w" and v == 55.0 and t > epoch for t, name, v in changes), changes

@@ -15,11 +15,13 @@ SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "sample_S1"
 def test_replay_reproduces_the_metrics_recorded_at_run_time():
     recorded = json.loads((SAMPLE / "summary.json").read_text())
     m, _ = analyse(SAMPLE)
-    assert m["rms_error_um"] == pytest.approx(recorded["rms_error_um"], rel=1e-12)
-    assert m["max_error_um"] == pytest.approx(recorded["max_error_um"], rel=1e-12)
-    assert m["loop"]["cycles"] == recorded["loop"]["cycles"]
-    assert m["loop"]["deadline_misses"] == recorded["loop"]["deadline_misses"]
-    assert m["final_estimates"] == pytest.approx(recorded["final_estimates"], rel=1e-12)
+    assert m.rms_error_um == pytest.approx(recorded["rms_error_um"], rel=1e-12)
+    assert m.max_error_um == pytest.approx(recorded["max_error_um"], rel=1e-12)
+    assert m.loop is not None
+    assert m.loop.cycles == recorded["loop"]["cycles"]
+    assert m.loop.deadline_misses == recorded["loop"]["deadline_misses"]
+    assert m.final_estimates == pytest.approx(recorded["final_estimates"], rel=1e-12)
+    assert not m.failed and m.error_source == "truth" and m.samples == 8001
 
 
 def test_what_if_with_the_recorded_law_reproduces_the_recorded_commands():

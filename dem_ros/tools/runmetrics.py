@@ -1,0 +1,249 @@
+"""The metrics of one run, computed once and printed once, whatever ran it.
+
+``dem-ros sim`` builds a :class:`RunMetrics` from the offline result
+(:meth:`RunMetrics.from_sim`), ``dem-ros launch`` and ``dem-ros replay`` from
+the recorded bag (:func:`load_run`, the same code for both), and all three
+print it with :meth:`RunMetrics.format` and write it with :meth:`RunMetrics.to_dict`.
+
+Tracking error e = true gap - reference-model output y_m (notes 7), in
+micrometres (``*_um``), matched by stamp and counted from the experiment's
+t = 0 (the plant's ``epoch_ns``; the pre-roll is left out); voltages in V,
+currents in A, latencies in us.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from .. import contract
+from ..core.metrics import error_metrics
+from .common import fmt_pair
+
+__all__ = ["LOOP_STATUS", "LoopStats", "RunMetrics", "load_run"]
+
+#: the name of the plant's once-a-second loop status in /diagnostics
+LOOP_STATUS = "plant_sim: loop"
+
+_NAN = float("nan")
+
+
+@dataclass
+class LoopStats:
+    """The 1 kHz loop as the plant measured it (its last ``plant_sim: loop`` status).
+
+    ``latency_us``: p50 / p99 / max of sensor stamp -> command applied at the plant (us);
+    ``realtime_factor``: simulated s per wall s; ``lockstep``: the plant waited for each
+    command; ``epoch_ns``: wall-clock stamp of t = 0; ``cpu_percent``: per process, % of one
+    core (filled by the launcher, which can measure it; ``plant_cpu_percent`` is the
+    plant's own figure, reported because its process ends before the launcher can read it).
+    """
+
+    cycles: int
+    deadline_misses: int
+    latency_us: dict[str, float]
+    realtime_factor: float = _NAN
+    lockstep: bool = False
+    epoch_ns: int | None = None
+    plant_cpu_percent: float | None = None
+    cpu_percent: dict[str, float] = field(default_factory=dict)
+
+    @classmethod
+    def from_status(cls, values: Mapping[str, str]) -> LoopStats:
+        """From the key/value strings of the plant's loop status."""
+        epoch = values.get("epoch_ns")
+        try:
+            plant_cpu: float | None = round(100.0 * float(values["cpu_s"]) / float(values["wall_s"]), 1)
+        except (KeyError, ValueError, ZeroDivisionError):
+            plant_cpu = None
+        return cls(
+            cycles=int(values.get("cycles", 0)),
+            deadline_misses=int(values.get("deadline_misses", 0)),
+            latency_us={k: float(values.get(f"latency_{k}_us", "nan")) for k in ("p50", "p99", "max")},
+            realtime_factor=float(values.get("realtime_factor", "nan")),
+            lockstep=values.get("lockstep") == "True",
+            epoch_ns=int(epoch) if epoch is not None else None,
+            plant_cpu_percent=plant_cpu,
+        )
+
+    def summary(self) -> str:
+        lat = self.latency_us
+        share = 100.0 * self.deadline_misses / max(self.cycles, 1)
+        text = (f"cycles {self.cycles}, deadline misses {self.deadline_misses} ({share:.3f} %),"
+                f" latency p50 {lat['p50']:.0f} us, p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us")
+        if math.isfinite(self.realtime_factor):
+            text += f"; x{self.realtime_factor:.2f} real time{' (lockstep)' if self.lockstep else ''}"
+        return text
+
+
+@dataclass
+class RunMetrics:
+    """Tracking, effort and loop figures of one run (keys of ``--json``)."""
+
+    scenario: str | None
+    controller: str | None
+    estimator: str | None
+    transport: str | None  # "offline" for dem-ros sim
+    error_source: str  # what the true gap is: "simulation", "truth" (/dem/plant/truth) or "measurement"
+    samples: int
+    failed: bool
+    fail_time_s: float | None
+    rms_error_um: list[float]  # e1, e2
+    max_error_um: list[float]
+    rms_error_after_40s_um: list[float]
+    peak_voltage_v: float | None = None
+    peak_current_a: float | None = None
+    final_estimates: dict[str, float] | None = None  # m_kg, R_ohm, K (N m^2/A^2)
+    duration_s: float | None = None  # of the experiment (s)
+    command_latency_at_recorder_us: dict[str, float] | None = None  # p50, p99, max of stamp -> recorder log time
+    wall_time_s: float | None = None
+    loop: LoopStats | None = None
+
+    @classmethod
+    def from_sim(cls, res: Any) -> RunMetrics:
+        """From an offline :class:`~dem_ros.core.simulate.SimResult` (its ``metrics()``)."""
+        m = res.metrics()
+        return cls(
+            scenario=m["scenario"], controller=m["controller"], estimator=m["estimator"], transport="offline",
+            error_source="simulation", samples=int(res.t.size), failed=m["failed"], fail_time_s=m["fail_time_s"],
+            rms_error_um=m["rms_error_um"], max_error_um=m["max_error_um"],
+            rms_error_after_40s_um=m["rms_error_after_40s_um"], peak_voltage_v=m["peak_voltage_v"],
+            peak_current_a=m["peak_current_a"], final_estimates=m["final_estimates"], duration_s=m["duration_s"],
+            wall_time_s=m["wall_time_s"],
+        )
+
+    @classmethod
+    def from_bag(cls, bag: Path) -> RunMetrics:
+        """From a recorded run (graph or ``dem-ros sim --record``); see :func:`load_run`."""
+        return load_run(bag)[0]
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def rows(self) -> list[tuple[str, str]]:
+        """(label, value) rows of the printed table."""
+        rows = [
+            ("scenario / controller / estimator", f"{self.scenario} / {self.controller} / {self.estimator} ({self.transport})"),
+            ("samples", f"{self.samples} (e = {self.error_source} gap - y_m)"),
+            ("failed", f"yes, at t = {self.fail_time_s:.3f} s" if self.failed and self.fail_time_s is not None
+             else ("yes" if self.failed else "no")),
+            ("RMS error e1 / e2 [um]", fmt_pair(self.rms_error_um)),
+            ("max error e1 / e2 [um]", fmt_pair(self.max_error_um)),
+            ("RMS error after 40 s [um]", fmt_pair(self.rms_error_after_40s_um)),
+        ]
+        if self.peak_voltage_v is not None:
+            rows.append(("peak |u| [V]", f"{self.peak_voltage_v:.2f}"))
+        if self.peak_current_a is not None:
+            rows.append(("peak |i| [A]", f"{self.peak_current_a:.3f}"))
+        fe = self.final_estimates
+        if fe:
+            rows.append(("final m_hat / R_hat / K_hat",
+                         f"{fe['m_kg']:.3f} kg / {fe['R_ohm']:.4f} ohm / {fe['K']:.4e} N m^2/A^2"))
+        if self.loop is not None:
+            rows.append(("loop", self.loop.summary()))
+            if self.loop.cpu_percent:
+                cpu = self.loop.cpu_percent
+                rows.append(("CPU [% of one core]", ", ".join(f"{k} {v:.1f}" for k, v in cpu.items())
+                             + f"; total {sum(cpu.values()):.1f}"))
+        if self.wall_time_s is not None:
+            rows.append(("wall time [s]", f"{self.wall_time_s:.2f}"))
+        return rows
+
+    def format(self, extra: Iterable[tuple[str, str]] = ()) -> str:
+        """The table: one ``label  value`` line per row, ``extra`` rows appended."""
+        rows = self.rows() + list(extra)
+        w = max(len(k) for k, _ in rows)
+        return "\n".join(f"  {k:<{w}}  {v}" for k, v in rows)
+
+    def print(self, file: IO[str] | None = None, extra: Iterable[tuple[str, str]] = ()) -> None:
+        print(self.format(extra), file=file)
+
+
+def _final_estimates(names: list[str], row: np.ndarray) -> dict[str, float] | None:
+    """m_hat, R_hat, K_hat of the controller's last state message, None if the law has none."""
+    v = dict(zip(names, row, strict=False))
+    est = [float(v.get(k, _NAN)) for k in ("m_hat", "R_hat", "K_hat")]
+    if not all(math.isfinite(x) for x in est):
+        return None
+    return {"m_kg": est[0], "R_ohm": est[1], "K": est[2]}
+
+
+def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
+    """(metrics, series) of a recorded run; the series (s, m, V, A, us) feed the figures.
+
+    Raises:
+        BagError: not a bag, or not a dem_ros run (no reference, or neither truth nor measurement).
+    """
+    from ..bag import BagError, BagReader
+
+    r = BagReader(bag)
+
+    def arrays(topic: str) -> dict[str, Any] | None:
+        if topic not in r.topics or r.topics[topic].count == 0:
+            return None
+        return r.joint_state_arrays(topic)
+
+    truth = arrays(contract.TRUTH.name)
+    ref = arrays(contract.REFERENCE.name)
+    meas = arrays(contract.MEASUREMENT.name)
+    if ref is None or (truth is None and meas is None):
+        have = ", ".join(r.topics) or "none"
+        raise BagError(f"{bag}: not a dem_ros run (needs {contract.REFERENCE.name} and {contract.TRUTH.name}"
+                       f" or {contract.MEASUREMENT.name}; has: {have})")
+    loop_hist = []
+    for _, log_ns, msg in r.messages([contract.DIAGNOSTICS.name]):
+        for s in msg.status:
+            if s.name == LOOP_STATUS:
+                loop_hist.append((log_ns, {kv.key: kv.value for kv in s.values}))
+    last = loop_hist[-1][1] if loop_hist else {}
+    loop = LoopStats.from_status(last) if loop_hist else None
+    src = truth if truth is not None else meas
+    assert src is not None
+    ts, i_s, i_r = np.intersect1d(src["stamp_ns"], ref["stamp_ns"], return_indices=True)
+    if loop is not None and loop.epoch_ns is not None:  # the experiment, not the pre-roll
+        keep = ts >= loop.epoch_ns
+        ts, i_s, i_r = ts[keep], i_s[keep], i_r[keep]
+    t0 = ts[0] if ts.size else 0
+    t = (ts - t0) * 1e-9
+    gaps = src["position"][i_s, :2]
+    e = gaps - ref["position"][i_r, :2]
+    run = r.run_metadata() or {}
+    failed = last.get("failed") == "True"
+    em = error_metrics(t, e)
+    m = RunMetrics(
+        scenario=run.get("scenario"), controller=run.get("controller"), estimator=run.get("estimator"),
+        transport=run.get("transport"), error_source="truth" if truth is not None else "measurement",
+        samples=int(ts.size), failed=failed, fail_time_s=float(last.get("t_sim_s", "nan")) if failed else None,
+        rms_error_um=em["rms_error_um"], max_error_um=em["max_error_um"],
+        rms_error_after_40s_um=em["rms_error_after_40s_um"], loop=loop,
+        duration_s=float(run["duration_s"]) if "duration_s" in run else None,
+    )
+    series: dict[str, Any] = {"t": t, "gaps": gaps, "ref": ref["position"][i_r, :2], "e": e}
+    cmd = arrays(contract.COMMAND.name)
+    if cmd is not None and cmd["effort"].size:
+        m.peak_voltage_v = float(np.nanmax(np.abs(cmd["effort"])))
+        series["cmd_t"] = (cmd["stamp_ns"] - t0) * 1e-9
+        series["cmd"] = cmd["effort"][:, :2]
+        lat = (cmd["log_time_ns"] - cmd["stamp_ns"]) * 1e-3
+        series["cmd_latency_us"] = lat
+        m.command_latency_at_recorder_us = {"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
+                                            "max": float(lat.max())}
+    if truth is not None:
+        series["current"] = truth["effort"][i_s, :2]
+        series["mass"] = truth["position"][i_s, 2] if truth["position"].shape[1] > 2 else None
+        m.peak_current_a = float(np.nanmax(np.abs(truth["effort"][:, :2])))
+    st = arrays(contract.CONTROLLER_STATE.name)
+    if st is not None and st["position"].shape[0]:
+        m.final_estimates = _final_estimates(list(st["name"]), st["position"][-1])
+        series["est_t"] = (st["stamp_ns"] - t0) * 1e-9
+        series["est"] = st["position"][:, :3]
+    if loop_hist:
+        series["loop"] = [((ln - loop_hist[0][0]) * 1e-9, int(v.get("deadline_misses", 0)), int(v.get("cycles", 0)))
+                          for ln, v in loop_hist]
+    return m, series

@@ -75,7 +75,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core.params import SCHEMA, ConfigError, ParamSpec, apply_overrides, parse_assignment
+from ..core.params import SCHEMA, ConfigError, ParamSpec, apply_overrides
+from .common import CONTROLLER_TYPES, ESTIMATOR_TYPES, load_config
 
 __all__ = [
     "Axis",
@@ -699,10 +700,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--axis", action="append", default=[], metavar="NAME=SPEC",
                    help="axis over plant truth: GROUP.NAME or hover_asymmetry, = LO:HI:N | LO:HI | V1,V2,...; "
                         "values may be relative: -20%%:+25%%:4 (repeatable)")
-    p.add_argument("--preset", default=None, help=f"predefined axes: {', '.join(PRESETS)} ({'; '.join(' '.join(v) for v in PRESETS.values())})")
+    presets = "; ".join(f"{k}: {' '.join(v)}" for k, v in PRESETS.items()).replace("%", "%%")
+    p.add_argument("--preset", default=None, help=f"predefined axes ({presets})")
     p.add_argument("--controllers", default="adaptive", help="comma-separated control laws (default adaptive)")
     p.add_argument("--estimator", default=None, help="kf or none (default: config, kf)")
     p.add_argument("--scenario", default="S1", help="base scenario (default S1)")
+    p.add_argument("--params", default=None, help="ROS 2 params file (the scenario and --set apply on top)")
     p.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE", help="fixed override for every run")
     p.add_argument("--duration", default=None, help="seconds per run (default: the scenario's, 100)")
     p.add_argument("--samples", default=None, help="Monte Carlo: this many samples (default: the full grid)")
@@ -730,17 +733,7 @@ def _num(text: str | None, what: str, kind: type, lo: float, hi: float | None = 
 
 def spec_from_args(args: argparse.Namespace) -> StudySpec:
     """Validate the command line into a :class:`StudySpec` (ConfigError with one line on bad input)."""
-    from ..core.controllers import CONTROLLERS
-    from ..core.scenarios import get_scenario
-
-    sc = get_scenario(args.scenario)
-    base = sc.config()
-    sets: dict[str, dict[str, Any]] = {}
-    for text in args.set or []:
-        g, n, v = parse_assignment(text)
-        sets.setdefault(g, {})[n] = v
-    if sets:
-        base = apply_overrides(base, sets, "--set")
+    base, sc = load_config(args)
     samples = None if args.samples is None else _num(args.samples, "--samples", int, 1, 10**7)
     if args.preset is not None and args.preset not in PRESETS:
         raise ConfigError(f"--preset: unknown {args.preset!r}; known: {', '.join(PRESETS)}")
@@ -759,10 +752,10 @@ def spec_from_args(args: argparse.Namespace) -> StudySpec:
     if not ctls:
         raise ConfigError("--controllers: empty")
     for c in ctls:
-        if c not in CONTROLLERS:
-            raise ConfigError(f"--controllers: unknown {c!r}; known: {', '.join(CONTROLLERS)}")
-    if args.estimator is not None and args.estimator not in ("kf", "none"):
-        raise ConfigError(f"--estimator: got {args.estimator!r}, expected kf or none")
+        if c not in CONTROLLER_TYPES:
+            raise ConfigError(f"--controllers: unknown {c!r}; known: {', '.join(CONTROLLER_TYPES)}")
+    if args.estimator is not None and args.estimator not in ESTIMATOR_TYPES:
+        raise ConfigError(f"--estimator: got {args.estimator!r}, expected one of {', '.join(ESTIMATOR_TYPES)}")
     duration = sc.duration if args.duration is None else _num(args.duration, "--duration", float, 1e-3, 1e6)
     seed = base["plant_sim"]["seed"] if args.seed is None else _num(args.seed, "--seed", int, 0, 2**31 - 1)
     return StudySpec(sc.name, base, axes, ctls, args.estimator, float(duration), int(seed), samples)
@@ -811,19 +804,3 @@ def cmd_study(args: argparse.Namespace) -> int:
     print(table)
     print(f"  results: {out / 'results.csv'}; maps: {', '.join(f.name for f in files)}; summary: {out / 'summary.md'}")
     return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Stand-alone entry (``python -m dem_ros.tools.study``); ``dem-ros study`` is the same command."""
-    p = argparse.ArgumentParser(prog="dem-ros study", description=__doc__.split("\n", 1)[0])
-    add_arguments(p)
-    args = p.parse_args(argv)
-    try:
-        return cmd_study(args)
-    except (ConfigError, StudyError) as exc:
-        print(f"dem-ros study: error: {exc}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

@@ -26,7 +26,7 @@ from dem_ros.tools import study as st
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-CMD = [sys.executable, "-m", "dem_ros.tools.study"]
+CMD = [sys.executable, "-m", "dem_ros.tools.cli", "study"]
 HAS_ASYM = all(n in {p.name for p in SCHEMA.groups["plant_sim"]} for n in ("d1_0", "d2_0"))
 
 

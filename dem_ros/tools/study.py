@@ -86,6 +86,7 @@ __all__ = [
     "cmd_study",
     "parse_axis",
     "plan_runs",
+    "report_section",
     "robustness_rows",
     "robustness_table",
     "run_chunk",
@@ -202,6 +203,8 @@ def _number(text: str, name: str, base: float | None, kind: type) -> float:
         if t.endswith("%"):
             if base is None or kind is not float:
                 raise ConfigError(f"axis {name}: {t!r}: a relative value (%) needs a float parameter")
+            if base == 0.0:
+                raise ConfigError(f"axis {name}: {t!r}: a relative value (%) needs a non-zero value in the scenario (it has 0)")
             return base * (1.0 + float(t[:-1]) / 100.0)
         return float(t)
     except ValueError:
@@ -544,6 +547,10 @@ def _f(x: str) -> float:
     return float(x) if x not in ("", None) else float("nan")
 
 
+def _g(x: float) -> str:
+    return "-" if x != x else f"{x:.3g}"
+
+
 def _worst_rms(r: Mapping[str, str]) -> float:
     return max(_f(r["rms_e1_um"]), _f(r["rms_e2_um"]))
 
@@ -567,13 +574,16 @@ def robustness_rows(rows: Iterable[Mapping[str, str]], controllers: Sequence[str
     return out
 
 
-def robustness_table(out: Path, rms_limit: float | None = None) -> str:
-    """Markdown robustness table of the study in ``out`` (study.json + results.csv)."""
+def robustness_table(out: Path, rms_limit: float | None = None, run_ids: set[str] | None = None) -> str:
+    """Markdown robustness table of the study in ``out`` (study.json + results.csv).
+
+    Every row of results.csv with the study's axes counts, unless ``run_ids`` selects some.
+    """
     doc = json.loads((out / "study.json").read_text())
     limit = rms_limit if rms_limit is not None else doc.get("rms_limit_um", 100.0)
     rows = list(load_results(out / "results.csv").values())
     axes = [a["name"] for a in doc["axes"]]
-    rows = [r for r in rows if all(a in r for a in axes)]
+    rows = [r for r in rows if all(a in r for a in axes) and (run_ids is None or r["run_id"] in run_ids)]
     lines = [
         f"| controller | runs | survived | pass (RMS < {limit:g} um) | worst RMS [um] | median RMS [um] | worst max [um] |",
         "|---|---|---|---|---|---|---|",
@@ -581,18 +591,37 @@ def robustness_table(out: Path, rms_limit: float | None = None) -> str:
     fails = []
     for s in robustness_rows(rows, doc["controllers"], limit):
         lines.append(f"| `{s['controller']}` | {s['runs']} | {s['survived']} | {s['passed']} | "
-                     f"{s['worst_rms_um']:.3g} | {s['median_rms_um']:.3g} | {s['worst_max_um']:.3g} |")
+                     f"{_g(s['worst_rms_um'])} | {_g(s['median_rms_um'])} | {_g(s['worst_max_um'])} |")
         for r in s["failures"][:8]:
             cell = ", ".join(f"{a} = {r[a]}" for a in axes)
             fails.append(f"- `{s['controller']}` fails at t = {_f(r['fail_time_s']):.2f} s in cell {cell}")
         if len(s["failures"]) > 8:
             fails.append(f"- `{s['controller']}`: {len(s['failures']) - 8} more failing cells in results.csv")
+    def vals(v: list[Any]) -> str:
+        return ", ".join(f"{x:.4g}" if isinstance(x, float) else str(x) for x in v)
+
     ax_text = "; ".join(
-        f"{a['name']} in {a['values']} {a['unit']}" if a["values"] is not None else f"{a['name']} ~ U{a['range']} {a['unit']}"
-        for a in doc["axes"])
+        f"{a['name']} in {{{vals(a['values'])}}} {a['unit']}" if a["values"] is not None
+        else f"{a['name']} ~ U[{vals(a['range'])}] {a['unit']}" for a in doc["axes"])
     head = (f"{doc['mode'].replace('_', ' ')} over {ax_text}; scenario {doc['scenario']}, estimator {doc['estimator']}, "
             f"{doc['duration_s']:g} s runs, seed {doc['seed']}. Survived: the plate never left (0.1 mm, 30 mm).")
     return "\n".join([head, "", *lines, *(["", *fails] if fails else [])])
+
+
+def report_section(study_dir: Path) -> list[str]:
+    """Markdown lines of the report's robustness section, from the study in ``study_dir``.
+
+    ``dem-ros report --out DIR`` reads ``DIR/study`` (written by
+    ``dem-ros study --out DIR/study ...``; resumable, so regenerating both is cheap).
+    """
+    head = ["## Robustness over plant truth (`dem-ros study`)", ""]
+    if not ((study_dir / "study.json").is_file() and (study_dir / "results.csv").is_file()):
+        return [*head, f"No study in `{study_dir.name}/` beside this report. Run "
+                       f"`dem-ros study --preset acceptance --controllers adaptive,nonlinear_decoupling --out <report dir>/{study_dir.name}`, "
+                       "then `dem-ros report` again.", ""]
+    maps = sorted(study_dir.glob("map_*.png"))
+    return [*head, robustness_table(study_dir), "",
+            *(f"![robustness map, {m.stem[4:]}]({study_dir.name}/{m.name})\n" for m in maps)]
 
 
 _DISPLAY = {"m": (1e3, "mm")}
@@ -632,7 +661,8 @@ def draw_maps(spec: StudySpec, out: Path, rms_limit: float, map_axes: Sequence[s
         n_fail = sum(r["failed"] != "0" for r in rs)
         rest = [a.name for a in axes if a not in pick]
         title = f"{ctl}: {len(rs)} runs, {n_fail} failed; pass = survived and RMS < {rms_limit:g} um"
-        if spec.samples is not None or (len(pick) == 1 and pick[0].values is None):
+        scatter = spec.samples is not None or any(a.values is None for a in pick)
+        if scatter:
             x = np.array([_f(r[pick[0].name]) for r in rs]) * kx
             y = (np.array([_f(r[pick[1].name]) for r in rs]) * _label(pick[1].name, pick[1].unit)[0]
                  if len(pick) > 1 else np.array([_worst_rms(r) for r in rs]))
@@ -686,7 +716,7 @@ def draw_maps(spec: StudySpec, out: Path, rms_limit: float, map_axes: Sequence[s
                 ax.set_yticks([])
         ax.set_xlabel(lx)
         if rest:
-            title += f"\nworst case over {', '.join(rest)}"
+            title += f"\n{'one point per run; not drawn' if scatter else 'worst case over'}: {', '.join(rest)}"
         ax.set_title(title, fontsize=9)
         files.append(save(fig, out / f"map_{ctl}.png"))
     return files
@@ -798,7 +828,7 @@ def cmd_study(args: argparse.Namespace) -> int:
               f"(cluster start-up and kernel load {stats['startup_s']:.1f} s; load average "
               + " ".join(f"{x:.2f}" for x in stats["load_average"]) + ")")
     files = draw_maps(spec, out, limit, map_axes)
-    table = robustness_table(out, limit)
+    table = robustness_table(out, limit, {j["run_id"] for j in jobs})
     (out / "summary.md").write_text("# Robustness study\n\n" + table + "\n\n"
                                     + "\n".join(f"![{f.stem}]({f.name})" for f in files) + "\n")
     print(table)

@@ -71,6 +71,8 @@ def test_axis_grid_list_and_relative_values(base):
     ("plant_sim.dt=1e-3,2e-3", ["read-only"]),
     ("controller.type=adaptive", ["--controllers"]),
     ("plant_sim.m", ["expected NAME=SPEC"]),
+    ("plant_sim.mass_delta=-10%,+10%", ["relative value", "non-zero value in the scenario"]),
+    ("plant_sim.command_delay=-10%,0%", ["relative value (%) needs a float parameter"]),
 ])
 def test_bad_axis_names_the_field_and_what_is_allowed(base, text, words):
     with pytest.raises(ConfigError) as exc:
@@ -148,6 +150,9 @@ def test_study_on_a_local_cluster_writes_rows_maps_and_resumes(tmp_path):
     assert "| `adaptive` | 4 |" in summary
     doc = json.loads((out / "study.json").read_text())
     assert doc["last_session"]["workers"] == 2 and doc["last_session"]["ran"] == 8
+    section = "\n".join(st.report_section(out))  # what dem-ros report shows for <report>/study
+    assert "| `adaptive` | 4 |" in section and f"({out.name}/map_adaptive.png)" in section
+    assert "No study in `nothing/`" in "\n".join(st.report_section(tmp_path / "nothing"))
 
     # same command again: nothing re-runs
     r2 = _run(args)

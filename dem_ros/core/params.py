@@ -224,6 +224,15 @@ def _check_plant(v: Mapping[str, Any]) -> str | None:
         return f"gap0 = {v['gap0']:g} m must lie inside (gap_min, gap_max) = ({v['gap_min']:g}, {v['gap_max']:g})"
     if not v["mass_ramp_end"] >= v["mass_ramp_start"]:
         return "mass_ramp_end must not precede mass_ramp_start"
+    if not v["heating_end"] >= v["heating_start"]:
+        return "heating_end must not precede heating_start"
+    for name in ("R1", "R2"):
+        if 0.0 < v[name] < 0.01:
+            return f"{name} = {v[name]:g} ohm: expected 0 (take R) or a resistance in [0.01, 1e4] ohm"
+    for name in ("d1_0", "d2_0"):
+        if v[name] != 0.0 and not v["gap_min"] < v[name] < v["gap_max"]:
+            return (f"{name} = {v[name]:g} m must be 0 (take gap0) or lie inside (gap_min, gap_max) = "
+                    f"({v['gap_min']:g}, {v['gap_max']:g})")
     return None
 
 
@@ -251,6 +260,19 @@ SCHEMA = Schema(
             ParamSpec("mass_delta", float, 0.0, "kg", "added mass at O (unknown to the controllers)", -1e3, 1e3),
             ParamSpec("mass_ramp_start", float, 20.0, "s", "time the added mass starts ramping in", 0.0, 1e6),
             ParamSpec("mass_ramp_end", float, 40.0, "s", "time the added mass is fully on", 0.0, 1e6),
+            ParamSpec("mass_offset", float, 0.0, "", "where the added mass sits: fraction of L from O towards magnet 1 (0: at O; 0.3: S6)", -1.0, 1.0),
+            ParamSpec("R1", float, 0.0, "ohm", "true resistance of coil 1 at t = 0 (0: R)", 0.0, 1e4),
+            ParamSpec("R2", float, 0.0, "ohm", "true resistance of coil 2 at t = 0 (0: R)", 0.0, 1e4),
+            ParamSpec("R1_rise", float, 0.0, "", "coil heating: relative rise of R1 reached at heating_end, linear from heating_start (0.2: +20 %)", -0.5, 2.0),
+            ParamSpec("R2_rise", float, 0.0, "", "coil heating: relative rise of R2 reached at heating_end, linear from heating_start", -0.5, 2.0),
+            ParamSpec("heating_start", float, 0.0, "s", "time the coil resistances start rising", 0.0, 1e6),
+            ParamSpec("heating_end", float, 100.0, "s", "time the coil resistances reach R_j (1 + Rj_rise) and stay", 0.0, 1e6),
+            ParamSpec("d1_0", float, 0.0, "m", "initial hover gap of magnet 1 (0: gap0); the plant starts in exact equilibrium there", 0.0, 0.1),
+            ParamSpec("d2_0", float, 0.0, "m", "initial hover gap of magnet 2 (0: gap0)", 0.0, 0.1),
+            ParamSpec("gap_offset_1", float, 0.0, "m", "gap sensor 1 reads scale_1 d1 + offset_1 (+ noise)", -0.01, 0.01),
+            ParamSpec("gap_offset_2", float, 0.0, "m", "gap sensor 2 offset", -0.01, 0.01),
+            ParamSpec("gap_scale_1", float, 1.0, "", "gap sensor 1 scale (gain) error, 1 = exact; also scales the measured rate", 0.5, 2.0),
+            ParamSpec("gap_scale_2", float, 1.0, "", "gap sensor 2 scale (gain) error", 0.5, 2.0),
             ParamSpec("noise_scale", float, 0.0, "", "measurement noise X: uniform +-X*[1e-3 m, 1e-3 m/s, 1e-2 A] (paper Eq. 47)", 0.0, 1e3),
             ParamSpec("measure_velocity", bool, True, "", "the sensors also deliver the gap rates"),
             ParamSpec("perturbation", str, "none", "", "additive input perturbation waveform", choices=("none", "uniform", "sine")),
@@ -322,6 +344,7 @@ SCHEMA = Schema(
             ParamSpec("q_R", float, 0.0, "s^-1", "random-walk rate of the scaled R", 0.0, 1e9),
             ParamSpec("q_K", float, 0.0, "s^-1", "random-walk rate of the scaled K", 0.0, 1e9),
             ParamSpec("hover_init", bool, True, "", "initialise the estimates from the measured hover before start (notes 6 A2 iv)"),
+            ParamSpec("hover_window", float, 0.2, "s", "hover initialisation: average this much of the pre-roll (the law holds the applied voltage meanwhile)", 0.0, 60.0),
             ParamSpec("w", float, 50.0, "", "leakage weight of Eq. 48 (adaptive_enhanced)", 0.0, 1e9),
             ParamSpec("R0", float, 10.0, "s^-1", "dead zone of Eq. 48: adapt only while ||dP/dt|| > R0 (adaptive_enhanced, deadzone=pdot)", 0.0, 1e12),
             ParamSpec("deadzone", str, "pdot", "", "dead-zone rule of adaptive_enhanced", choices=("pdot", "error", "off")),

@@ -38,8 +38,10 @@ Results (``--out DIR``)
 -----------------------
 ``results.csv``  one row per run (appended as runs complete). A run is
                  identified by a hash of its complete configuration, controller,
-                 estimator and duration: re-running the same command skips the
-                 rows already there (resume after an interruption).
+                 estimator, duration and the simulator's source
+                 (:func:`core_digest`): re-running the same command skips the
+                 rows already there (resume after an interruption); rows of
+                 other code or settings are never reused.
 ``study.json``   the study's definition and the last session's throughput.
 ``map_<controller>.png``  robustness map: worst RMS tracking error over the
                  axes not drawn, failed cells marked, axes in their units.
@@ -84,6 +86,7 @@ __all__ = [
     "StudySpec",
     "add_arguments",
     "cmd_study",
+    "core_digest",
     "parse_axis",
     "plan_runs",
     "report_section",
@@ -199,16 +202,16 @@ def _axis_target(name: str) -> tuple[ParamSpec | None, Derived | None]:
 
 def _number(text: str, name: str, base: float | None, kind: type) -> float:
     t = text.strip()
+    rel = t.endswith("%")
+    if rel and (base is None or kind is not float):
+        raise ConfigError(f"axis {name}: {t!r}: a relative value (%) needs a float parameter")
+    if rel and base == 0.0:
+        raise ConfigError(f"axis {name}: {t!r}: a relative value (%) needs a non-zero value in the scenario (it has 0)")
     try:
-        if t.endswith("%"):
-            if base is None or kind is not float:
-                raise ConfigError(f"axis {name}: {t!r}: a relative value (%) needs a float parameter")
-            if base == 0.0:
-                raise ConfigError(f"axis {name}: {t!r}: a relative value (%) needs a non-zero value in the scenario (it has 0)")
-            return base * (1.0 + float(t[:-1]) / 100.0)
-        return float(t)
+        v = float(t[:-1] if rel else t)
     except ValueError:
         raise ConfigError(f"axis {name}: {t!r} is not a number") from None
+    return base * (1.0 + v / 100.0) if rel else v  # type: ignore[operator]
 
 
 def parse_axis(text: str, base: Mapping[str, Mapping[str, Any]], monte_carlo: bool = False) -> Axis:
@@ -292,9 +295,24 @@ class StudySpec:
         return "grid" if self.samples is None else "monte_carlo"
 
 
+def core_digest() -> str:
+    """SHA-1 of the simulator's source (``dem_ros/core/**/*.py``): results of other code are not reused."""
+    global _CORE_DIGEST
+    if _CORE_DIGEST is None:
+        root = Path(__file__).resolve().parents[1] / "core"
+        h = hashlib.sha1()
+        for f in sorted(root.rglob("*.py")):
+            h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+        _CORE_DIGEST = h.hexdigest()
+    return _CORE_DIGEST
+
+
+_CORE_DIGEST: str | None = None
+
+
 def _run_id(cfg: Mapping, controller: str, estimator: str, duration: float) -> str:
-    blob = json.dumps({"cfg": cfg, "controller": controller, "estimator": estimator, "duration": duration},
-                      sort_keys=True, default=str)
+    blob = json.dumps({"cfg": cfg, "controller": controller, "estimator": estimator, "duration": duration,
+                       "core": core_digest()}, sort_keys=True, default=str)
     return hashlib.sha1(blob.encode()).hexdigest()[:16]
 
 
@@ -534,7 +552,7 @@ def _write_spec(spec: StudySpec, out: Path, runs: int, stats: Mapping[str, Any] 
         "estimator": spec.estimator or spec.base["estimator"]["type"],
         "axes": [{"name": a.name, "unit": a.unit, "values": list(a.values) if a.values is not None else None,
                   "range": None if a.values is not None else [a.low, a.high]} for a in spec.axes],
-        "runs": runs,
+        "runs": runs, "core_digest": core_digest(),
         "last_session": stats if stats is not None else old.get("last_session"),
     }
     p.write_text(json.dumps(doc, indent=1) + "\n")

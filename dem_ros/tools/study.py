@@ -150,9 +150,10 @@ class Axis:
     Attributes:
         name: ``GROUP.NAME`` of a schema parameter or a key of :data:`DERIVED`.
         unit: SI unit of the values.
-        values: grid values (already of the parameter's type), or ``None`` for a Monte Carlo range.
+        type: the parameter's type (float, int, bool, str).
+        values: grid values (already of the parameter's type); with Monte Carlo, the
+            list one value is drawn from. ``None``: a Monte Carlo range.
         low, high: Monte Carlo range (inclusive), in the parameter's unit.
-        choices: Monte Carlo over a list: draw one of these.
     """
 
     name: str

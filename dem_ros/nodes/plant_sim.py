@@ -112,12 +112,8 @@ class PlantSimNode:
         waited = time.monotonic() - self.t_boot
         if waited < c["start_delay"]:
             return False
-        count = getattr(self.pub_meas, "subscription_count", None)
-        if callable(count):
-            count = count()
-        if count is None and hasattr(self.pub_meas, "get_subscription_count"):
-            count = self.pub_meas.get_subscription_count()
-        return not (count is not None and count < c["min_subscribers"] and waited < c["start_delay"] + 30.0)
+        count = self.pub_meas.subscription_count
+        return not (count < c["min_subscribers"] and waited < c["start_delay"] + 30.0)
 
     # -- the loop -----------------------------------------------------------------------------
     def tick(self) -> None:

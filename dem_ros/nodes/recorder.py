@@ -42,7 +42,7 @@ class RecorderNode:
         # the controller's state is the last message of a loop cycle: write while the loop sleeps
         self.rec = Recorder(bag, topics, meta, kick_on=contract.CONTROLLER_STATE.name)
         now = node.now_ns
-        if getattr(node, "intra_process", False):
+        if node.intra_process:
             # sharing the process with the loop: take the message objects (no copy) and let the
             # writer thread serialize them, so the loop's thread does no recording work
             on_object = self.rec.on_object

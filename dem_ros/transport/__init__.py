@@ -20,6 +20,8 @@ Transports:
     ``"dds"``    Cyclone DDS from PyPI, wire-compatible with rmw_cyclonedds
                  (topics, services, ``ros_discovery_info``), no ROS install;
     ``"auto"``   rclpy if ``import rclpy`` works, else dds.
+    (:mod:`dem_ros.transport.memory`: one process, no middleware, a manual
+    clock; for unit tests of node logic, made with ``MemoryBus().node(name)``.)
 
 Messages: assign Python lists (``array.tolist()``) to sequence fields; the DDS
 classes do not take numpy arrays. Environment for the dds transport:
@@ -37,9 +39,20 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from ..core.params import ConfigError
-from .api import Logger, Node, OnChange, Publisher, RawCallback, TransportError
+from .api import (
+    SERVICE_TYPES,
+    Logger,
+    Node,
+    OnChange,
+    Publisher,
+    RawCallback,
+    ServiceCallback,
+    Timer,
+    TransportError,
+)
 
 __all__ = [
+    "SERVICE_TYPES",
     "TRANSPORTS",
     "ConfigError",
     "Logger",
@@ -47,6 +60,8 @@ __all__ = [
     "OnChange",
     "Publisher",
     "RawCallback",
+    "ServiceCallback",
+    "Timer",
     "TransportError",
     "deserialize",
     "make_node",
@@ -57,6 +72,8 @@ __all__ = [
     "run_node",
     "run_nodes",
     "serialize",
+    "set_bool",
+    "trigger",
 ]
 
 TRANSPORTS = ("auto", "rclpy", "dds")
@@ -203,7 +220,7 @@ def run_nodes(
             try:
                 setup(node)
             except Exception:
-                if getattr(node, "is_shutdown", False) or getattr(node, "_node", True) is None:
+                if node.is_shutdown:
                     return 0  # stopped (Ctrl-C / SIGTERM) while setting up: not an error
                 raise
         # Everything allocated so far (numba, the middleware, the nodes) lives for the whole run:
@@ -241,8 +258,8 @@ def run_nodes(
 def _spin(nodes: list[Node], stop_index: int | None) -> None:
     """Spin the nodes (one executor) until all are shut down, or the ``stop_index`` one is."""
     while True:
-        live = [n for n in nodes if not n.is_shutdown]  # type: ignore[attr-defined]
-        if not live or (stop_index is not None and nodes[stop_index].is_shutdown):  # type: ignore[attr-defined]
+        live = [n for n in nodes if not n.is_shutdown]
+        if not live or (stop_index is not None and nodes[stop_index].is_shutdown):
             return
         live[0].spin_once(0.2)  # bounded, so Python signal handlers run promptly
 
@@ -301,3 +318,21 @@ def param_list(node_name: str, *, domain_id: int | None = None, timeout_s: float
     from .dds.client import param_list as _list
 
     return _list(node_name, domain_id=domain_id, timeout_s=timeout_s)
+
+
+def trigger(node_name: str, service: str, *, domain_id: int | None = None, timeout_s: float = 2.0) -> tuple[bool, str]:
+    """Call the ``std_srvs/srv/Trigger`` service ``<node>/<service>`` over DDS: (success, message).
+
+    TransportError when the node cannot be reached within ``timeout_s``.
+    """
+    from .dds.client import trigger as _trigger
+
+    return _trigger(node_name, service, domain_id=domain_id, timeout_s=timeout_s)
+
+
+def set_bool(node_name: str, service: str, value: bool, *, domain_id: int | None = None,
+             timeout_s: float = 2.0) -> tuple[bool, str]:
+    """Call the ``std_srvs/srv/SetBool`` service ``<node>/<service>`` over DDS: (success, message)."""
+    from .dds.client import set_bool as _set_bool
+
+    return _set_bool(node_name, service, value, domain_id=domain_id, timeout_s=timeout_s)

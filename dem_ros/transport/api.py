@@ -1,25 +1,43 @@
 """The node interface dem_ros nodes are written against.
 
-Two implementations honour it: :mod:`dem_ros.transport.dds` (Cyclone DDS,
-no ROS install) and :mod:`dem_ros.transport.rclpy_node` (a thin rclpy
-wrapper). Node logic only uses what is declared here.
+Three implementations honour it: :mod:`dem_ros.transport.dds` (Cyclone DDS,
+no ROS install), :mod:`dem_ros.transport.rclpy_node` (a thin rclpy wrapper)
+and :mod:`dem_ros.transport.memory` (one process, no middleware: node logic
+under test). Node logic only uses what is declared here; if a node needs to
+look behind these Protocols, the Protocol is missing a member.
+
+Callbacks (subscriptions, timers, services) never end the process: an
+exception is caught per callback by a :class:`CallbackGuard`, counted under
+the callback's name (``subscription /dem/command``, ``timer 0.001 s``,
+``service /controller/arm``), and logged once per name with its traceback.
+Nodes report the counts (:attr:`Node.callback_errors`) on /diagnostics.
 """
 
 from __future__ import annotations
 
+import traceback
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol, runtime_checkable
 
 from ..contract import Topic
 
 __all__ = [
+    "SERVICE_TYPES",
+    "CallbackGuard",
     "Logger",
     "Node",
     "OnChange",
     "Publisher",
     "RawCallback",
+    "ServiceCallback",
+    "Timer",
     "TransportError",
 ]
+
+#: the ROS service types every transport serves and calls (request fields -> response fields):
+#: ``std_srvs/srv/Trigger`` () -> (success: bool, message: str);
+#: ``std_srvs/srv/SetBool`` (data: bool) -> (success: bool, message: str).
+SERVICE_TYPES = ("std_srvs/srv/Trigger", "std_srvs/srv/SetBool")
 
 
 class TransportError(RuntimeError):
@@ -30,12 +48,27 @@ class TransportError(RuntimeError):
 OnChange = Callable[[Mapping[str, Any]], "str | None"]
 #: ``callback(data)``: serialized CDR bytes including the 4-byte encapsulation header.
 RawCallback = Callable[[bytes], None]
+#: ``callback(request, response) -> response`` (as rclpy): fill ``response`` and return it.
+ServiceCallback = Callable[[Any, Any], Any]
 
 
 @runtime_checkable
 class Publisher(Protocol):
     def publish(self, msg: Any) -> None:
         """Send one message (an instance of ``node.msg(topic.type)``)."""
+
+    def publish_raw(self, data: bytes) -> None:
+        """Send serialized CDR (encapsulation header included), e.g. a sample read from a bag."""
+
+    @property
+    def subscription_count(self) -> int:
+        """Subscriptions matched to this publisher now (remote and in-process)."""
+
+
+@runtime_checkable
+class Timer(Protocol):
+    def cancel(self) -> None:
+        """Stop calling the callback."""
 
 
 @runtime_checkable
@@ -47,7 +80,7 @@ class Logger(Protocol):
 
 @runtime_checkable
 class Node(Protocol):
-    """A ROS 2 node: topics, timers, parameters, time and logging.
+    """A ROS 2 node: topics, timers, services, parameters, time and logging.
 
     Callbacks and timers run on the thread that calls :meth:`spin` /
     :meth:`spin_once`, one at a time (like rclpy's SingleThreadedExecutor).
@@ -56,11 +89,24 @@ class Node(Protocol):
     name: str
     namespace: str
     logger: Logger
-    transport: str  # "dds" or "rclpy"
+    transport: str  # "dds", "rclpy" or "memory"
 
     @property
     def fully_qualified_name(self) -> str:
         """``/namespace/name``."""
+
+    @property
+    def intra_process(self) -> bool:
+        """True when messages between the nodes of this process are handed over as objects
+        (no serialisation); a subscriber then must not modify what it receives."""
+
+    @property
+    def is_shutdown(self) -> bool:
+        """True once :meth:`shutdown` ran (or the middleware shut the node down)."""
+
+    @property
+    def callback_errors(self) -> Mapping[str, int]:
+        """Exceptions raised by this node's callbacks so far, per callback name."""
 
     def publisher(self, topic: Topic) -> Publisher:
         """Publisher with the topic's contract QoS."""
@@ -71,14 +117,25 @@ class Node(Protocol):
     def subscribe_raw(self, topic: Topic, callback: RawCallback) -> None:
         """Call ``callback(cdr_bytes)`` (encapsulation header included, what rosbag2 stores)."""
 
-    def timer(self, period_s: float, callback: Callable[[], None]) -> Any:
+    def timer(self, period_s: float, callback: Callable[[], None]) -> Timer:
         """Call ``callback()`` every ``period_s`` seconds."""
+
+    def service(self, name: str, srv_type: str, callback: ServiceCallback) -> None:
+        """Serve ``name`` (relative to the node, e.g. ``"arm"`` -> ``/ns/node/arm``) of type
+        ``srv_type`` (one of :data:`SERVICE_TYPES`); ``callback(request, response) -> response``."""
 
     def now_ns(self) -> int:
         """ROS time (= system clock) in nanoseconds since the Unix epoch."""
 
     def declare_parameters(self, group: str, on_change: OnChange | None = None) -> dict[str, Any]:
         """Declare ``SCHEMA.groups[group]`` as ROS parameters; return the validated start values."""
+
+    @property
+    def parameters(self) -> dict[str, Any]:
+        """Current parameter values (a copy)."""
+
+    def set_parameters(self, changes: Mapping[str, Any]) -> str | None:
+        """Apply ``changes`` atomically, as an external client would; ``None`` or the rejection reason."""
 
     def msg(self, type_name: str) -> type:
         """The message class for ``pkg/msg/Name``."""
@@ -91,3 +148,42 @@ class Node(Protocol):
 
     def shutdown(self) -> None:
         """Stop spinning and release the middleware; idempotent."""
+
+
+class CallbackGuard:
+    """Runs a node's callbacks so that an exception in one never ends the process.
+
+    :meth:`wrap` returns the callback guarded: an exception is caught, counted
+    in :attr:`errors` under ``what`` and logged (with its traceback) the first
+    time for that ``what`` only, so a callback failing at 1 kHz cannot flood the
+    log. ``KeyboardInterrupt`` and ``SystemExit`` pass through.
+    """
+
+    def __init__(self, logger: Callable[[], Logger | None]):
+        self._logger = logger
+        self.errors: dict[str, int] = {}
+
+    def failed(self, what: str, exc: BaseException) -> None:
+        """Count (and, the first time for ``what``, log) an exception raised by callback ``what``."""
+        n = self.errors.get(what, 0) + 1
+        self.errors[what] = n
+        if n == 1:
+            log = self._logger()
+            text = (f"callback for {what} raised {type(exc).__name__}: {exc} (the node keeps running; "
+                    f"further errors of this callback are counted, not logged)\n"
+                    + "".join(traceback.format_exception(exc)).rstrip())
+            if log is not None:
+                log.error(text)
+
+    def wrap(self, what: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+        failed = self.failed
+
+        def guarded(*args: Any) -> Any:
+            try:
+                return fn(*args)
+            except Exception as exc:
+                failed(what, exc)
+                return None
+
+        guarded.__wrapped__ = fn  # type: ignore[attr-defined]
+        return guarded

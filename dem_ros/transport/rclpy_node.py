@@ -28,12 +28,13 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosidl_runtime_py.utilities import get_message
 
 from ..contract import QoS, Topic
-from ..core.params import SCHEMA, ConfigError
+from ..core.params import SCHEMA
 from . import paramvalue as pv
-from .api import OnChange, RawCallback, TransportError
+from .api import CallbackGuard, OnChange, RawCallback, ServiceCallback, TransportError
+from .parameters import ParameterStore
 from .rosargs import initial_parameters, parse_ros_args
 
-__all__ = ["RclpyNode", "to_qos_profile"]
+__all__ = ["RclpyNode", "RclpyPublisher", "to_qos_profile"]
 
 
 def to_qos_profile(q: QoS) -> QoSProfile:
@@ -60,6 +61,24 @@ class _Logger:
 
     def error(self, msg: str) -> None:
         self._l.error(msg)
+
+
+class RclpyPublisher:
+    """An rclpy publisher seen through the :class:`~dem_ros.transport.api.Publisher` Protocol."""
+
+    def __init__(self, pub: Any):
+        self._pub = pub
+
+    def publish(self, msg: Any) -> None:
+        self._pub.publish(msg)
+
+    def publish_raw(self, data: bytes) -> None:
+        """rclpy publishes serialized bytes as they are."""
+        self._pub.publish(bytes(data))
+
+    @property
+    def subscription_count(self) -> int:
+        return int(self._pub.get_subscription_count())
 
 
 def shared_executor(args: list[str] | None = None) -> Any:
@@ -95,9 +114,8 @@ class RclpyNode:
         self._executor = executor if executor is not None else SingleThreadedExecutor()
         self._executor.add_node(self._node)
         self._shutdown = False
-        self._group: str | None = None
-        self._values: dict[str, Any] = {}
-        self._on_change: OnChange | None = None
+        self._params: ParameterStore | None = None
+        self._guard = CallbackGuard(lambda: self.logger)
 
     @property
     def fully_qualified_name(self) -> str:
@@ -108,20 +126,52 @@ class RclpyNode:
         """The underlying ``rclpy.node.Node`` (escape hatch; keep node logic transport-neutral)."""
         return self._node
 
-    def publisher(self, topic: Topic) -> Any:
-        return self._node.create_publisher(get_message(topic.type), topic.name, to_qos_profile(topic.qos))
+    @property
+    def intra_process(self) -> bool:
+        """rclpy delivers through the middleware, serialised, even within one process."""
+        return False
+
+    @property
+    def callback_errors(self) -> dict[str, int]:
+        """Exceptions raised by this node's callbacks so far, per callback name (a copy)."""
+        return dict(self._guard.errors)
+
+    def publisher(self, topic: Topic) -> RclpyPublisher:
+        return RclpyPublisher(self._node.create_publisher(get_message(topic.type), topic.name, to_qos_profile(topic.qos)))
 
     def subscribe(self, topic: Topic, callback: Callable[[Any], None]) -> None:
-        self._node.create_subscription(get_message(topic.type), topic.name, callback, to_qos_profile(topic.qos))
+        self._node.create_subscription(get_message(topic.type), topic.name,
+                                       self._guard.wrap(f"subscription {topic.name}", callback),
+                                       to_qos_profile(topic.qos))
 
     def subscribe_raw(self, topic: Topic, callback: RawCallback) -> None:
         """rclpy hands over the serialized CDR (``raw=True``), no decode."""
         self._node.create_subscription(
-            get_message(topic.type), topic.name, callback, to_qos_profile(topic.qos), raw=True
+            get_message(topic.type), topic.name, self._guard.wrap(f"subscription {topic.name}", callback),
+            to_qos_profile(topic.qos), raw=True
         )
 
     def timer(self, period_s: float, callback: Callable[[], None]) -> Any:
-        return self._node.create_timer(period_s, callback)
+        return self._node.create_timer(period_s, self._guard.wrap(f"timer {period_s:g} s", callback))
+
+    def service(self, name: str, srv_type: str, callback: ServiceCallback) -> None:
+        """Serve ``<node>/<name>`` with rclpy; an exception in ``callback`` answers ``success = False``."""
+        from rosidl_runtime_py.utilities import get_service
+
+        what = f"service {self.fully_qualified_name.rstrip('/')}/{name.strip('/')}"
+        guard = self._guard
+
+        def handle(req: Any, rep: Any) -> Any:
+            try:
+                out = callback(req, rep)
+            except Exception as exc:
+                guard.failed(what, exc)
+                rep.success = False
+                rep.message = f"{type(exc).__name__}: {exc}"
+                return rep
+            return rep if out is None else out
+
+        self._node.create_service(get_service(srv_type), "~/" + name.strip("/"), handle)
 
     def now_ns(self) -> int:
         return int(self._node.get_clock().now().nanoseconds)
@@ -131,22 +181,20 @@ class RclpyNode:
 
     # -- parameters ------------------------------------------------------------------
     def declare_parameters(self, group: str, on_change: OnChange | None = None) -> dict[str, Any]:
-        if self._group is not None:
-            raise TransportError(f"{self.fully_qualified_name}: parameters already declared (group {self._group!r})")
+        if self._params is not None:
+            raise TransportError(f"{self.fully_qualified_name}: parameters already declared (group {self._params.group!r})")
         values = initial_parameters(group, self._ros_args, self.name, strict=not self._ignore_undeclared)
         for spec in SCHEMA.groups[group]:
             descriptor = pv.describe(spec, ParameterDescriptor, FloatingPointRange, IntegerRange)
             self._node.declare_parameter(spec.name, values[spec.name], descriptor, ignore_override=True)
-        self._group = group
-        self._values = values
-        self._on_change = on_change
+        self._params = ParameterStore(group, values, on_change)
         # registered after declaring: rclpy runs on-set callbacks on declaration too
         self._node.add_on_set_parameters_callback(self._on_set)
         return dict(values)
 
     @property
     def parameters(self) -> dict[str, Any]:
-        return dict(self._values)
+        return self._params.values if self._params is not None else {}
 
     def set_parameters(self, changes: Mapping[str, Any]) -> str | None:
         """Apply ``changes`` atomically through rclpy; ``None`` or the rejection reason."""
@@ -156,23 +204,13 @@ class RclpyNode:
         return None if result.successful else result.reason
 
     def _on_set(self, params: list[Any]) -> SetParametersResult:
-        assert self._group is not None
-        mine = {p.name: p.value for p in params if p.name in self._values}
+        store = self._params
+        assert store is not None
+        mine = {p.name: p.value for p in params if p.name in store}
         if not mine:
             return SetParametersResult(successful=True)
-        try:
-            new = SCHEMA.merged(self._group, self._values, mine)
-        except ConfigError as exc:
-            return SetParametersResult(successful=False, reason=str(exc))
-        if self._on_change is not None:
-            try:
-                reason = self._on_change(dict(new))
-            except Exception as exc:
-                reason = f"on_change raised {type(exc).__name__}: {exc}"
-            if reason:
-                return SetParametersResult(successful=False, reason=str(reason))
-        self._values = new
-        return SetParametersResult(successful=True)
+        reason = store.set(mine, self.fully_qualified_name)
+        return SetParametersResult(successful=reason is None, reason=reason or "")
 
     # -- dispatch ----------------------------------------------------------------------
     def spin_once(self, timeout_s: float | None = 0.1) -> None:

@@ -35,6 +35,11 @@ class RosArgs:
     remaps: dict[str, str] = field(default_factory=dict)  # topic remaps, absolute names
     user_args: list[str] = field(default_factory=list)
 
+    def resolve(self, topic_name: str, namespace: str = "/") -> str:
+        """Absolute topic name after ``-r from:=to`` remaps (relative names join ``namespace``)."""
+        full = topic_name if topic_name.startswith("/") else namespace.rstrip("/") + "/" + topic_name
+        return self.remaps.get(full, full)
+
 
 _FLAGS_WITH_VALUE = {"--log-level", "-e", "--enclave", "--log-config-file", "--external-log-config"}
 _FLAGS = {"--disable-rosout-logs", "--enable-rosout-logs", "--disable-stdout-logs", "--enable-stdout-logs",

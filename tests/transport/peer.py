@@ -93,6 +93,39 @@ def idle(args: list) -> int:
     return run_node("idle", setup, args=args, transport="dds")
 
 
+def services(args: list) -> int:
+    """Trigger / SetBool services, one of which raises, and a subscription and a timer that raise."""
+    state = {"armed": False, "enabled": False, "got": 0}
+
+    def setup(node) -> None:
+        def arm(req, rep):
+            state["armed"] = True
+            rep.success, rep.message = True, "armed"
+            return rep
+
+        def enable(req, rep):
+            state["enabled"] = bool(req.data)
+            rep.success, rep.message = True, f"enabled={state['enabled']}"
+            return rep
+
+        def broken(req, rep):
+            raise RuntimeError("the board did not answer")
+
+        def bad_sub(msg):
+            state["got"] += 1
+            raise ValueError(f"bad sample {state['got']}")
+
+        node.service("arm", "std_srvs/srv/Trigger", arm)
+        node.service("enable", "std_srvs/srv/SetBool", enable)
+        node.service("broken", "std_srvs/srv/Trigger", broken)
+        node.subscribe(contract.COMMAND, bad_sub)
+        node.timer(0.01, lambda: 1 / 0)
+        node.timer(0.5, lambda: print("ERRORS " + json.dumps({**node.callback_errors, **state}), flush=True))
+        print("READY " + node.fully_qualified_name, flush=True)
+
+    return run_node("svc", setup, args=args, transport="dds")
+
+
 if __name__ == "__main__":
     role = sys.argv[1]
     if role == "talker":
@@ -103,5 +136,7 @@ if __name__ == "__main__":
         sys.exit(params(sys.argv[2:]))
     elif role == "idle":
         sys.exit(idle(sys.argv[2:]))
+    elif role == "services":
+        sys.exit(services(sys.argv[2:]))
     else:
         raise SystemExit(f"unknown role {role}")

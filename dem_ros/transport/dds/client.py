@@ -1,4 +1,4 @@
-"""A parameter client over the rcl_interfaces services, on plain DDS.
+"""A service client on plain DDS: the rcl_interfaces parameter services and std_srvs.
 
 Talks to any ROS 2 node (rclpy, rclcpp or our DDS nodes) the way an
 rmw_cyclonedds client does: request on ``rq/<node>/<srv>Request`` with the
@@ -18,10 +18,11 @@ from cyclonedds.sub import DataReader
 
 from .. import paramvalue as pv
 from ..api import TransportError
-from . import msgs, wire
-from .node import _ANY, QOS_SERVICES, Participant
+from . import msgs, srvs, wire
+from .executor import ANY_SAMPLE
+from .node import QOS_SERVICES, Participant
 
-__all__ = ["call_service", "param_get", "param_list", "param_set"]
+__all__ = ["call_service", "param_get", "param_list", "param_set", "set_bool", "trigger"]
 
 
 def _node_fqn(node_name: str) -> str:
@@ -34,7 +35,7 @@ def _node_fqn(node_name: str) -> str:
 _ENDPOINTS: dict = {}
 
 
-def _endpoints(p: Any, fqn: str, srv: str) -> tuple:
+def _endpoints(p: Any, fqn: str, srv: str, srv_type: str) -> list[Any]:
     """The client's request writer / reply reader for one service, kept for the process.
 
     Reusing them means a second call needs no new endpoint discovery, which a node
@@ -43,7 +44,7 @@ def _endpoints(p: Any, fqn: str, srv: str) -> tuple:
     key = (p.settings.domain_id, fqn, srv)
     ep = _ENDPOINTS.get(key)
     if ep is None or ep[0] is not p:
-        srv_type, req_cls, rep_cls = msgs.SERVICES[srv]
+        req_cls, rep_cls = srvs.service_classes(srv_type)
         rq, rr = wire.service_topics(fqn + "/" + srv)
         guid = random.getrandbits(63) | 1
         ud = f"clientid={guid:x}.{random.getrandbits(32):x};"
@@ -53,39 +54,47 @@ def _endpoints(p: Any, fqn: str, srv: str) -> tuple:
         reader = DataReader(p.dp, p.topic(rr, rep_cls),
                             qos=wire.dds_qos(QOS_SERVICES, wire.user_data_for_endpoint(srv_type + "_Response", distro, ud)))
         ws = WaitSet(p.dp)
-        cond = ReadCondition(reader, _ANY)
+        cond = ReadCondition(reader, ANY_SAMPLE)
         ws.attach(cond)
         ep = [p, writer, reader, ws, cond, guid, 0]
         _ENDPOINTS[key] = ep
     return ep
 
 
-def call_service(node_name: str, srv: str, request: Any, *, domain_id: int | None = None,
-                 timeout_s: float = 2.0) -> Any:
-    """Call ``<node>/<srv>`` (one of msgs.SERVICES) and return the response message.
+def call_service(node_name: str, srv: str, request: Any, *, srv_type: str | None = None,
+                 domain_id: int | None = None, timeout_s: float = 2.0) -> Any:
+    """Call ``<node>/<srv>`` and return the response message.
 
+    ``srv_type``: the ROS service type (``std_srvs/srv/Trigger``, ...); by default
+    ``srv`` names a parameter service (``get_parameters``, ...). ``request``: an
+    instance of its request class (:func:`.srvs.service_classes`).
     Raises TransportError when no server answers within ``timeout_s``.
     """
     fqn = _node_fqn(node_name)
+    if srv_type is None:
+        if srv not in msgs.SERVICES:
+            raise TransportError(f"{srv!r} is not a parameter service; give its srv_type")
+        srv_type = msgs.SERVICES[srv][0]
     p = Participant.get(domain_id)
     try:
-        return _call(p, fqn, srv, request, timeout_s)
+        return _call(p, fqn, srv, srv_type, request, timeout_s)
     finally:
-        if not p._nodes:  # a one-shot client process: release everything, as we found it
+        if not p.has_nodes:  # a one-shot client process: release everything, as we found it
             for key in [k for k, v in _ENDPOINTS.items() if v[0] is p]:
                 del _ENDPOINTS[key]
             p.release_if_unused()
 
 
-def _call(p: Any, fqn: str, srv: str, request: Any, timeout_s: float) -> Any:
-    _srv_type, _req_cls, rep_cls = msgs.SERVICES[srv]
-    ep = _endpoints(p, fqn, srv)
+def _call(p: Any, fqn: str, srv: str, srv_type: str, request: Any, timeout_s: float) -> Any:
+    _req_cls, rep_cls = srvs.service_classes(srv_type)
+    ep = _endpoints(p, fqn, srv, srv_type)
     _, writer, reader, ws, _cond, guid, _ = ep
     deadline = time.monotonic() + timeout_s
     while not (writer.get_matched_subscriptions() and reader.get_matched_publications()):
         if time.monotonic() > deadline:
             raise TransportError(
-                f"no parameter service {fqn}/{srv} on ROS_DOMAIN_ID={p.settings.domain_id} "
+                f"no {'parameter ' if srv_type.startswith('rcl_interfaces/') else ''}service {fqn}/{srv}"
+                f" ({srv_type}) on ROS_DOMAIN_ID={p.settings.domain_id} "
                 f"within {timeout_s:g} s (is the node running?)"
             )
         time.sleep(0.005)
@@ -100,7 +109,7 @@ def _call(p: Any, fqn: str, srv: str, request: Any, timeout_s: float) -> Any:
         if left <= 0:
             raise TransportError(f"{fqn}/{srv}: no reply within {timeout_s:g} s")
         ws.wait(int(min(left, 0.2) * 1e9))
-        got = ddspy_take(reader._ref, _ANY, 16)
+        got = ddspy_take(reader._ref, ANY_SAMPLE, 16)
         if isinstance(got, int):
             continue
         for raw, info in got:
@@ -161,3 +170,20 @@ def param_set(node_name: str, name: str, value: Any, *, domain_id: int | None = 
         return False, "empty reply"
     r = rep.results[0]
     return bool(r.successful), str(r.reason)
+
+
+def trigger(node_name: str, service: str, *, domain_id: int | None = None, timeout_s: float = 2.0) -> tuple[bool, str]:
+    """Call a ``std_srvs/srv/Trigger`` service ``<node>/<service>``: (success, message)."""
+    req_cls, _ = srvs.service_classes("std_srvs/srv/Trigger")
+    rep = call_service(node_name, service, req_cls(), srv_type="std_srvs/srv/Trigger", domain_id=domain_id,
+                       timeout_s=timeout_s)
+    return bool(rep.success), str(rep.message)
+
+
+def set_bool(node_name: str, service: str, value: bool, *, domain_id: int | None = None,
+             timeout_s: float = 2.0) -> tuple[bool, str]:
+    """Call a ``std_srvs/srv/SetBool`` service ``<node>/<service>`` with ``data = value``: (success, message)."""
+    req_cls, _ = srvs.service_classes("std_srvs/srv/SetBool")
+    rep = call_service(node_name, service, req_cls(data=bool(value)), srv_type="std_srvs/srv/SetBool",
+                       domain_id=domain_id, timeout_s=timeout_s)
+    return bool(rep.success), str(rep.message)

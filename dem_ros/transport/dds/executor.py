@@ -34,20 +34,70 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from cyclonedds._clayer import ddspy_take
 from cyclonedds.core import GuardCondition, InstanceState, SampleState, ViewState, WaitSet
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .node import DdsNode, DdsTimer
+__all__ = ["ANY_SAMPLE", "DdsExecutor", "DdsTimer", "LocalSubscription", "Member"]
 
-__all__ = ["DdsExecutor", "LocalSubscription"]
-
-_ANY = SampleState.Any | ViewState.Any | InstanceState.Any
+#: take every sample, whatever its sample, view and instance state
+ANY_SAMPLE = SampleState.Any | ViewState.Any | InstanceState.Any
 _TAKE_N = 256
 #: the longest a blocking wait lasts, so that Python signal handlers run promptly
 MAX_WAIT_NS = 200_000_000
+
+
+class Member(Protocol):
+    """What the executor needs of a node it dispatches for (:class:`~.node.DdsNode` is one)."""
+
+    @property
+    def is_shutdown(self) -> bool:
+        """Its callbacks no longer run."""
+
+    @property
+    def has_pending_replies(self) -> bool:
+        """Service replies wait for their client's reader to match: poll again soon."""
+
+    def flush_replies(self) -> None:
+        """Send the service replies whose client is now matched (or timed out)."""
+
+
+class DdsTimer:
+    """A periodic callback scheduled against absolute deadlines on the monotonic clock.
+
+    Attributes:
+        period_ns: period (ns).
+        next_ns: next deadline, ``time.monotonic_ns()`` scale (ns).
+        fired: number of calls so far.
+        overruns: number of deadlines skipped because a call came too late
+            (the timer then resumes at the next future deadline, never bursts).
+    """
+
+    def __init__(self, period_s: float, callback: Callable[[], None], node: Member | None = None):
+        if not period_s > 0:
+            raise ValueError(f"timer period must be positive, got {period_s!r} s")
+        self.period_ns = round(period_s * 1e9)
+        self.callback = callback
+        self.node = node
+        self.next_ns = time.monotonic_ns() + self.period_ns
+        self.fired = 0
+        self.overruns = 0
+        self.cancelled = False
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+    def fire(self) -> None:
+        """Run the callback for the current deadline and schedule the next one."""
+        self.fired += 1
+        self.next_ns += self.period_ns
+        self.callback()
+        now = time.monotonic_ns()
+        if self.next_ns <= now:  # we are late by at least one whole period: skip, count
+            missed = (now - self.next_ns) // self.period_ns + 1
+            self.overruns += int(missed)
+            self.next_ns += int(missed) * self.period_ns
 
 
 class LocalSubscription:
@@ -55,7 +105,7 @@ class LocalSubscription:
 
     __slots__ = ("callback", "node", "raw")
 
-    def __init__(self, node: DdsNode, callback: Callable[[Any], None], raw: bool):
+    def __init__(self, node: Member, callback: Callable[[Any], None], raw: bool):
         self.node = node
         self.callback = callback
         self.raw = raw
@@ -70,24 +120,24 @@ class DdsExecutor:
         self.ws = WaitSet(participant.dp)
         self.guard = GuardCondition(participant.dp)
         self.ws.attach(self.guard)
-        self.nodes: list[DdsNode] = []
+        self.nodes: list[Member] = []
         #: (DataReader ref, handler(data, info), ReadCondition, node)
-        self.readers: list[tuple[Any, Callable[[bytes, Any], None], Any, DdsNode]] = []
+        self.readers: list[tuple[Any, Callable[[bytes, Any], None], Any, Member]] = []
         self.timers: list[DdsTimer] = []
         #: pending intra-process deliveries, (LocalSubscription, argument), FIFO over all topics
-        self.queue: deque = deque()
+        self.queue: deque[tuple[LocalSubscription, Any]] = deque()
         #: DDS topic name -> intra-process subscriptions (the list object is shared with publishers)
         self.local: dict[str, list[LocalSubscription]] = {}
         self._lock = threading.Lock()
         self._owner: int | None = None  # thread inside spin_once
-        self._deferred: list[tuple[DdsNode, Callable[[], None]]] = []
+        self._deferred: list[tuple[Member, Callable[[], None]]] = []
         self._stopped = False
 
     # -- membership ---------------------------------------------------------------------
-    def add_node(self, node: DdsNode) -> None:
+    def add_node(self, node: Member) -> None:
         self.nodes.append(node)
 
-    def add_reader(self, reader: Any, handler: Callable[[bytes, Any], None], cond: Any, node: DdsNode) -> None:
+    def add_reader(self, reader: Any, handler: Callable[[bytes, Any], None], cond: Any, node: Member) -> None:
         self.ws.attach(cond)
         self.readers.append((reader._ref, handler, cond, node))
 
@@ -98,7 +148,7 @@ class DdsExecutor:
         """The (shared, live) list of intra-process subscriptions of a topic."""
         return self.local.setdefault(dds_topic, [])
 
-    def remove_node(self, node: DdsNode, then: Callable[[], None]) -> None:
+    def remove_node(self, node: Member, then: Callable[[], None]) -> None:
         """Forget a node's readers, timers and intra-process subscriptions, then call ``then()``.
 
         From a callback or a signal handler on the spinning thread this happens when the
@@ -111,7 +161,7 @@ class DdsExecutor:
             self._forget(node)
         then()
 
-    def _forget(self, node: DdsNode) -> None:
+    def _forget(self, node: Member) -> None:
         for entry in [e for e in self.readers if e[3] is node]:
             try:
                 self.ws.detach(entry[2])
@@ -159,7 +209,7 @@ class DdsExecutor:
         for t in self.timers:
             if t.next_ns < deadline and not t.cancelled:
                 deadline = t.next_ns
-        if any(n._pending_replies for n in self.nodes):
+        if any(n.has_pending_replies for n in self.nodes):
             deadline = min(deadline, now + 5_000_000)
         wait = min(deadline - now, MAX_WAIT_NS) if not queue else 0
         # a zero wait still polls: a loop that runs late must not starve its DDS readers
@@ -171,25 +221,25 @@ class DdsExecutor:
             self._take()
         now = time.monotonic_ns()
         for t in self.timers:
-            if t.next_ns <= now and not t.cancelled and not t.node._shutdown:
-                t._run(now)
+            if t.next_ns <= now and not t.cancelled and not (t.node is not None and t.node.is_shutdown):
+                t.fire()
         while queue:  # intra-process deliveries, including those the callbacks add
             sub, arg = queue.popleft()
-            if not sub.node._shutdown:
+            if not sub.node.is_shutdown:
                 sub.callback(arg)
         for n in self.nodes:
-            if n._pending_replies:
-                n._flush_replies()
+            if n.has_pending_replies:
+                n.flush_replies()
 
     def _take(self) -> None:
         """Run the callbacks of every sample waiting in a DDS reader."""
         for ref, handler, _cond, node in self.readers:
             while True:
-                got = ddspy_take(ref, _ANY, _TAKE_N)
+                got = ddspy_take(ref, ANY_SAMPLE, _TAKE_N)
                 if isinstance(got, int) or not got:
                     break
                 for data, info in got:
-                    if info.valid_data and not node._shutdown:
+                    if info.valid_data and not node.is_shutdown:
                         handler(data, info)
                 if len(got) < _TAKE_N:
                     break

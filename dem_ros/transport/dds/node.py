@@ -23,7 +23,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from cyclonedds._clayer import ddspy_write
-from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState
+from cyclonedds.core import ReadCondition
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
@@ -31,16 +31,14 @@ from cyclonedds.topic import Topic as DdsTopic
 
 from ... import contract
 from ...contract import QoS, Topic
-from ...core.params import SCHEMA, ConfigError
 from .. import paramvalue as pv
-from ..api import OnChange, RawCallback, TransportError
+from ..api import CallbackGuard, OnChange, RawCallback, ServiceCallback, TransportError
+from ..parameters import ParameterStore
 from ..rosargs import RosArgs, initial_parameters, parse_ros_args
-from . import fastcdr, msgs, wire
-from .executor import DdsExecutor, LocalSubscription
+from . import fastcdr, msgs, srvs, wire
+from .executor import ANY_SAMPLE, DdsExecutor, DdsTimer, LocalSubscription
 
-__all__ = ["DdsExecutor", "DdsNode", "DdsPublisher", "DdsTimer", "Participant"]
-
-_ANY = SampleState.Any | ViewState.Any | InstanceState.Any
+__all__ = ["QOS_SERVICES", "DdsExecutor", "DdsNode", "DdsPublisher", "DdsTimer", "Participant"]
 #: rmw_qos_profile_services_default
 QOS_SERVICES = QoS(reliable=True, transient_local=False, depth=10)
 #: rcl's rosout QoS (Jazzy: transient local, depth 1000)
@@ -115,6 +113,11 @@ class Participant:
         return t
 
     # -- graph ---------------------------------------------------------------------
+    @property
+    def has_nodes(self) -> bool:
+        """True while a node of this process uses the participant."""
+        return bool(self._nodes)
+
     def add_node(self, node: DdsNode) -> None:
         self._nodes.append(node)
 
@@ -162,9 +165,10 @@ class DdsPublisher:
 
     def __init__(self, writer: DataWriter, cls: type, local: list[LocalSubscription] | None = None,
                  queue: Any = None):
+        self.writer = writer
         self._writer = writer
         self._cls = cls
-        self._ref = writer._ref
+        self.ref = self._ref = writer._ref
         self._encode = fastcdr.ENCODERS.get(cls)
         self._local = local
         self._queue = queue
@@ -217,42 +221,6 @@ class DdsPublisher:
     def subscription_count(self) -> int:
         """Matched subscriptions: remote ones plus those of the same executor (intra-process)."""
         return len(self._writer.get_matched_subscriptions()) + len(self._local or ())
-
-
-class DdsTimer:
-    """A periodic callback scheduled against absolute deadlines on the monotonic clock.
-
-    Attributes:
-        period_ns: period (ns).
-        next_ns: next deadline, ``time.monotonic_ns()`` scale (ns).
-        fired: number of calls so far.
-        overruns: number of deadlines skipped because a call came too late
-            (the timer then resumes at the next future deadline, never bursts).
-    """
-
-    def __init__(self, period_s: float, callback: Callable[[], None], node: Any = None):
-        if not period_s > 0:
-            raise ValueError(f"timer period must be positive, got {period_s!r} s")
-        self.period_ns = int(round(period_s * 1e9))
-        self.callback = callback
-        self.node = node
-        self.next_ns = time.monotonic_ns() + self.period_ns
-        self.fired = 0
-        self.overruns = 0
-        self.cancelled = False
-
-    def cancel(self) -> None:
-        self.cancelled = True
-
-    def _run(self, now: int) -> None:
-        self.fired += 1
-        self.next_ns += self.period_ns
-        self.callback()
-        now = time.monotonic_ns()
-        if self.next_ns <= now:  # we are late by at least one whole period: skip, count
-            missed = (now - self.next_ns) // self.period_ns + 1
-            self.overruns += int(missed)
-            self.next_ns += int(missed) * self.period_ns
 
 
 class _Logger:
@@ -314,10 +282,8 @@ class DdsNode:
         if self._ex.participant is not self._p:
             raise TransportError("the executor belongs to another DDS participant")
         self._ex.add_node(self)
-        self._group: str | None = None
-        self._values: dict[str, Any] = {}
-        self._on_change: OnChange | None = None
-        self._specs: dict[str, Any] = {}
+        self._params: ParameterStore | None = None
+        self._guard = CallbackGuard(lambda: self.logger)
         self._p.add_node(self)
         self.logger = _Logger(self)
         self._p.publish_graph()
@@ -337,8 +303,7 @@ class DdsNode:
 
     def resolve(self, topic_name: str) -> str:
         """Absolute topic name after ``-r from:=to`` remaps (relative names join the namespace)."""
-        full = topic_name if topic_name.startswith("/") else self.namespace.rstrip("/") + "/" + topic_name
-        return self._ros_args.remaps.get(full, full)
+        return self._ros_args.resolve(topic_name, self.namespace)
 
     @property
     def settings(self) -> wire.Settings:
@@ -361,7 +326,7 @@ class DdsNode:
                      handler: Callable[[bytes, Any], None], extra_ud: str = "", intra: bool = False) -> DataReader:
         ud = wire.user_data_for_endpoint(ros_type, self._p.settings.distro, extra_ud)
         r = DataReader(self._p.dp, self._p.topic(dds_name, cls), qos=_qos(qos, ud, intra))
-        self._ex.add_reader(r, handler, ReadCondition(r, _ANY), self)
+        self._ex.add_reader(r, handler, ReadCondition(r, ANY_SAMPLE), self)
         self._reader_gids.append(self._p.gid_of(r))
         self._p.publish_graph()
         return r
@@ -376,16 +341,19 @@ class DdsNode:
 
     def _subscribe(self, topic: Topic, callback: Callable[[Any], None], raw: bool) -> None:
         cls = msgs.message_class(topic.type)
-        dds_name = wire.topic_name(self.resolve(topic.name))
+        resolved = self.resolve(topic.name)
+        dds_name = wire.topic_name(resolved)
         intra = self._ex.intra_process
+        what = f"subscription {resolved}"
         if intra:  # same-process publishers deliver through the executor's queue
-            self._ex.local_subscriptions(dds_name).append(LocalSubscription(self, callback, raw))
+            self._ex.local_subscriptions(dds_name).append(LocalSubscription(self, self._guard.wrap(what, callback), raw))
         if raw:
             handler = lambda data, info: callback(data)  # noqa: E731
         else:
             deser = fastcdr.DECODERS.get(cls, cls.deserialize)
             handler = lambda data, info: callback(deser(data))  # noqa: E731
-        self._make_reader(dds_name, topic.type, cls, topic.qos, handler, intra=intra)
+        # a sample that does not decode or a callback that raises is counted and logged, never fatal
+        self._make_reader(dds_name, topic.type, cls, topic.qos, self._guard.wrap(what, handler), intra=intra)
 
     def subscribe(self, topic: Topic, callback: Callable[[Any], None]) -> None:
         self._subscribe(topic, callback, raw=False)
@@ -395,9 +363,14 @@ class DdsNode:
         self._subscribe(topic, callback, raw=True)
 
     def timer(self, period_s: float, callback: Callable[[], None]) -> DdsTimer:
-        t = DdsTimer(period_s, callback, self)
+        t = DdsTimer(period_s, self._guard.wrap(f"timer {period_s:g} s", callback), self)
         self._ex.add_timer(t)
         return t
+
+    @property
+    def callback_errors(self) -> dict[str, int]:
+        """Exceptions raised by this node's callbacks so far, per callback name (a copy)."""
+        return dict(self._guard.errors)
 
     def now_ns(self) -> int:
         return time.time_ns()
@@ -436,56 +409,36 @@ class DdsNode:
         Start values: schema defaults <- ``--params-file`` <- ``-p``, validated
         (ConfigError on a bad file or value). Returns the validated dict.
         """
-        if self._group is not None:
-            raise TransportError(f"{self.fully_qualified_name}: parameters already declared (group {self._group!r})")
+        if self._params is not None:
+            raise TransportError(f"{self.fully_qualified_name}: parameters already declared (group {self._params.group!r})")
         values = initial_parameters(group, self._ros_args, self.name, strict=not self._ignore_undeclared)
-        self._group = group
-        self._specs = {p.name: p for p in SCHEMA.groups[group]}
-        self._values = values
-        self._on_change = on_change
+        self._params = ParameterStore(group, values, on_change)
         for srv, (srv_type, req_cls, rep_cls) in msgs.SERVICES.items():
-            self._serve(srv, srv_type, req_cls, rep_cls)
+            self._serve(srv, srv_type, req_cls, rep_cls, getattr(self, "_srv_" + srv))
         self._announce(new=list(values))
         return dict(values)
 
     @property
     def parameters(self) -> dict[str, Any]:
         """Current parameter values (a copy)."""
-        return dict(self._values)
+        return self._params.values if self._params is not None else {}
 
     def set_parameters(self, changes: Mapping[str, Any]) -> str | None:
         """Apply ``changes`` atomically, as an external client would; ``None`` or the rejection reason."""
         return self._try_set(dict(changes))
 
     def _try_set(self, changes: dict[str, Any]) -> str | None:
-        if self._group is None:
+        if self._params is None:
             return "no parameters declared"
-        for name, value in changes.items():
-            spec = self._specs.get(name)
-            if spec is None:
-                return f"parameter '{name}' is not declared by {self.fully_qualified_name}"
-            if spec.read_only:
-                return f"parameter '{name}' cannot be set because it is read-only"
-            if value is None:
-                return f"parameter '{name}' cannot be undeclared"
-        try:
-            new = SCHEMA.merged(self._group, self._values, changes)
-        except ConfigError as exc:
-            return str(exc)
-        if self._on_change is not None:
-            try:
-                reason = self._on_change(dict(new))
-            except Exception as exc:  # a broken callback rejects, never kills the node
-                reason = f"on_change raised {type(exc).__name__}: {exc}"
-            if reason:
-                return str(reason)
-        self._values = new
-        self._announce(changed=list(changes))
-        return None
+        reason = self._params.set(changes, self.fully_qualified_name)
+        if reason is None:
+            self._announce(changed=list(changes))
+        return reason
 
     def _param_msg(self, name: str) -> Any:
-        spec = self._specs[name]
-        return msgs.Parameter(name=name, value=pv.to_value_msg(msgs.ParameterValue, self._values[name], pv.spec_type(spec)))
+        assert self._params is not None
+        spec = self._params.specs[name]
+        return msgs.Parameter(name=name, value=pv.to_value_msg(msgs.ParameterValue, self._params[name], pv.spec_type(spec)))
 
     def _announce(self, new: list[str] = (), changed: list[str] = ()) -> None:  # type: ignore[assignment]
         t = time.time_ns()
@@ -497,14 +450,39 @@ class DdsNode:
             deleted_parameters=[],
         ))
 
-    def _serve(self, srv: str, srv_type: str, req_cls: type, rep_cls: type) -> None:
+    # -- services ------------------------------------------------------------------------
+    def service(self, name: str, srv_type: str, callback: ServiceCallback) -> None:
+        """Serve ``<node>/<name>`` (``std_srvs/srv/Trigger`` or ``SetBool``): ``callback(request, response)``.
+
+        A callback that raises answers ``success = False`` with the exception as the message
+        (counted and logged once like any callback error); one that returns None answers the
+        response object it was given.
+        """
+        req_cls, rep_cls = srvs.service_classes(srv_type)
+        what = f"service {self.fully_qualified_name.rstrip('/')}/{name.strip('/')}"
+        guard = self._guard
+
+        def compute(req: Any, rep: Any) -> None:
+            try:
+                out = callback(req, rep)
+            except Exception as exc:
+                guard.failed(what, exc)
+                rep.success = False
+                rep.message = f"{type(exc).__name__}: {exc}"
+                return
+            if out is not None and out is not rep:
+                for f in ("success", "message"):
+                    setattr(rep, f, getattr(out, f))
+
+        self._serve(name.strip("/"), srv_type, req_cls, rep_cls, compute)
+
+    def _serve(self, srv: str, srv_type: str, req_cls: type, rep_cls: type, compute: Callable[[Any, Any], None]) -> None:
         rq, rr = wire.service_topics(self.fully_qualified_name + "/" + srv)
         self._csid += 1
         gid = self._p.gid
         csid = ".".join(f"{b:x}" for b in gid[:12]) + f".{self._csid:x}"
         ud = f"serviceid={csid};"
         writer = self._make_writer("", srv_type + "_Response", QOS_SERVICES, dds_name=rr, cls=rep_cls, extra_ud=ud)
-        compute = getattr(self, "_srv_" + srv)
         reader_box: list[DataReader] = []
 
         def handle(data: bytes, info: Any) -> None:
@@ -516,25 +494,36 @@ class DdsNode:
             clientid = _user_data_key(reader_box[0], info.publication_handle, "clientid")
             # wait for the client's reader to match (rmw_cyclonedds: 100 ms; a busy 1 kHz node needs longer)
             self._pending_replies.append((time.monotonic_ns() + 5_000_000_000, writer, payload, clientid))
-            self._flush_replies()
+            self.flush_replies()
 
-        reader_box.append(self._make_reader(rq, srv_type + "_Request", req_cls, QOS_SERVICES, handle, extra_ud=ud))
+        handler = self._guard.wrap(f"service {self.fully_qualified_name}/{srv}", handle)
+        reader_box.append(self._make_reader(rq, srv_type + "_Request", req_cls, QOS_SERVICES, handler, extra_ud=ud))
 
-    def _flush_replies(self) -> None:
+    @property
+    def has_pending_replies(self) -> bool:
+        """Replies wait for their client's reader to match (the executor polls again within 5 ms)."""
+        return bool(self._pending_replies)
+
+    def flush_replies(self) -> None:
         """Send replies whose client reader is matched (rmw_cyclonedds waits up to 100 ms for that)."""
         now = time.monotonic_ns()
         keep = []
         for deadline, pub, payload, clientid in self._pending_replies:
-            if not clientid or now >= deadline or _has_reader_with(pub._writer, clientid):
-                ddspy_write(pub._ref, payload)
+            if not clientid or now >= deadline or _has_reader_with(pub.writer, clientid):
+                ddspy_write(pub.ref, payload)  # (a reply that cannot be written is the client's timeout)
             else:
                 keep.append((deadline, pub, payload, clientid))
         self._pending_replies = keep
 
+    @property
+    def _specs(self) -> dict[str, Any]:
+        return self._params.specs if self._params is not None else {}
+
     def _srv_get_parameters(self, req: Any, rep: Any) -> None:
+        store = self._params
         rep.values = [
-            pv.to_value_msg(msgs.ParameterValue, self._values[n], pv.spec_type(self._specs[n]))
-            if n in self._values else msgs.ParameterValue()
+            pv.to_value_msg(msgs.ParameterValue, store[n], pv.spec_type(store.specs[n]))
+            if store is not None and n in store else msgs.ParameterValue()
             for n in req.names
         ]
 

@@ -1,0 +1,62 @@
+"""The controller node's guards on its input (real node code, in-memory transport, manual clock)."""
+
+import math
+
+from dem_ros import contract
+from dem_ros.nodes.common import joint_state, named_vector, stamp_ns
+from dem_ros.nodes.controller import ControllerNode
+from dem_ros.transport.memory import MemoryBus
+
+T = 1_000_000  # ns
+REF = [0.008, 0.008, 0, 0, 0, 0, 0, 0, 0.008, 0.008]
+
+
+def _graph(*ros_args: str):
+    bus = MemoryBus()
+    ctl = ControllerNode(bus.node("controller", ["--ros-args", *ros_args]))
+    cmds: dict[int, list[float]] = {}
+    states: dict[int, dict[str, float]] = {}
+    diags = []
+    probe = bus.node("probe")
+    probe.subscribe(contract.COMMAND, lambda m: cmds.__setitem__(stamp_ns(m), list(m.effort)))
+    probe.subscribe(contract.CONTROLLER_STATE,
+                    lambda m: states.__setitem__(stamp_ns(m), dict(zip(m.name, m.position, strict=True))))
+    probe.subscribe(contract.DIAGNOSTICS, diags.append)
+    return bus, ctl, cmds, states, diags
+
+
+def _feed(bus, k: int, t: int, gap: float) -> None:
+    JS = bus.msg("sensor_msgs/msg/JointState")
+    bus.publish(contract.APPLIED, joint_state(JS, t, effort=(80.0, 80.0)))
+    bus.publish(contract.REFERENCE, named_vector(JS, t, contract.REFERENCE_NAMES, REF))
+    bus.publish(contract.ESTIMATE, joint_state(JS, t, position=(gap, 0.008), velocity=(0.0, 0.0), effort=(4.0, 4.0)))
+    bus.spin_once()
+
+
+def test_nan_estimate_never_becomes_a_nan_command():
+    """Fed NaN, the controller sends no command for that sample, counts it, and acts on the next one."""
+    bus, ctl, cmds, states, _ = _graph()
+    t0 = bus.now_ns
+    bad = {20, 21, 40}
+    for k in range(60):
+        bus.now_ns = t0 + k * T  # each sample fresh when it arrives
+        _feed(bus, k, t0 + k * T, float("nan") if k in bad else 0.008)
+    assert sorted(cmds) == [t0 + k * T for k in range(60) if k not in bad]
+    assert all(math.isfinite(v) for u in cmds.values() for v in u)
+    assert ctl.counts["non_finite_input"] == 3 and ctl.counts["steps"] == 57
+    assert all(states[t0 + k * T]["fault"] == 1.0 for k in bad)  # the state says why there was no command
+    assert ctl.node.callback_errors == {}
+
+
+def test_a_sample_older_than_max_age_is_not_acted_on():
+    bus, ctl, cmds, states, diags = _graph("-p", "max_age:=0.005")  # as with hardware
+    max_age = ctl.cfg["max_age"]
+    assert max_age == 0.005
+    t0 = bus.now_ns
+    _feed(bus, 0, t0, 0.008)  # fresh
+    bus.now_ns = t0 + T + round(2 * max_age * 1e9)  # the next sample arrives twice max_age late
+    _feed(bus, 1, t0 + T, 0.008)
+    assert list(cmds) == [t0] and ctl.counts["stale"] == 1
+    assert states[t0 + T]["fault"] == 1.0 and states[t0 + T]["age_s"] > max_age
+    bus.advance(1.0)  # the once-a-second diagnostics report it
+    assert diags and diags[-1].status[0].level != 0

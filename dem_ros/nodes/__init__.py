@@ -8,3 +8,7 @@
 
 Every node has ``main(args=None)`` (console script / ``dem-ros node NAME``).
 """
+
+from ..core.numba_cache import configure as _configure_numba_cache
+
+_configure_numba_cache()  # a node process: the kernels' cache of this version of the core (shared with the CLI)

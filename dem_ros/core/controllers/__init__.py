@@ -88,11 +88,14 @@ def _cp_vector(cfg: Mapping) -> np.ndarray:
     cp[K.CP_QM], cp[K.CP_QR], cp[K.CP_QK] = cfg["q_m"], cfg["q_R"], cfg["q_K"]
     cp[K.CP_ULIM] = cfg["voltage_limit"]
     cp[K.CP_DELAY] = cfg["command_delay"]
+    cp[K.CP_QRHO] = cfg["q_rho"]
+    cp[K.CP_RHO_MAX] = cfg["rho_max"]
     return cp
 
 
 def _theta(phi: np.ndarray, cp: np.ndarray) -> np.ndarray:
-    th = np.empty(8)
+    """theta (NTH,) of phi = (1/m, R, K[, rho])."""
+    th = np.empty(K.NTH)
     theta_of(np.asarray(phi, float), cp[K.CP_CA], cp[K.CP_CC], th)
     return th
 
@@ -137,14 +140,14 @@ class CEController(Controller):
             window = (np.atleast_2d(np.asarray(meas0, float)), np.atleast_2d(np.asarray(u0, float)))
             meas0, u0 = window_means(*window)
         self.hover_fit = None
-        self.Z = np.zeros((3, 18))
+        self.Z = np.zeros((3, K.NZ))
         self.uh = np.zeros((K.NUH, 2))
         if u0 is not None:
             self.uh[:] = np.asarray(u0, float)  # before t = 0 the coils held u0
-        self.P = np.zeros((8, 8))
-        self.v = np.zeros(8)
-        self.v0 = np.zeros(8)
-        self.scale = np.ones(8)
+        self.P = np.zeros((K.NTH, K.NTH))
+        self.v = np.zeros(K.NTH)
+        self.v0 = np.zeros(K.NTH)
+        self.scale = np.ones(K.NTH)
         if self.mode == K.MODE_FIXED:
             self.theta = _theta([1 / c["m_nominal"], c["R_nominal"], c["K_nominal"]], cp)
         else:
@@ -153,24 +156,24 @@ class CEController(Controller):
             if self.mode == K.MODE_PAPER:
                 self.theta = th0.copy()
                 self.v[:] = th0
-                self.P[:] = np.eye(8)
+                self.P[:8, :8] = np.eye(8)
             elif self.mode == K.MODE_PAPER_FIX:
                 A0 = phi0[0] + cp[K.CP_CA]
                 C0 = phi0[0] + cp[K.CP_CC]
-                self.scale[:] = [A0 * phi0[1] / 2, A0 * phi0[2], A0 * phi0[1] / 2, A0 * phi0[2], A0 / 2, A0 / 2, C0, C0]
-                self.v[:] = th0 / self.scale
-                self.P[:] = 1e4 * np.eye(8)
+                self.scale[:8] = [A0 * phi0[1] / 2, A0 * phi0[2], A0 * phi0[1] / 2, A0 * phi0[2], A0 / 2, A0 / 2, C0, C0]
+                self.v[:] = th0 / self.scale  # entries 8, 9 (rho) stay 0: A1 keeps the paper's 8 thetas
+                self.P[:8, :8] = 1e4 * np.eye(8)
                 if meas0 is not None and c["hover_init"]:
                     self._hover_init_a1(meas0, u0)
                 self.theta = self.scale * self.v
             else:
-                self.scale[:3] = phi0
-                self.v[:3] = 1.0
-                self.P[:3, :3] = np.diag([c["P0_m"], c["P0_R"], c["P0_K"]])
+                n = K.NPHI
+                self.scale[:n] = [phi0[0], phi0[1], phi0[2], phi0[1]]  # rho in units of R_init
+                self.v[:n] = [1.0, 1.0, 1.0, 0.0]
+                self.P[:n, :n] = np.diag([c["P0_m"], c["P0_R"], c["P0_K"], c["P0_rho"]])
                 if window is not None and c["hover_init"]:
                     self._hover_init_a2(*window)
-                phi = self.scale[:3] * self.v[:3]
-                self.theta = _theta(phi, cp)
+                self.theta = _theta(self.scale[:n] * self.v[:n], cp)
             self.v0[:] = self.v
         self.u = np.zeros(2) if u0 is None else np.asarray(u0, float).copy()
         self.diag = np.full(K.NDIAG, np.nan)
@@ -188,11 +191,12 @@ class CEController(Controller):
         cp = self.cp
         geo = {"P": cp[K.CP_P], "Q": cp[K.CP_Q], "cA": cp[K.CP_CA], "cC": cp[K.CP_CC], "N1": cp[K.CP_N1],
                "N2": cp[K.CP_N2], "g": cp[K.CP_G], "floor": cp[K.CP_FLOOR]}
-        lo = np.array([cp[K.CP_MU_MIN], cp[K.CP_R_MIN], cp[K.CP_K_MIN]])
-        hi = np.array([cp[K.CP_MU_MAX], cp[K.CP_R_MAX], cp[K.CP_K_MAX]])
-        scale = self.scale[:3].copy()
-        fit = solve_hover(scale * self.v[:3], scale, self.P[:3, :3], Zw, Uw, geo, lo, hi)
-        self.v[:3] = fit.phi / scale
+        lo = np.array([cp[K.CP_MU_MIN], cp[K.CP_R_MIN], cp[K.CP_K_MIN], -cp[K.CP_RHO_MAX]])
+        hi = np.array([cp[K.CP_MU_MAX], cp[K.CP_R_MAX], cp[K.CP_K_MAX], cp[K.CP_RHO_MAX]])
+        n = K.NPHI
+        scale = self.scale[:n].copy()
+        fit = solve_hover(scale * self.v[:n], scale, self.P[:n, :n], Zw, Uw, geo, lo, hi)
+        self.v[:n] = fit.phi / scale
         self.hover_fit = fit
 
     def _hover_init_a1(self, meas0: np.ndarray, u0: np.ndarray) -> None:
@@ -200,12 +204,14 @@ class CEController(Controller):
         cp = self.cp
         W3, W2 = hover_regressors(cp, meas0, u0)
         k1 = cp[K.CP_K1]
-        Xh = (W3 + k1 * W2) * self.scale[:, None]
-        P0 = self.P
+        Xh = (W3 + k1 * W2) * self.scale[:8, None]
+        P0 = self.P[:8, :8]
+        v = self.v[:8]
         target = -k1 * cp[K.CP_G] * np.ones(2)
-        self.v += P0 @ Xh @ np.linalg.pinv(Xh.T @ P0 @ Xh, rcond=1e-10) @ (target - Xh.T @ self.v)
+        v += P0 @ Xh @ np.linalg.pinv(Xh.T @ P0 @ Xh, rcond=1e-10) @ (target - Xh.T @ v)
         proj = Xh @ np.linalg.pinv(Xh.T @ Xh, rcond=1e-10) @ Xh.T
-        self.P[:] = 1e5 * (np.eye(8) - proj)
+        self.P[:8, :8] = 1e5 * (np.eye(8) - proj)
+
 
     # -- loop -------------------------------------------------------------
     def step(self, meas: np.ndarray, ref: np.ndarray) -> np.ndarray:

@@ -501,10 +501,17 @@ def run_study(spec: StudySpec, out: Path, *, workers: int = 1, scheduler: str | 
     t_start = time.perf_counter()
     client, cluster = _open_client(scheduler, workers, timeout)
     try:
-        from distributed import as_completed
+        from distributed import KilledWorker, as_completed
 
-        n_workers = len(client.scheduler_info()["workers"])
-        client.run(_warm_worker)  # every worker loads its kernels before the clock starts
+        addrs = list(client.scheduler_info()["workers"])
+        n_workers = len(addrs)
+        # every worker loads (or compiles: minutes on a busy machine) its kernels before the clock
+        # starts; as tasks, so that the worker's event loop keeps answering the scheduler meanwhile
+        # (client.run would execute in that loop and block it)
+        try:
+            client.gather([client.submit(_warm_worker, workers=[a], allow_other_workers=False, pure=False) for a in addrs])
+        except (OSError, KilledWorker) as exc:
+            raise StudyError(f"lost the Dask cluster while its workers loaded the kernels ({type(exc).__name__}: {exc})") from None
         t_ready = time.perf_counter()
         size = chunk or max(1, min(16, len(todo) // (8 * max(n_workers, 1))))
         chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
@@ -519,6 +526,9 @@ def run_study(spec: StudySpec, out: Path, *, workers: int = 1, scheduler: str | 
                         rows = fut.result()
                     except ModuleNotFoundError as exc:
                         raise StudyError(f"a Dask worker cannot import {exc.name} (start the workers with dem_ros on their PYTHONPATH)") from None
+                    except (OSError, KilledWorker) as exc:
+                        raise StudyError(f"lost the Dask cluster ({type(exc).__name__}: {exc}); "
+                                         f"{bar.done} rows are saved, run the same command to resume") from None
                     for r in rows:
                         j = by_id[r["run_id"]]
                         w.writerow({"run_id": j["run_id"], "controller": j["controller"], "estimator": j["estimator"],

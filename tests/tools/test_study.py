@@ -127,8 +127,10 @@ def test_a_run_is_the_simulator_run_of_its_cell(base):
     ref = simulate(apply_overrides(base, {"plant_sim": {"R": 18.0}}), controller="adaptive", duration=0.3).metrics()
     assert [row["rms_e1_um"], row["rms_e2_um"]] == ref["rms_error_um"]
     assert [row["max_e1_um"], row["max_e2_um"]] == ref["max_error_um"]
+    assert row["peak_voltage_v"] == ref["peak_voltage_v"]
     nominal = simulate(base, controller="adaptive", duration=0.3).metrics()
-    assert ref["rms_error_um"] != nominal["rms_error_um"]  # the axis reached the plant
+    # the axis reached the plant: the hover voltage R i0 is 18/20 of the nominal one
+    assert ref["peak_voltage_v"] == pytest.approx(0.9 * nominal["peak_voltage_v"], rel=1e-3)
 
 
 # --- the command on a LocalCluster -----------------------------------------------------------

@@ -491,7 +491,7 @@ def run_study(spec: StudySpec, out: Path, *, workers: int = 1, scheduler: str | 
     header = _header(spec)
     done = load_results(path, header)
     todo = [j for j in jobs if j["run_id"] not in done]
-    _write_spec(spec, out, len(jobs))
+    _write_spec(spec, out, [j["run_id"] for j in jobs])
     stats: dict[str, Any] = {"runs": len(jobs), "already_done": len(jobs) - len(todo), "ran": 0}
     if not todo:
         return stats
@@ -550,11 +550,11 @@ def run_study(spec: StudySpec, out: Path, *, workers: int = 1, scheduler: str | 
         "simulated_s_per_run": spec.duration, "scheduler": scheduler or "LocalCluster(127.0.0.1)",
         "load_average": list(os.getloadavg()),
     })
-    _write_spec(spec, out, len(jobs), stats)
+    _write_spec(spec, out, [j["run_id"] for j in jobs], stats)
     return stats
 
 
-def _write_spec(spec: StudySpec, out: Path, runs: int, stats: Mapping[str, Any] | None = None) -> None:
+def _write_spec(spec: StudySpec, out: Path, run_ids: list[str], stats: Mapping[str, Any] | None = None) -> None:
     p = out / "study.json"
     old = json.loads(p.read_text()) if p.is_file() else {}
     doc = {
@@ -563,8 +563,9 @@ def _write_spec(spec: StudySpec, out: Path, runs: int, stats: Mapping[str, Any] 
         "estimator": spec.estimator or spec.base["estimator"]["type"],
         "axes": [{"name": a.name, "unit": a.unit, "values": list(a.values) if a.values is not None else None,
                   "range": None if a.values is not None else [a.low, a.high]} for a in spec.axes],
-        "runs": runs, "core_digest": core_digest(),
+        "runs": len(run_ids), "core_digest": core_digest(),
         "last_session": stats if stats is not None else old.get("last_session"),
+        "run_ids": run_ids,
     }
     p.write_text(json.dumps(doc, indent=1) + "\n")
 
@@ -606,12 +607,15 @@ def robustness_rows(rows: Iterable[Mapping[str, str]], controllers: Sequence[str
 def robustness_table(out: Path, rms_limit: float | None = None, run_ids: set[str] | None = None) -> str:
     """Markdown robustness table of the study in ``out`` (study.json + results.csv).
 
-    Every row of results.csv with the study's axes counts, unless ``run_ids`` selects some.
+    The rows counted are ``run_ids``, by default those of the last command run in ``out``
+    (``study.json``; rows of earlier settings or code stay in results.csv but are not shown).
     """
     doc = json.loads((out / "study.json").read_text())
     limit = rms_limit if rms_limit is not None else doc.get("rms_limit_um", 100.0)
     rows = list(load_results(out / "results.csv").values())
     axes = [a["name"] for a in doc["axes"]]
+    if run_ids is None and "run_ids" in doc:
+        run_ids = set(doc["run_ids"])
     rows = [r for r in rows if all(a in r for a in axes) and (run_ids is None or r["run_id"] in run_ids)]
     lines = [
         f"| controller | runs | survived | pass (RMS < {limit:g} um) | worst RMS [um] | median RMS [um] | worst max [um] |",

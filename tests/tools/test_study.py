@@ -173,6 +173,14 @@ def test_study_on_a_local_cluster_writes_rows_maps_and_resumes(tmp_path):
     lost = rows[-1]
     assert again[lost["run_id"]]["rms_e1_um"] == lost["rms_e1_um"]  # deterministic: the same number again
 
+    # the table shows the runs of the last command in the directory (study.json), not every row
+    doc = json.loads((out / "study.json").read_text())
+    assert sorted(doc["run_ids"]) == sorted(again)
+    doc["run_ids"] = [x["run_id"] for x in rows if x["controller"] == "adaptive"][:3]
+    (out / "study.json").write_text(json.dumps(doc))
+    table = st.robustness_table(out)
+    assert "| `adaptive` | 3 |" in table and "nonlinear_decoupling" not in table
+
 
 def test_results_of_another_study_are_not_mixed_in(tmp_path, base):
     out = tmp_path / "st"

@@ -25,10 +25,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "MAGNETS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic"]
+__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "LOOP_STATUS", "MAGNETS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic"]
 
 FRAME = "dem"
 FRAME_PREROLL = "dem/preroll"
+#: the name of the plant's once-a-second loop status on /diagnostics (cycles, deadline misses, latency, epoch_ns)
+LOOP_STATUS = "plant_sim: loop"
 MAGNETS = ("magnet_1", "magnet_2")
 #: y_d [m], y_d' [m/s], y_d'' [m/s^2], y_d''' [m/s^3] for both magnets.
 REFERENCE_NAMES = (

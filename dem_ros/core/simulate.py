@@ -23,9 +23,7 @@ from .controllers import CEController, PIDController, make_controller
 from .controllers import kernels as CK
 from .estimator import NS, KalmanEstimator, ekf_step, make_estimator
 from .model import IP, IQ, NPP, SM, apply_schedule, initial_state, plant_vector, rk4
-
 from .reference import hover_start, reference_trajectory
-
 from .scenarios import NOISE_UNIT, disturbances, plant_schedule, sensor_model
 
 __all__ = ["Preroll", "SimResult", "preroll", "simulate", "simulate_batch"]

@@ -9,6 +9,13 @@
 Every node has ``main(args=None)`` (console script / ``dem-ros node NAME``).
 """
 
-from ..core.numba_cache import configure as _configure_numba_cache
+__all__ = ["NODES"]
+
+#: every node that ``dem-ros node NAME`` and ``ros2 run dem_ros NAME`` run (module ``dem_ros.nodes.NAME``,
+#: function ``main(args=None)``; ``container`` runs the loop's nodes in one process). The one list:
+#: the CLI, ``tools/node_main.py`` and ``setup.py`` read it.
+NODES = ("plant_sim", "estimator", "controller", "reference", "recorder", "container")
+
+from ..core.numba_cache import configure as _configure_numba_cache  # noqa: E402
 
 _configure_numba_cache()  # a node process: the kernels' cache of this version of the core (shared with the CLI)

@@ -24,6 +24,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..core.params import SCHEMA, ConfigError
+from ..nodes import NODES
 from ..transport import param_get, param_set
 from . import bench, launcher, node_main, replay, study
 from .common import CONTROLLER_TYPES, ESTIMATOR_TYPES, UsageError, load_config
@@ -139,6 +140,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--duration", type=float, default=None, help="bench loop/record: seconds (default 60 / 10)")
     b.add_argument("--transport", default="dds", choices=["auto", "rclpy", "dds"])
     b.add_argument("--compose", action="store_true", help="bench loop: all nodes in one process (see dem-ros launch --compose)")
+    b.add_argument("--free-run", action="store_true", help="bench loop: the plant does not wait for late commands (plant_sim.lockstep=false)")
+    b.add_argument("--load", type=int, default=0, metavar="N", help="bench loop: N busy processes beside the graph (default 0)")
+    b.add_argument("--rt", action=argparse.BooleanOptionalAction, default=True,
+                   help="bench loop: real-time process settings for the nodes (SCHED_FIFO, mlockall; default on)")
     b.set_defaults(func=cmd_bench)
 
     c = sub.add_parser("config", help="print the parameter schema or a params file of the defaults")
@@ -154,6 +159,9 @@ def build_parser() -> argparse.ArgumentParser:
     lg.add_argument("--compose", action="store_true",
                     help="all nodes in one process on one executor, topics between them in memory (dds); "
                          "the real-time configuration")
+    lg.add_argument("--free-run", action="store_true",
+                    help="free-running plant (plant_sim.lockstep false): hardware-like timing, a late command is held "
+                         "at most hold_timeout, then the simulated board lands the plate; default: lockstep (exact)")
     lg.add_argument("--params", default=None, help="ROS 2 params file")
     lg.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE")
     lg.add_argument("--bag-dir", default="bags", help="where the run's bag goes (default ./bags)")
@@ -163,7 +171,7 @@ def build_parser() -> argparse.ArgumentParser:
     lg.set_defaults(func=launcher.cmd_launch)
 
     nd = sub.add_parser("node", help="run one node of the graph")
-    nd.add_argument("name", choices=node_main.NODES)
+    nd.add_argument("name", choices=NODES)
     nd.add_argument("ros_args", nargs=argparse.REMAINDER, help="--ros-args ... (params file, remaps)")
     nd.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
     nd.set_defaults(func=cmd_node)

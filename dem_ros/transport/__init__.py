@@ -25,14 +25,14 @@ Transports:
 
 Messages: assign Python lists (``array.tolist()``) to sequence fields; the DDS
 classes do not take numpy arrays. Environment for the dds transport:
-``ROS_DOMAIN_ID`` (0..101), ``DEM_ROS_DISTRO`` (jazzy | humble | iron, sets the
+``DEM_ROS_TRANSPORT`` (what ``auto`` means), ``ROS_DOMAIN_ID`` (0..101), ``DEM_ROS_DISTRO`` (jazzy | humble | iron, sets the
 GID size and type hashes), ``ROS_AUTOMATIC_DISCOVERY_RANGE`` (default
 LOCALHOST), ``ROS_STATIC_PEERS``, ``CYCLONEDDS_URI``.
 """
 
 from __future__ import annotations
 
-import gc
+import os
 import signal
 import sys
 from collections.abc import Callable, Sequence
@@ -91,9 +91,16 @@ def rclpy_available() -> bool:
 
 
 def _pick(transport: str) -> str:
+    """``auto`` -> ``DEM_ROS_TRANSPORT`` if set (``dem-ros node --transport`` sets it), else rclpy if
+    importable, else dds."""
     if transport not in TRANSPORTS:
         raise TransportError(f"transport {transport!r} is not one of {', '.join(TRANSPORTS)}")
     if transport == "auto":
+        env = os.environ.get("DEM_ROS_TRANSPORT", "auto")
+        if env not in TRANSPORTS:
+            raise TransportError(f"DEM_ROS_TRANSPORT={env!r} is not one of {', '.join(TRANSPORTS)}")
+        if env != "auto":
+            return env
         return "rclpy" if rclpy_available() else "dds"
     return transport
 
@@ -223,11 +230,11 @@ def run_nodes(
                 if node.is_shutdown:
                     return 0  # stopped (Ctrl-C / SIGTERM) while setting up: not an error
                 raise
-        # Everything allocated so far (numba, the middleware, the nodes) lives for the whole run:
-        # move it out of the collector's reach. A full collection over it takes ~100 ms, which a
-        # 1 kHz loop cannot absorb; afterwards collections only scan what the loop allocates.
-        gc.collect()
-        gc.freeze()
+        # Set-up is done: freeze what it allocated (out of the collector's reach), then the
+        # process's real-time settings (SCHED_FIFO, mlockall, timer slack; see dem_ros.realtime).
+        from ..realtime import enter_loop
+
+        enter_loop()
         # Helper threads (the bag writer) must hand the GIL back to the executor thread quickly:
         # with Python's default 5 ms switch interval a waking 1 kHz loop can wait 5 ms for it.
         sys.setswitchinterval(SWITCH_INTERVAL_S)

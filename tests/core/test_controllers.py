@@ -420,3 +420,22 @@ def test_set_params_rediscretises_the_error_filter():
     with pytest.raises(ConfigError):
         ctrl.set_params({**CC, "k1": 1.0})
     assert ctrl.cp[K.CP_K1] == 60.0  # a rejected change leaves the controller as it was
+
+
+def test_enhanced_dead_zone_gates_the_whole_least_squares_step():
+    """Inside the dead zone neither the estimate nor the covariance moves (only the random walk adds q Ts);
+    outside it both do. (Shrinking P inside the dead zone killed adaptation for good: S2 failed at 40.8 s.)"""
+    rng = np.random.default_rng(7)
+    xi = rng.normal(size=(K.NTH, 2)) * 1e-3
+    ec = np.array([2e-6, -1e-6])
+    for e0, adapting in ((1.0, False), (0.0, True)):
+        ctrl = make_controller({**CC, "deadzone": "error", "e0": e0, "w": 0.0}, "adaptive_enhanced")
+        v, P = ctrl.v.copy(), ctrl.P.copy()
+        flag = K._update_adaptive(ctrl.cp, ctrl.theta, v, ctrl.scale, ctrl.v0, P, xi, ec, True, K.DZ_ERROR)
+        q = np.diag([CC["q_m"], CC["q_R"], CC["q_K"], CC["q_rho"]]) * CC["dt"]
+        assert flag == float(adapting)
+        if adapting:
+            assert not np.array_equal(v, ctrl.v) and np.trace(P[:4, :4]) < np.trace(ctrl.P[:4, :4] + q)
+        else:
+            np.testing.assert_array_equal(v, ctrl.v)
+            np.testing.assert_allclose(P[:4, :4], ctrl.P[:4, :4] + q, rtol=1e-15)

@@ -30,6 +30,14 @@ CMD = [sys.executable, "-m", "dem_ros.tools.cli", "study"]
 HAS_ASYM = all(n in {p.name for p in SCHEMA.groups["plant_sim"]} for n in ("d1_0", "d2_0"))
 
 
+@pytest.fixture(scope="module", autouse=True)
+def kernels():
+    """Compile (or load) the kernels once here: the processes started below share the cache
+    (NUMBA_CACHE_DIR, set on importing dem_ros.tools), so their time limits cover loading, not a
+    first compile of minutes on a busy machine."""
+    st._warm_worker()
+
+
 @pytest.fixture(scope="module")
 def base():
     return get_scenario("S1").config()

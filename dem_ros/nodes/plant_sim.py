@@ -27,7 +27,8 @@ Two timing modes:
   missing command is a counted deadline miss and a board hold (see above).
 
 Before t = 0 the plant levitates in closed loop for ``preroll`` seconds
-(frame_id ``dem/preroll``; a missing command then just holds the voltage).
+(frame_id ``dem/preroll``; a missing command is held by the board as later,
+at most ``hold_timeout``: a graph that cannot keep up lands the plate before t = 0).
 Latency = receive time of a command - publish time of the measurement it
 answers. A hardware driver replaces this node by honouring the same topics.
 """
@@ -174,6 +175,7 @@ class PlantSimNode:
         src = k - 1 - self.cfg["command_delay"]  # the sample whose command is held over [t_k-1, t_k]
         slot = src % RING
         board = self.board
+        prev = board.mode
         if src < -self.n_pre:
             cmd = self.plant.u0  # before the loop closed the board held the hover voltage
         elif self.cmd_stamp[slot] == self.epoch + src * self.dt_ns:
@@ -199,11 +201,12 @@ class PlantSimNode:
                     self.misses += 1
                 else:
                     self.preroll_misses += 1
-        prev = board.mode
         z = self.z_board  # the board computes [t_k-1, t_k) from its sample of t_k-1
         self.u_applied = board.step(self.epoch + (k - 1) * self.dt_ns, (z[0], z[2]), (z[4], z[5]), cmd)
         if board.mode != prev:
             self._board_event(prev, k - 1)
+            if self.finished:
+                return False  # LANDED: the plate rests on its support (not simulated): the run ends here
         p = self.plant
         if k <= 0:
             p.hold(self.u_applied)  # pre-roll: true dynamics, no scenario disturbances, clock at 0
@@ -229,7 +232,7 @@ class PlantSimNode:
             return
         if b.mode == Mode.LAND:
             x = self.plant.x
-            log.error(f"{when}: safe landing from gaps {x[0] * 1e3:.3f} / {x[2] * 1e3:.3f} mm to"
+            (log.error if b.fault else log.warn)(f"{when}: safe landing from gaps {x[0] * 1e3:.3f} / {x[2] * 1e3:.3f} mm to"
                       f" {self.cfg['landing_gap'] * 1e3:g} mm at <= {self.cfg['landing_speed'] * 1e3:g} mm/s: {b.reason}")
             self.publish_diag(2 if b.fault else 1, f"landing: {b.reason}")
         elif b.mode == Mode.LANDED:
@@ -276,6 +279,7 @@ class PlantSimNode:
         c = b.counters
         return {
             "board_mode": b.mode.name, "holds": c["holds"], "hold_events": c["hold_events"],
+            "longest_hold_ms": c["longest_hold_us"] / 1000,
             "clipped": c["clipped"], "trips": c["trips"], "landing": c["landings"] > 0 or b.mode == Mode.LANDED,
             "landed": c["landed"] > 0, "landing_reason": b.reason if c["landings"] else "",
             "board_fault": b.fault, "lockstep_timeouts": self.lockstep_landing,

@@ -268,9 +268,10 @@ def _check_safety(v: Mapping[str, Any]) -> str | None:
         return f"trip_gap_min = {v['trip_gap_min']:g} m must lie above the rail-contact gap_min = {v['gap_min']:g} m"
     if "gap_max" in v and not v["trip_gap_max"] < v["gap_max"]:
         return f"trip_gap_max = {v['trip_gap_max']:g} m must lie below gap_max = {v['gap_max']:g} m"
-    if "gap0" in v and not v["trip_gap_min"] < v["gap0"] < v["landing_gap"]:
-        return (f"gap0 = {v['gap0']:g} m must lie between trip_gap_min = {v['trip_gap_min']:g} m and "
-                f"landing_gap = {v['landing_gap']:g} m")
+    for name in ("gap0", "d1_0", "d2_0"):  # d1_0, d2_0: 0 takes gap0
+        if v.get(name) and not v["trip_gap_min"] < v[name] < v["landing_gap"]:
+            return (f"{name} = {v[name]:g} m must lie between trip_gap_min = {v['trip_gap_min']:g} m and "
+                    f"landing_gap = {v['landing_gap']:g} m (the plate hovers above its support)")
     return None
 
 

@@ -131,14 +131,14 @@ I_OFF = 0.02  # A: below this, LANDED applies 0 V
 
 
 class Mode(enum.IntEnum):
-    """Board mode; the values are the device link's mode byte."""
+    """Board mode; the values are the device link's mode byte (``dem_ros.hardware.link`` imports this)."""
 
-    OFF = 0
-    RUN = 1
-    HOLD = 2
-    LAND = 3
-    LANDED = 4
-    FAULT = 5
+    OFF = 0  # no current in the coils (plate resting on its support, or not started)
+    RUN = 1  # applying the commanded voltages, clipped to u_max
+    HOLD = 2  # a command is late: the last one is held, at most hold_timeout
+    LAND = 3  # the landing law lowers the plate away from the rail at <= landing_speed (also after a trip or e-stop)
+    LANDED = 4  # on the support at landing_gap, current removed
+    FAULT = 5  # a non-finite gap or current: nothing left to control with, 0 V (latched)
 
 
 class SafetyError(ValueError):
@@ -335,8 +335,18 @@ class Supervisor:
         self.mode = Mode(mode)
         self.reason = ""
         self.fault = ""
+        self._load_kernels()
         self.counters = dict.fromkeys(
             ("holds", "hold_events", "longest_hold_us", "clipped", "rejected", "landings", "trips", "estops", "landed"), 0)
+
+    def _load_kernels(self) -> None:
+        """Load (or compile: seconds) the numba kernels now, on scratch data, never in a sample."""
+        s, a = np.zeros((3, 2)), np.zeros(2)
+        s[0, :] = self.cfg["landing_gap"]
+        de1, de2 = _deltas(self._p, s[0, 0], s[0, 1])
+        _model_accel(self._p, de1, de2, 1.0, 1.0, a)
+        _observe(self._p, self._Lo, s, a, s[0, 0], s[0, 1], 1.0, 1.0)
+        _land_law(self._p, s, np.zeros((3, 2)), np.zeros(2), np.ones(2), False, np.zeros(2))
 
     # -- commands from outside -------------------------------------------------------------
     def land(self, reason: str) -> None:

@@ -58,6 +58,7 @@ def test_safety_specs_live_in_the_plant_sim_group_once():
     ({"trip_gap_min": 0.00005}, "rail-contact gap_min"),
     ({"trip_gap_max": 0.04}, "below gap_max"),
     ({"gap0": 0.013, "trip_gap_max": 0.016}, "gap0"),
+    ({"d2_0": 0.012}, "d2_0"),
 ])
 def test_schema_rejects_inconsistent_safety_specs(change, words):
     with pytest.raises(ConfigError, match=words.replace("+", r"\+")):

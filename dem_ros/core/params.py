@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = [
+    "SAFETY_SPECS",
     "SCHEMA",
     "TABLE2",
     "ConfigError",
@@ -243,6 +244,33 @@ def _check_reference(v: Mapping[str, Any]) -> str | None:
     return None
 
 
+# The board's hard limits and watchdog (dem_ros.core.safety.Supervisor): one list, included in every
+# group whose node is (or simulates) the board that drives the coils: plant_sim, hw_driver.
+SAFETY_SPECS = (
+    ParamSpec("u_max", float, 200.0, "V", "coil driver bus: applied voltages are clipped to +-this (hover 50-80 V, transients ~120 V, scenario S4b asks 155 V)", 1.0, 1e4),
+    ParamSpec("i_max", float, 10.0, "A", "coil current trip: above this the board latches a fault and lands the plate", 0.1, 1e3),
+    ParamSpec("trip_gap_min", float, 0.0015, "m", "gap trip toward the rail: an estimated load-point gap below this latches a fault and lands", 0.0, 0.1),
+    ParamSpec("trip_gap_max", float, 0.013, "m", "gap trip away from the rail: an estimated gap above this latches a fault (the plate is on its support or falling)", 1e-4, 1.0),
+    ParamSpec("hold_timeout", float, 0.05, "s", "a sample without a fresh command holds the last voltage at most this long, then the board lands the plate (unstable poles: e-folding 17-20 ms)", 1e-3, 1.0),
+    ParamSpec("landing_gap", float, 0.011, "m", "landing position: the plate rests on its support at this load-point gap (larger gap = away from the rail)", 1e-4, 0.1),
+    ParamSpec("landing_speed", float, 0.01, "m/s", "a landing descends no faster than this", 1e-4, 1.0),
+)
+
+
+def _check_safety(v: Mapping[str, Any]) -> str | None:
+    if not v["trip_gap_min"] < v["landing_gap"] <= v["trip_gap_max"]:
+        return (f"need trip_gap_min < landing_gap <= trip_gap_max; got {v['trip_gap_min']:g}, "
+                f"{v['landing_gap']:g}, {v['trip_gap_max']:g} m")
+    if "gap_min" in v and not v["gap_min"] < v["trip_gap_min"]:
+        return f"trip_gap_min = {v['trip_gap_min']:g} m must lie above the rail-contact gap_min = {v['gap_min']:g} m"
+    if "gap_max" in v and not v["trip_gap_max"] < v["gap_max"]:
+        return f"trip_gap_max = {v['trip_gap_max']:g} m must lie below gap_max = {v['gap_max']:g} m"
+    if "gap0" in v and not v["trip_gap_min"] < v["gap0"] < v["landing_gap"]:
+        return (f"gap0 = {v['gap0']:g} m must lie between trip_gap_min = {v['trip_gap_min']:g} m and "
+                f"landing_gap = {v['landing_gap']:g} m")
+    return None
+
+
 _CONTROLLERS = ("adaptive", "adaptive_enhanced", "paper", "paper_fixed", "nonlinear_decoupling", "decentralized_pid")
 
 SCHEMA = Schema(
@@ -279,15 +307,15 @@ SCHEMA = Schema(
             ParamSpec("perturbation_amplitude", float, 0.0, "V", "perturbation amplitude (uniform: +-a, sine: a)", 0.0, 1e4),
             ParamSpec("perturbation_frequency", float, 50.0, "Hz", "sine perturbation frequency", 0.0, 1e5),
             ParamSpec("seed", int, 1, "", "seed of the noise and perturbation generators", 0, 2**31 - 1),
-            ParamSpec("command_timeout", float, 0.02, "s", "hold the last command at most this long, then apply 0 V (watchdog)", 1e-4, 10.0),
             ParamSpec("command_delay", int, 1, "samples", "the command computed from sample k is held over [t_k+d, t_k+d+1): d = 1 gives the graph a full period to deliver it", 0, 8),
             ParamSpec("duration", float, 0.0, "s", "graph: stop after this much simulated time (0: run until stopped)", 0.0, 1e7),
-            ParamSpec("lockstep", bool, True, "", "graph: wait for the command a sample needs (simulated clock may fall behind wall time); false: hardware-like timing"),
-            ParamSpec("lockstep_timeout", float, 1.0, "s", "lockstep: wait this long for a command before the watchdog applies 0 V (a dead controller)", 1e-3, 600.0),
+            ParamSpec("lockstep", bool, True, "", "graph: wait for the command a sample needs (simulated clock may fall behind wall time); false: free-running, hardware-like timing (a late command is held at most hold_timeout, then the board lands the plate)"),
+            ParamSpec("lockstep_timeout", float, 1.0, "s", "lockstep: wait this long for a command, then the board lands the plate (a dead controller)", 1e-3, 600.0),
             ParamSpec("preroll", float, 1.0, "s", "graph: levitate in closed loop this long before t = 0 (frame_id dem/preroll)", 0.0, 600.0),
             ParamSpec("start_delay", float, 3.0, "s", "graph: wait at least this long after start-up before t = 0 (discovery)", 0.0, 600.0),
             ParamSpec("min_subscribers", int, 2, "", "graph: wait (up to 30 s) until this many readers match /dem/measurement (estimator, reference)", 0, 100),
-        ),
+        )
+        + SAFETY_SPECS,
         "reference": (
             ParamSpec("b0", float, 0.25, "s^-3", "reference model numerator, M(s) = b0/(s^3+a2 s^2+a1 s+a0) (Eq. 46)", 1e-9, 1e9),
             ParamSpec("a2", float, 2.0, "s^-1", "reference model denominator coefficient", 1e-9, 1e9),
@@ -366,7 +394,7 @@ SCHEMA = Schema(
         ),
     },
     checks={
-        "plant_sim": (_check_plant,),
+        "plant_sim": (_check_plant, _check_safety),
         "reference": (_check_reference,),
         "estimator": (_check_geometry,),
         "controller": (_check_geometry, _check_hurwitz, _check_bounds),

@@ -37,6 +37,7 @@ setup(
         "cyclonedds>=0.10.5",
         "rosbags>=0.10",
         "mcap>=1.1",
+        "dask[distributed]>=2024.1",
     ],
     extras_require={"test": ["pytest>=7", "sympy>=1.12", "control>=0.10"]},
     zip_safe=True,

@@ -10,6 +10,7 @@
     dem-ros bag       check a bag
     dem-ros param     get/set a parameter of a running node
     dem-ros config    print the parameter schema or the default params file
+    dem-ros study     robustness over plant truth x controllers, on Dask distributed
 
 Bad input ends with a one-line error and exit status 2, never a traceback.
 """
@@ -24,7 +25,7 @@ from pathlib import Path
 
 from ..core.params import SCHEMA, ConfigError
 from ..transport import param_get, param_set
-from . import bench, launcher, node_main, replay
+from . import bench, launcher, node_main, replay, study
 from .common import CONTROLLER_TYPES, ESTIMATOR_TYPES, UsageError, load_config
 from .runmetrics import RunMetrics
 
@@ -196,6 +197,10 @@ def build_parser() -> argparse.ArgumentParser:
     pm.add_argument("--domain-id", type=int, default=None)
     pm.add_argument("--timeout", type=float, default=5.0, help="seconds to find the node and get its reply (default 5)")
     pm.set_defaults(func=cmd_param)
+
+    sy = sub.add_parser("study", help="robustness study: plant truth (grid or Monte Carlo) x controllers on Dask distributed")
+    study.add_arguments(sy)
+    sy.set_defaults(func=study.cmd_study)
     return p
 
 

@@ -20,6 +20,7 @@ import numpy as np
 from ..core.scenarios import load_scenarios
 from ..core.simulate import simulate
 from .plots import figure, overlay, save
+from .study import report_section
 
 __all__ = ["make_report", "run_matrix"]
 
@@ -243,6 +244,7 @@ def make_report(out: Path, duration: float | None = None, jobs: int | None = Non
         "reaching the law (compare the `none` and `kf` rows) but cannot remove a physical input disturbance; the",
         "decentralised PID with its inner current loop and integral action is far less sensitive to both.",
         "",
+    ] + report_section(out / "study") + [
         "## Figures",
         "",
     ] + [f"### {d}\n\n![{d}]({f})\n" for f, d in figs.items()]

@@ -38,6 +38,7 @@ setup(
         "rosbags>=0.10",
         "mcap>=1.1",
         "dask[distributed]>=2024.1",
+        "pyserial>=3.4",  # the device link over serial lines (dem_ros/hardware/channel.py)
     ],
     extras_require={"test": ["pytest>=7", "sympy>=1.12", "control>=0.10"]},
     zip_safe=True,

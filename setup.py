@@ -10,7 +10,7 @@ from glob import glob
 from setuptools import find_packages, setup
 
 package_name = "dem_ros"
-NODES = ("plant_sim", "estimator", "controller", "reference", "recorder", "container")
+NODES = ("plant_sim", "hw_driver", "estimator", "controller", "reference", "recorder", "container")
 
 scripts = ["dem-ros = dem_ros.tools.cli:main"]
 if os.environ.get("AMENT_PREFIX_PATH") or os.environ.get("DEM_ROS_NODE_SCRIPTS"):

@@ -122,4 +122,23 @@ PARAMETER_EVENTS = Topic(
     "standard ROS 2 parameter change events",
 )
 
-TOPICS = (MEASUREMENT, TRUTH, APPLIED, ESTIMATE, REFERENCE, COMMAND, CONTROLLER_STATE, DIAGNOSTICS, RUN_INFO, PARAMETER_EVENTS)
+HW_STATE = Topic(
+    "/dem/hw/state", "diagnostic_msgs/msg/DiagnosticStatus", QOS_LATCHED, 10.0, "hw_driver",
+    ("dem-ros hw", "recorder"),
+    "the hardware driver's state (message: inactive | armed | active | fault; level 2 on a fault) with key/values: "
+    "reason, board mode and status, link statistics (lost, late, duplicated, reordered, corrupt by reason), "
+    "holds, trips, clock drift, the answer to the last request",
+)
+HW_REQUEST = Topic(
+    "/dem/hw/request", "std_msgs/msg/String", QoS(reliable=True, transient_local=False, depth=10), None, "dem-ros hw",
+    ("hw_driver", "recorder"),
+    "operator requests: 'arm', 'disarm' (a controlled landing), 'clear', 'estop [reason]', 'status'",
+)
+HW_ESTOP = Topic(
+    "/dem/hw/estop", "std_msgs/msg/String", QoS(reliable=True, transient_local=False, depth=10), None, "any",
+    ("hw_driver", "recorder"),
+    "emergency stop: any message latches a fault and lands the plate; data = the reason",
+)
+
+TOPICS = (MEASUREMENT, TRUTH, APPLIED, ESTIMATE, REFERENCE, COMMAND, CONTROLLER_STATE, DIAGNOSTICS, RUN_INFO, PARAMETER_EVENTS,
+          HW_STATE, HW_REQUEST, HW_ESTOP)

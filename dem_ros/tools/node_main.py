@@ -10,10 +10,10 @@ from ..transport import run_node
 __all__ = ["NODES", "main", "run"]
 
 #: what ``dem-ros node NAME`` can run: the graph's nodes and ``container`` (all of them in one process)
-NODES = ("plant_sim", "estimator", "controller", "reference", "recorder", "container")
+NODES = ("plant_sim", "hw_driver", "estimator", "controller", "reference", "recorder", "container")
 #: nodes whose ``main`` parses its own arguments (``--transport``, ``--bag``, ...)
 _OWN_ARGS = ("recorder", "container")
-_CLASSES = {"plant_sim": "PlantSimNode", "estimator": "EstimatorNode", "controller": "ControllerNode",
+_CLASSES = {"plant_sim": "PlantSimNode", "hw_driver": "HwDriverNode", "estimator": "EstimatorNode", "controller": "ControllerNode",
             "reference": "ReferenceNode"}
 
 

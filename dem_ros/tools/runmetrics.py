@@ -30,6 +30,8 @@ __all__ = ["LOOP_STATUS", "LoopStats", "RunMetrics", "load_run"]
 
 #: the name of the plant's once-a-second loop status in /diagnostics
 LOOP_STATUS = "plant_sim: loop"
+#: ... and of the hardware driver's, which stands in for the plant on a rig (same keys)
+LOOP_STATUSES = (LOOP_STATUS, "hw_driver: loop")
 
 _NAN = float("nan")
 
@@ -208,7 +210,7 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     loop_hist = []
     for _, log_ns, msg in r.messages([contract.DIAGNOSTICS.name]):
         for s in msg.status:
-            if s.name == LOOP_STATUS:
+            if s.name in LOOP_STATUSES:
                 loop_hist.append((log_ns, {kv.key: kv.value for kv in s.values}))
     last = loop_hist[-1][1] if loop_hist else {}
     loop = LoopStats.from_status(last) if loop_hist else None

@@ -17,15 +17,16 @@ import contextlib
 import json
 import math
 import os
+import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from ..core.params import SCHEMA, ConfigError, apply_overrides, load_params_file, parse_assignment
 from ..core.scenarios import Scenario, get_scenario
 
 __all__ = ["CONTROLLER_TYPES", "ESTIMATOR_TYPES", "UsageError", "domain_id", "env_domain_id", "fmt_pair", "json_safe", "json_text",
-           "load_config", "out_dir", "out_file", "seconds", "seed", "write_json", "yaml_scalar"]
+           "load_config", "out_dir", "out_file", "seconds", "seed", "warm_kernels", "write_json", "yaml_scalar"]
 
 #: DDS domain ids a ROS 2 participant can use (Cyclone DDS maps 0..232 to UDP ports)
 DOMAIN_ID_MAX = 232
@@ -180,3 +181,46 @@ def write_json(path: Path | str, obj: Any) -> Path:
     path = Path(path)
     path.write_text(json_text(obj))
     return path
+
+
+def warm_kernels(prefix: str, stream: IO[str] | None = None) -> float:
+    """Compile (first run) or load numba's cache of every kernel here, with progress on ``stream``.
+
+    Nothing is printed when the cache loads within a second; otherwise a line names what
+    compiles and a new line follows at least every 5 s, so a first run is never silent.
+    Returns the seconds it took.
+    """
+    import threading
+    import time
+
+    from ..core.warmup import warm_up
+
+    out = stream if stream is not None else sys.stderr
+    t0 = time.monotonic()
+    state = {"what": "numba kernels", "said": 0.0}
+    done = threading.Event()
+
+    def beat() -> None:
+        while not done.wait(1.0 if state["said"] == 0.0 else 5.0):
+            dt = time.monotonic() - t0
+            if state["said"] == 0.0:
+                print(f"{prefix}: compiling numba kernels (first run only; cached for later runs): {state['what']} ...",
+                      file=out, flush=True)
+            else:
+                print(f"{prefix}:   ... {state['what']} ({dt:.0f} s)", file=out, flush=True)
+            state["said"] = dt
+
+    def progress(what: str) -> None:
+        state["what"] = what
+
+    th = threading.Thread(target=beat, name="warm-up progress", daemon=True)
+    th.start()
+    try:
+        warm_up(progress)
+    finally:
+        done.set()
+        th.join()
+    dt = time.monotonic() - t0
+    if state["said"]:
+        print(f"{prefix}: kernels ready in {dt:.0f} s", file=out, flush=True)
+    return dt

@@ -40,6 +40,7 @@ from .common import (
     out_file,
     seconds,
     seed,
+    warm_kernels,
     write_json,
 )
 from .runmetrics import RunMetrics
@@ -66,10 +67,11 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     cfg, sc = load_config(args)
     duration = args.duration if args.duration is not None else sc.duration
+    print(f"dem-ros sim: {sc.name} ({sc.description}), {duration:g} s", flush=True)
+    warm_kernels("dem-ros sim")
     res = simulate(cfg, controller=args.controller, estimator=args.estimator, duration=duration,
                    seed=args.seed, delay=args.delay, scenario=sc.name)
     m = RunMetrics.from_sim(res)
-    print(f"dem-ros sim: {sc.name} ({sc.description}), {duration:g} s")
     m.print()
     if args.json:
         write_json(args.json, m.to_dict())

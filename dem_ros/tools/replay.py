@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -22,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from .. import contract
+from .common import write_json
 from .runmetrics import RunMetrics, load_run
 
 __all__ = ["analyse", "cmd_bag", "cmd_replay", "what_if"]
@@ -207,7 +207,7 @@ def cmd_replay(args) -> int:
         print(f"  {res['samples']} samples; max |u_replayed - u_recorded| = {res['max_abs_diff_v']:.3e} V,"
               f" RMS {res['rms_diff_v']:.3e} V: {verdict}")
         if args.json:
-            Path(args.json).write_text(json.dumps({k: v for k, v in res.items() if k not in ("t", "u_replayed", "u_recorded")}, indent=2) + "\n")
+            write_json(args.json, {k: v for k, v in res.items() if k not in ("t", "u_replayed", "u_recorded")})
         if args.plot:
             from .plots import figure, save
 
@@ -226,7 +226,7 @@ def cmd_replay(args) -> int:
     print(f"replay of {bag}:")
     m.print()
     if args.json:
-        Path(args.json).write_text(json.dumps(m.to_dict(), indent=2) + "\n")
+        write_json(args.json, m.to_dict())
         print(f"  metrics written to {args.json}")
     if args.plot:
         files = plot_replay(series, Path(args.plot), f"{m.scenario} / {m.controller}")

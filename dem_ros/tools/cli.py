@@ -67,6 +67,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     cfg, sc = load_config(args)
     duration = args.duration if args.duration is not None else sc.duration
+    if args.delay is not None:  # checked here, before the kernels load (simulate checks it again)
+        SCHEMA.spec("controller", "command_delay").coerce(args.delay, "--delay (controller.command_delay)")
     print(f"dem-ros sim: {sc.name} ({sc.description}), {duration:g} s", flush=True)
     warm_kernels("dem-ros sim")
     res = simulate(cfg, controller=args.controller, estimator=args.estimator, duration=duration,

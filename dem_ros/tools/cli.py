@@ -289,7 +289,9 @@ def build_parser() -> argparse.ArgumentParser:
     rp.set_defaults(func=replay.cmd_replay)
 
     bg = sub.add_parser("bag", help="inspect bags")
-    bg.add_argument("action", choices=["check", "info"])
+    bg.add_argument("action", choices=["check", "info"],
+                    help="info: what the bag holds (topics, types, counts, the run); check: its integrity "
+                         "(summary, chunks, sample gaps, rates, problems; exit 1 if any)")
     bg.add_argument("bag")
     bg.set_defaults(func=replay.cmd_bag)
 

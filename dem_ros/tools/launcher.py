@@ -329,6 +329,9 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
     if getattr(args, "fault", None) and hardware not in ("rig", "rig-serial"):
         raise UsageError("--fault needs --hardware rig or rig-serial (faults are injected by the emulated rig)")
     transport = _resolve_transport(args.transport)
+    if not quiet:
+        print(f"dem-ros launch: {sc.name} ({sc.description}), controller {cfg['controller']['type']},"
+              f" estimator {cfg['estimator']['type']}, {duration:g} s, transport {transport}", file=sys.stderr, flush=True)
     # compile once, here, with progress; the nodes then load the cache instead of compiling in parallel
     warm_kernels("dem-ros launch", stream=io.StringIO() if quiet else None)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -344,9 +347,6 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
     meta = {"scenario": sc.name, "scenario_description": sc.description, "controller": cfg["controller"]["type"],
             "estimator": cfg["estimator"]["type"], "transport": transport, "duration_s": duration,
             "dem_ros_version": __version__, "config": cfg, "started": datetime.now().isoformat(timespec="seconds")}
-    if not quiet:
-        print(f"dem-ros launch: {sc.name} ({sc.description}), controller {meta['controller']}, estimator {meta['estimator']},"
-              f" {duration:g} s, transport {transport}", file=sys.stderr)
     compose = bool(getattr(args, "compose", False))
     meta["composed"] = compose
     if hardware is not None:  # a rig measures no gap rates: the offline comparison neither

@@ -4,13 +4,27 @@ Under a sourced ROS 2 (colcon build), every node gets its own console script
 so that ``ros2 run dem_ros controller`` works. A plain ``pip install`` gets only
 the namespaced ``dem-ros`` CLI, never bare names such as ``controller`` on PATH.
 """
+import ast
 import os
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 package_name = "dem_ros"
-NODES = ("plant_sim", "hw_driver", "estimator", "controller", "reference", "recorder", "container")
+
+
+def _nodes() -> tuple:
+    """dem_ros.nodes.NODES, read without importing the package (its dependencies may not be installed yet)."""
+    tree = ast.parse((Path(__file__).parent / "dem_ros" / "nodes" / "__init__.py").read_text())
+    for stmt in tree.body:
+        targets = stmt.targets if isinstance(stmt, ast.Assign) else [getattr(stmt, "target", None)]
+        if any(isinstance(t, ast.Name) and t.id == "NODES" for t in targets):
+            return tuple(ast.literal_eval(stmt.value))
+    raise RuntimeError("dem_ros/nodes/__init__.py defines no NODES")
+
+
+NODES = _nodes()
 
 scripts = ["dem-ros = dem_ros.tools.cli:main"]
 if os.environ.get("AMENT_PREFIX_PATH") or os.environ.get("DEM_ROS_NODE_SCRIPTS"):

@@ -8,8 +8,9 @@ What each setting is for (a Python loop on a stock, non-RT Linux kernel):
   the difference between wake-ups > 1 ms late in ~5-10 % of periods and in < 1 % (measured
   here, see the README's "Speed" section). Applied to the loop's thread (the one that calls
   :func:`enter_loop`) and to the DDS threads that receive and deliver samples (cyclonedds
-  ``recv*`` / ``dq.*``), which sit on the same path in a process-per-node graph. The
-  process's other Python threads (the bag writer) get ``priority - 1``: they share the GIL
+  ``recv*`` / ``dq.*``), which sit on the same path in a process-per-node graph; its
+  timed-event and collector threads (``tev``, ``gc``: heartbeats, acknowledgements, discovery)
+  get ``priority - 1``, and so do the process's other Python threads (the bag writer): they share the GIL
   with the loop, and a helper thread preempted by a busy neighbour while it holds the GIL
   would keep the loop waiting for it (priority inversion); they sleep between their bursts.
 * **mlockall** (``lock_memory``; ``MCL_CURRENT | MCL_FUTURE | MCL_ONFAULT``): no page the process
@@ -75,6 +76,9 @@ _PR_SET_TIMERSLACK = 29
 _MCL_CURRENT, _MCL_FUTURE, _MCL_ONFAULT = 1, 2, 4
 #: cyclonedds threads on the sample path: receive (``recv``, ``recvUC``, ``recvMC``) and delivery (``dq.*``)
 _DDS_PATH_THREADS = ("recv", "dq.")
+#: cyclonedds's timed events (heartbeats, acknowledgements, discovery) and its garbage collector: starved
+#: at normal priority on a loaded machine, remote peers (``dem-ros param``) cannot find the node in time
+_DDS_SERVICE_THREADS = ("tev", "gc")
 #: start of the line that reports what a process was granted (JSON follows; the launcher reads it)
 REPORT_PREFIX = "REALTIME "
 #: how to grant what is missing (one line)
@@ -201,7 +205,9 @@ def _loop_threads(priority: int) -> list[tuple[int, str, int]]:
     sample path at ``priority``; the process's other Python threads one below it."""
     me = threading.get_native_id()
     out = [(me, _thread_name(me), priority)]
-    out += [(t, n, priority) for t, n in _threads() if t != me and n.startswith(_DDS_PATH_THREADS)]
+    os_threads = [(t, n) for t, n in _threads() if t != me]
+    out += [(t, n, priority) for t, n in os_threads if n.startswith(_DDS_PATH_THREADS)]
+    out += [(t, n, max(1, priority - 1)) for t, n in os_threads if n in _DDS_SERVICE_THREADS]
     out += [(t.native_id, t.name, max(1, priority - 1)) for t in threading.enumerate()
             if t.native_id is not None and t.native_id != me and t.is_alive()]
     return out

@@ -31,7 +31,8 @@ Modes (:class:`Mode`, the values of the device link's mode byte)::
 
 Faults latch with a reason (``fault``); ``reason`` explains the current mode;
 ``counters`` count samples and events (``holds``, ``hold_events``, ``clipped``,
-``rejected``, ``landings``, ``trips``, ``estops``, ``landed``).
+``rejected``, ``landings``, ``trips``, ``estops``, ``landed``) and keep ``longest_hold_us``
+(the longest hold that ended without a landing, or is still going).
 
 The landing law (uses only what a board has: measured gaps y (2,) [m] and coil
 currents i (2,) [A], nominal parameters m, R, K, L, l, I, N1, N2, g)
@@ -130,14 +131,14 @@ I_OFF = 0.02  # A: below this, LANDED applies 0 V
 
 
 class Mode(enum.IntEnum):
-    """Board mode; the values are the device link's mode byte."""
+    """Board mode; the values are the device link's mode byte (``dem_ros.hardware.link`` imports this)."""
 
-    OFF = 0
-    RUN = 1
-    HOLD = 2
-    LAND = 3
-    LANDED = 4
-    FAULT = 5
+    OFF = 0  # no current in the coils (plate resting on its support, or not started)
+    RUN = 1  # applying the commanded voltages, clipped to u_max
+    HOLD = 2  # a command is late: the last one is held, at most hold_timeout
+    LAND = 3  # the landing law lowers the plate away from the rail at <= landing_speed (also after a trip or e-stop)
+    LANDED = 4  # on the support at landing_gap, current removed
+    FAULT = 5  # a non-finite gap or current: nothing left to control with, 0 V (latched)
 
 
 class SafetyError(ValueError):
@@ -270,7 +271,8 @@ class Supervisor:
         reason: why the supervisor is in this mode ("" in OFF/RUN).
         fault: the latched fault reason ("" when none), cleared by ``clear()``.
         counters: sample and event counts (see the module docstring).
-        u (2,): the voltages applied by the last ``step`` [V].
+        u (2,): the voltages applied by the last ``step`` [V] (the array ``step`` returned;
+            the board may return it again, never changes it in place).
         estimate (3, 2): observer state [gap m, rate m/s, missed acceleration m/s^2] per load point.
     """
 
@@ -278,7 +280,11 @@ class Supervisor:
         missing = [k for k in SAFETY_KEYS + PLANT_KEYS if k not in cfg]
         if missing:
             raise SafetyError(f"supervisor configuration lacks {missing}")
-        c = {k: float(cfg[k]) for k in SAFETY_KEYS + PLANT_KEYS}
+        try:
+            c = {k: float(cfg[k]) for k in SAFETY_KEYS + PLANT_KEYS}
+        except (TypeError, ValueError):
+            bad = {k: cfg[k] for k in SAFETY_KEYS + PLANT_KEYS if not isinstance(cfg[k], (int, float))}
+            raise SafetyError(f"supervisor configuration: not numbers: {bad}") from None
         for k in ("u_max", "i_max", "hold_timeout", "landing_gap", "landing_speed", "m", "R", "K", "L", "l", "I"):
             if not (math.isfinite(c[k]) and c[k] > 0):
                 raise SafetyError(f"{k} = {c[k]!r} must be a positive finite number")
@@ -329,8 +335,18 @@ class Supervisor:
         self.mode = Mode(mode)
         self.reason = ""
         self.fault = ""
+        self._load_kernels()
         self.counters = dict.fromkeys(
-            ("holds", "hold_events", "clipped", "rejected", "landings", "trips", "estops", "landed"), 0)
+            ("holds", "hold_events", "longest_hold_us", "clipped", "rejected", "landings", "trips", "estops", "landed"), 0)
+
+    def _load_kernels(self) -> None:
+        """Load (or compile: seconds) the numba kernels now, on scratch data, never in a sample."""
+        s, a = np.zeros((3, 2)), np.zeros(2)
+        s[0, :] = self.cfg["landing_gap"]
+        de1, de2 = _deltas(self._p, s[0, 0], s[0, 1])
+        _model_accel(self._p, de1, de2, 1.0, 1.0, a)
+        _observe(self._p, self._Lo, s, a, s[0, 0], s[0, 1], 1.0, 1.0)
+        _land_law(self._p, s, np.zeros((3, 2)), np.zeros(2), np.ones(2), False, np.zeros(2))
 
     # -- commands from outside -------------------------------------------------------------
     def land(self, reason: str) -> None:
@@ -446,8 +462,11 @@ class Supervisor:
             if mode == Mode.RUN:
                 self.mode, self.reason = Mode.HOLD, "command missing"
                 self.counters["hold_events"] += 1
-            if t_ns - self._t_fresh <= self._hold_ns:
+            held = t_ns - self._t_fresh
+            if held <= self._hold_ns:
                 self.counters["holds"] += 1
+                if held > self.counters["longest_hold_us"] * 1000:
+                    self.counters["longest_hold_us"] = held // 1000
                 self.u = self._u_last
                 return self.u
             self.land(f"no command for {(t_ns - self._t_fresh) * 1e-6:.1f} ms (hold_timeout "

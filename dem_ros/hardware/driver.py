@@ -5,7 +5,7 @@ the ``hw_driver`` node feeds it the bytes it receives and sends what it returns.
 
 Lifecycle (published on ``/dem/hw/state`` and in ``/diagnostics``)::
 
-    INACTIVE --arm()--> ARMED --first controller command--> ACTIVE
+    INACTIVE --arm()--> ARMED --arm_samples controller commands in time--> ACTIVE
         ^                 |                                    |
         +---disarm()------+------------------------------------+  (a controlled landing, LAND)
     any --trip / e-stop / watchdog / link loss--> FAULT (latched: LAND is sent every sample)
@@ -171,6 +171,7 @@ class HwDriver:
         self.last_cmd_steady: int | None = None
         self.last_cmd_seq: int | None = None
         self._sent = [-1] * SENT_RING  # the samples whose command was forwarded, by seq
+        self._in_time = 0  # consecutive in-time controller commands while armed
         self.u_last = np.zeros(2)
         self._over = {"current": 0, "gap": 0}
         self._sensor_bad = [0, 0]  # consecutive out-of-range samples per gap channel
@@ -193,7 +194,8 @@ class HwDriver:
         self.reason = ""
         self._over = {"current": 0, "gap": 0}
         self.last_cmd_steady = None
-        return f"armed (was {was.name.lower()}); active at the first controller command"
+        self._in_time = 0
+        return f"armed (was {was.name.lower()}); active after {self.cfg['arm_samples']} controller commands in time"
 
     def disarm(self) -> str:
         """Any state -> INACTIVE (a fault is cleared); a levitating board is told to LAND."""
@@ -239,6 +241,9 @@ class HwDriver:
         rate = round(1e9 / self.dt_ns)
         if h.rate_hz != rate:
             self.fault(f"board samples at {h.rate_hz} Hz, the driver is configured for {rate} Hz (dt)")
+        elif h.command_delay and h.command_delay != self.cfg["command_delay"]:
+            self.fault(f"board applies commands {h.command_delay} samples late, the controller predicts over "
+                       f"{self.cfg['command_delay']} (command_delay)")
         return None
 
     def _seq_check(self, seq: int) -> bool:
@@ -370,7 +375,8 @@ class HwDriver:
     def command(self, stamp_ns: int, u, steady_ns: int) -> bytes | None:
         """A controller command (voltages [V], stamped with its measurement) -> a RUN frame, or None.
 
-        Forwarded only when ARMED (-> ACTIVE) or ACTIVE, for a sample the board has not yet passed
+        Forwarded only when ACTIVE (ARMED -> ACTIVE after ``arm_samples`` consecutive commands in time:
+        the loop proves itself live before the board gets its first command), for a sample the board has not yet passed
         (newest seq - its seq < ``command_delay``: the board applies it at its tick seq + command_delay).
         A command too late to apply is counted ``commands_stale`` but still proves the controller
         alive: the watchdog measures the controller, the board's own watchdog the freshness.
@@ -391,8 +397,12 @@ class HwDriver:
             self.last_cmd_steady = steady_ns  # the controller is alive (the watchdog's question)
         if behind >= self.cfg["command_delay"]:
             self.counters["commands_stale"] += 1  # too late to be applied: the board holds (its own watchdog)
+            self._in_time = 0
             return None
         if self.state == DriverState.ARMED:
+            self._in_time += 1  # the loop proves itself live before the board gets its first command
+            if self._in_time < self.cfg["arm_samples"]:
+                return None
             self.state = DriverState.ACTIVE
         self.last_cmd_steady = steady_ns
         self.last_cmd_seq = seq

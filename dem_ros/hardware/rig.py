@@ -231,7 +231,7 @@ class Board:
             self.c.hellos += 1
             self.streaming = True
             return encode(Hello(PROTOCOL_VERSION, self.rc["board_id"], round(1 / self.dt), self.rc["adc_bits"],
-                                self.rc["adc_vref"], round(self.pc["hold_timeout"] * 1e3)))
+                                self.rc["adc_vref"], round(self.pc["hold_timeout"] * 1e3), self.delay))
         if isinstance(f, CommandFrame):
             if f.mode == Mode.RUN:
                 self.cmds[f.seq % CMD_RING] = f  # kept by the sample it answers

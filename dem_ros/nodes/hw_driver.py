@@ -265,7 +265,7 @@ class HwDriverNode:
             print(f"t = {s['t_sim_s']:7.1f} s  gaps {g[0] * 1e3:6.3f} / {g[1] * 1e3:6.3f} mm  {s['state']}"
                   f" (board {s['board_mode']})  lost {s['lost']} late {s['late']} corrupt {s['corrupt']} holds {s['hold_samples']}"
                   f"  latency p50 {s['latency_p50_us']:.0f} us p99 {s['latency_p99_us']:.0f} us", flush=True)
-        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), "hw_driver: loop", self._level(),
+        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), contract.HW_LOOP_STATUS, self._level(),
                                          s["state"] + (f": {s['reason']}" if s["reason"] else ""), s))
 
     def finish(self) -> None:
@@ -275,7 +275,7 @@ class HwDriverNode:
         s = self.stats()
         msg = f"finished {self.cfg['duration']:g} s; board {s['board_mode']}" + (f"; fault: {self.failed}" if self.failed else "")
         self.node.logger.info(msg)
-        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), "hw_driver: loop", 2 if self.failed else 0,
+        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), contract.HW_LOOP_STATUS, 2 if self.failed else 0,
                                          "finished: " + msg, s))
         self.publish_state(force=True)
         self.node.timer(0.3, self.node.shutdown)

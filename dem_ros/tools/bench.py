@@ -242,12 +242,11 @@ def _plant_status(bag: Path) -> dict[str, str]:
     """The key/values of the plant's last loop status in ``bag`` (holds, landing, ... when reported)."""
     from .. import contract
     from ..bag import BagReader
-    from .runmetrics import LOOP_STATUS
 
     last: dict[str, str] = {}
     for _, _, msg in BagReader(bag).messages([contract.DIAGNOSTICS.name]):
         for st in msg.status:
-            if st.name == LOOP_STATUS:
+            if st.name == contract.LOOP_STATUS:
                 last = {kv.key: kv.value for kv in st.values}
     return last
 

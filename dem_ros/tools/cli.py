@@ -27,6 +27,7 @@ from typing import NoReturn
 
 from .. import __version__
 from ..core.params import SCHEMA, ConfigError
+from ..nodes import NODES
 from ..transport import param_get, param_set
 from . import bench, launcher, node_main, replay, study
 from .common import (
@@ -273,7 +274,7 @@ def build_parser() -> argparse.ArgumentParser:
     hw.set_defaults(func=cmd_hw)
 
     nd = sub.add_parser("node", help="run one node of the graph")
-    nd.add_argument("name", choices=node_main.NODES)
+    nd.add_argument("name", choices=NODES)
     nd.add_argument("--transport", default="auto", choices=_TRANSPORTS,
                     help="auto (rclpy when it imports) | rclpy | dds; before or after NAME")
     nd.add_argument("ros_args", nargs=argparse.REMAINDER, help="node options, then --ros-args ... (params file, remaps)")

@@ -1,30 +1,32 @@
-"""Run one node: ``python -m dem_ros.tools.node_main NAME [--transport T] [node args] [--ros-args ...]``."""
+"""Run one node: ``python -m dem_ros.tools.node_main NAME [--transport T] [node args] [--ros-args ...]``.
+
+Every node of :data:`dem_ros.nodes.NODES` is run by its module's ``main(args)``;
+the transport is handed over as ``DEM_ROS_TRANSPORT`` (what ``auto`` resolves to).
+"""
 
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 
-from ..transport import run_node
+from ..nodes import NODES
+from ..transport import TRANSPORTS
 
-__all__ = ["NODES", "main", "run"]
-
-#: what ``dem-ros node NAME`` can run: the graph's nodes and ``container`` (all of them in one process)
-NODES = ("plant_sim", "hw_driver", "estimator", "controller", "reference", "recorder", "container")
-#: nodes whose ``main`` parses its own arguments (``--transport``, ``--bag``, ...)
-_OWN_ARGS = ("recorder", "container")
-_CLASSES = {"plant_sim": "PlantSimNode", "hw_driver": "HwDriverNode", "estimator": "EstimatorNode", "controller": "ControllerNode",
-            "reference": "ReferenceNode"}
+__all__ = ["main", "run"]
 
 
 def run(name: str, rest: list[str], transport: str = "auto") -> int:
     if name not in NODES:
         print(f"error: unknown node {name!r}; known: {', '.join(NODES)}", file=sys.stderr)
         return 2
+    if transport not in TRANSPORTS:
+        print(f"error: unknown transport {transport!r}; known: {', '.join(TRANSPORTS)}", file=sys.stderr)
+        return 2
+    if transport != "auto":
+        os.environ["DEM_ROS_TRANSPORT"] = transport
     mod = importlib.import_module(f"dem_ros.nodes.{name}")
-    if name in _OWN_ARGS:
-        return int(mod.main(["--transport", transport, *rest]))
-    return run_node(name, getattr(mod, _CLASSES[name]), args=rest, transport=transport)
+    return int(mod.main(list(rest)) or 0)
 
 
 def main() -> int:

@@ -1,12 +1,13 @@
 """Render the parameter schema as a ROS 2 params file (``config/dem_ros.yaml``).
 
 The file is generated from the schema, never edited by hand for defaults;
-``tests`` check that the committed file and the schema agree.
+``tests/tools/test_params_file.py`` checks that the committed file and the schema agree.
 """
 
 from __future__ import annotations
 
 from ..core.params import SCHEMA
+from .common import yaml_scalar
 
 __all__ = ["render_params_file"]
 
@@ -17,20 +18,6 @@ HEADER = """\
 """
 
 
-def _yaml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return f'"{v}"'
-    if isinstance(v, float):
-        text = repr(v)
-        if "e" in text and "." not in text.split("e")[0]:
-            mant, exp = text.split("e")
-            text = f"{mant}.0e{exp}"
-        return text
-    return str(v)
-
-
 def render_params_file() -> str:
     lines = [HEADER]
     for group, specs in SCHEMA.groups.items():
@@ -39,6 +26,6 @@ def render_params_file() -> str:
         for p in specs:
             unit = f" [{p.unit}]" if p.unit else ""
             lines.append(f"    # {p.description}{unit}; {p.allowed()}")
-            lines.append(f"    {p.name}: {_yaml_value(p.default)}")
+            lines.append(f"    {p.name}: {yaml_scalar(p.default)}")
         lines.append("")
     return "\n".join(lines)

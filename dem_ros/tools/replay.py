@@ -102,7 +102,10 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     cfg = run.get("config")
     if not cfg:
         raise BagError(f"{bag}: no recorded configuration (run_info); cannot re-run the controller")
-    cfg = apply_overrides(default_config(), {g: v for g, v in cfg.items() if g in SCHEMA.groups}, "recorded config")
+    # a bag of an older version may carry parameters removed since (plant_sim.command_timeout): skip those
+    known = {g: {p.name for p in specs} for g, specs in SCHEMA.groups.items()}
+    recorded = {g: {n: x for n, x in v.items() if n in known[g]} for g, v in cfg.items() if g in SCHEMA.groups}
+    cfg = apply_overrides(default_config(), recorded, "recorded config")
     recorded_law = cfg["controller"]["type"]
     ccfg = dict(cfg["controller"])
     for text in sets or []:

@@ -26,12 +26,7 @@ from .. import contract
 from ..core.metrics import error_metrics
 from .common import fmt_pair
 
-__all__ = ["LOOP_STATUS", "LoopStats", "RunMetrics", "load_run"]
-
-#: the name of the plant's once-a-second loop status in /diagnostics
-LOOP_STATUS = "plant_sim: loop"
-#: ... and of the hardware driver's, which stands in for the plant on a rig (same keys)
-LOOP_STATUSES = (LOOP_STATUS, "hw_driver: loop")
+__all__ = ["LoopStats", "RunMetrics", "load_run"]
 
 _NAN = float("nan")
 
@@ -227,7 +222,7 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     laws: list[str] = []
     for _, log_ns, msg in r.messages([contract.DIAGNOSTICS.name]):
         for s in msg.status:
-            if s.name in LOOP_STATUSES:
+            if s.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
                 loop_hist.append((log_ns, {kv.key: kv.value for kv in s.values}))
             elif s.name == "controller":
                 law = next((kv.value for kv in s.values if kv.key == "law"), "")

@@ -25,13 +25,14 @@ Transports:
 
 Messages: assign Python lists (``array.tolist()``) to sequence fields; the DDS
 classes do not take numpy arrays. Environment for the dds transport:
-``ROS_DOMAIN_ID`` (0..101), ``DEM_ROS_DISTRO`` (jazzy | humble | iron, sets the
+``DEM_ROS_TRANSPORT`` (what ``auto`` means), ``ROS_DOMAIN_ID`` (0..101), ``DEM_ROS_DISTRO`` (jazzy | humble | iron, sets the
 GID size and type hashes), ``ROS_AUTOMATIC_DISCOVERY_RANGE`` (default
 LOCALHOST), ``ROS_STATIC_PEERS``, ``CYCLONEDDS_URI``.
 """
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 from collections.abc import Callable, Sequence
@@ -90,9 +91,16 @@ def rclpy_available() -> bool:
 
 
 def _pick(transport: str) -> str:
+    """``auto`` -> ``DEM_ROS_TRANSPORT`` if set (``dem-ros node --transport`` sets it), else rclpy if
+    importable, else dds."""
     if transport not in TRANSPORTS:
         raise TransportError(f"transport {transport!r} is not one of {', '.join(TRANSPORTS)}")
     if transport == "auto":
+        env = os.environ.get("DEM_ROS_TRANSPORT", "auto")
+        if env not in TRANSPORTS:
+            raise TransportError(f"DEM_ROS_TRANSPORT={env!r} is not one of {', '.join(TRANSPORTS)}")
+        if env != "auto":
+            return env
         return "rclpy" if rclpy_available() else "dds"
     return transport
 

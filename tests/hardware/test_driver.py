@@ -10,7 +10,7 @@ from dem_ros.hardware.driver import Calibration, DriverError, DriverState, HwDri
 from dem_ros.hardware.link import CommandFrame, Hello, Mode, SensorFrame, decode, encode
 
 MS = 1_000_000
-CFG = SCHEMA.defaults("hw_driver")
+CFG = SCHEMA.defaults("hw_driver") | {"arm_samples": 1}  # (arm_samples has its own test)
 # counts of the default calibration near 5 mm and 2.5 A (gap = c1 n + c2 n^2; i = g (n - o))
 N_GAP = 19283
 N_CUR = 32768 + 8192
@@ -122,10 +122,13 @@ def test_ten_thousand_random_and_mutated_frames_are_rejected_by_count_never_rais
     assert rejected >= 9_990
 
 
-def test_a_board_with_another_rate_is_a_fault():
+def test_a_board_with_another_rate_or_command_delay_is_a_fault():
     d = HwDriver(CFG)
     d.on_bytes(encode(Hello(1, 7, 500, 16, 10.0, 20)), 0, 0)
     assert d.state == DriverState.FAULT and "500 Hz" in d.reason
+    d = HwDriver(CFG)
+    d.on_bytes(encode(Hello(1, 7, 1000, 16, 10.0, 20, 3)), 0, 0)
+    assert d.state == DriverState.FAULT and "3 samples late" in d.reason
 
 
 # -- lifecycle, commands, watchdog, limits ------------------------------------------------------------
@@ -145,6 +148,23 @@ def test_commands_flow_only_when_armed_and_the_first_makes_the_driver_active():
     assert d.command(s2.stamp_ns + 5 * MS, [50.0, 50.0], k * MS) is None  # from the future
     assert d.command(s2.stamp_ns, [np.nan, 50.0], k * MS) is None
     assert d.counters["commands_dropped"] == 3  # inactive, future, non-finite
+
+
+def test_armed_becomes_active_only_after_arm_samples_commands_in_time():
+    d, k = synced({"arm_samples": 3, "command_delay": 1})
+    d.arm()
+    for j in range(2):
+        s, _ = feed(d, k + j)
+        assert d.command(s.stamp_ns, [50.0, 50.0], (k + j) * MS) is None and d.state == DriverState.ARMED
+    s, _ = feed(d, k + 2)
+    feed(d, k + 3)
+    assert d.command(s.stamp_ns, [50.0, 50.0], (k + 3) * MS) is None  # late: the count starts again
+    for j in range(4, 6):
+        s, _ = feed(d, k + j)
+        assert d.command(s.stamp_ns, [50.0, 50.0], (k + j) * MS) is None
+    s, _ = feed(d, k + 6)
+    assert decode(d.command(s.stamp_ns, [50.0, 50.0], (k + 6) * MS)).seq == k + 6  # the third in a row
+    assert d.state == DriverState.ACTIVE
 
 
 def test_voltage_is_clipped_to_u_max_and_counted():

@@ -47,7 +47,7 @@ class Loop:
 
 def hover_loop(b: Board, cfg, n: int, drv: HwDriver | None = None, skip=lambda k: False):
     """Close the loop through the link codec and the driver, one board tick at a time (no clock)."""
-    drv = drv or HwDriver(cfg["hw_driver"] | {"clock_sync_frames": 1})
+    drv = drv or HwDriver(cfg["hw_driver"] | {"clock_sync_frames": 1, "arm_samples": 1})
     if drv.state.name == "INACTIVE":
         drv.arm()
     law = Loop(cfg)
@@ -74,7 +74,8 @@ def hover_loop(b: Board, cfg, n: int, drv: HwDriver | None = None, skip=lambda k
 def test_hello_reports_rate_adc_and_watchdog():
     _b, cfg, hello = make()
     assert isinstance(hello, Hello)
-    assert (hello.rate_hz, hello.adc_bits, hello.watchdog_ms) == (1000, 16, round(cfg["plant_sim"]["hold_timeout"] * 1e3))
+    assert (hello.rate_hz, hello.adc_bits, hello.watchdog_ms, hello.command_delay) == \
+        (1000, 16, round(cfg["plant_sim"]["hold_timeout"] * 1e3), cfg["hw_driver"]["command_delay"])
 
 
 def test_sensor_frames_invert_the_drivers_calibration_to_one_count():
@@ -164,3 +165,49 @@ def test_an_operator_off_after_landing_clears_the_board():
     b.tick()
     assert Mode(b.sup.mode) == Mode.OFF
     assert Status.LINK_TIMEOUT not in Status(0)
+
+
+def test_s1_through_the_board_models_in_lockstep_tracks_as_offline():
+    """The hardware path without the clock: rig sensors (16-bit ADC, calibration), actuators (12-bit PWM,
+    bus sag), the Supervisor, the link codec and the driver, closed by the graph's estimator and
+    controller at command_delay 2, every command in time. Tracks S1 within max(2x offline, offline +
+    10 um) RMS: what the free-running runs lose is the clock (README: hardware in the loop)."""
+    from dem_ros.core.reference import ReferenceModel, command
+    from dem_ros.core.simulate import simulate
+
+    duration, d = 12.0, 2
+    b, cfg, _ = make()
+    cfg["controller"]["command_delay"] = cfg["hw_driver"]["command_delay"] = cfg["plant_sim"]["command_delay"] = d
+    b.delay = d
+    drv = HwDriver(cfg["hw_driver"] | {"clock_sync_frames": 1})
+    drv.arm()
+    law = Loop(cfg)
+    model = ReferenceModel(cfg["reference"])
+    rest = model.step_hold().copy()
+    epoch = None
+    e = []
+    for _ in range(round((duration + 1.5) / 1e-3)):
+        data = b.tick()
+        s, reply = drv.on_bytes(data, 10**18 + b.n * MS, b.n * MS)
+        if reply is not None:
+            b.receive(reply)
+        if s is None:
+            continue
+        if epoch is None and b.released_at is not None:
+            epoch = b.released_at + b.n_pre  # the driver's t = 0: preroll after the release
+        k = s.seq - epoch if epoch is not None else -1
+        law.ref[:] = rest if k <= 0 else model.step(command(cfg["reference"], k * 1e-3))
+        if k >= 0:
+            truth = b.plant.x  # (the state this frame sampled: the board integrates after sending)
+            e.append(np.array([truth[0], truth[2]]) - law.ref[:2])
+        u = law(s)
+        cmd = drv.command(s.stamp_ns, u, b.n * MS)
+        if cmd is not None:
+            b.receive(cmd)
+        if k >= duration / 1e-3:
+            break
+    assert b.failed is None and Mode(b.sup.mode) == Mode.RUN and drv.state.name == "ACTIVE"
+    rms = np.sqrt(np.mean(np.square(e), axis=0)) * 1e6
+    off = np.array(simulate(cfg, controller="adaptive", estimator="kf", duration=duration, scenario="S1").metrics()["rms_error_um"])
+    print(f"lockstep rig RMS {rms} um, offline {off} um")
+    assert np.all(rms <= np.maximum(2 * off, off + 10.0)), (rms, off)

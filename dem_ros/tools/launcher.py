@@ -293,6 +293,8 @@ def _resolve_transport(transport: str) -> str:
     """``auto`` -> the transport the nodes will use (rclpy when it imports, else dds)."""
     from ..transport import rclpy_available
 
+    if transport == "rclpy" and not rclpy_available():
+        raise UsageError("--transport rclpy needs a sourced ROS 2 (import rclpy failed); use dds")
     return ("rclpy" if rclpy_available() else "dds") if transport == "auto" else transport
 
 

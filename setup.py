@@ -51,6 +51,8 @@ setup(
         "cyclonedds>=0.10.5",
         "rosbags>=0.10",
         "mcap>=1.1",
+        "dask[distributed]>=2024.1",
+        "pyserial>=3.4",  # the device link over serial lines (dem_ros/hardware/channel.py)
     ],
     extras_require={"test": ["pytest>=7", "sympy>=1.12", "control>=0.10"]},
     zip_safe=True,
@@ -58,6 +60,5 @@ setup(
     maintainer_email="dem-ros@example.com",
     description="Adaptive control of a double-electromagnet maglev suspension as a ROS 2 package.",
     license="Apache-2.0",
-    tests_require=["pytest"],
     entry_points={"console_scripts": scripts},
 )

@@ -60,6 +60,5 @@ setup(
     maintainer_email="dem-ros@example.com",
     description="Adaptive control of a double-electromagnet maglev suspension as a ROS 2 package.",
     license="Apache-2.0",
-    tests_require=["pytest"],
     entry_points={"console_scripts": scripts},
 )

@@ -8,7 +8,6 @@ the numbers (never written by hand).
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 import time
@@ -19,6 +18,7 @@ import numpy as np
 
 from ..core.scenarios import load_scenarios
 from ..core.simulate import simulate
+from .common import write_json
 from .plots import figure, overlay, save
 from .study import report_section
 
@@ -233,7 +233,7 @@ def make_report(out: Path, duration: float | None = None, jobs: int | None = Non
     t0 = time.perf_counter()
     print(f"running {len(load_scenarios()) * len(ORDER) * len(ESTIMATORS)} closed-loop runs ...", file=sys.stderr)
     results = run_matrix(duration, jobs)
-    (out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
+    write_json(out / "results.json", results)
     print("figures ...", file=sys.stderr)
     figs = _paper_figures(out, duration)
     scen = list(load_scenarios())

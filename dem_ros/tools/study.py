@@ -78,7 +78,7 @@ from typing import Any
 import numpy as np
 
 from ..core.params import SCHEMA, ConfigError, ParamSpec, apply_overrides
-from .common import CONTROLLER_TYPES, ESTIMATOR_TYPES, load_config
+from .common import CONTROLLER_TYPES, ESTIMATOR_TYPES, json_text, load_config
 
 __all__ = [
     "Axis",
@@ -567,7 +567,7 @@ def _write_spec(spec: StudySpec, out: Path, run_ids: list[str], stats: Mapping[s
         "last_session": stats if stats is not None else old.get("last_session"),
         "run_ids": run_ids,
     }
-    p.write_text(json.dumps(doc, indent=1) + "\n")
+    p.write_text(json_text(doc))
 
 
 # ---------------------------------------------------------------------------
@@ -852,7 +852,7 @@ def cmd_study(args: argparse.Namespace) -> int:
                       progress=not args.quiet, timeout=timeout)
     doc = json.loads((out / "study.json").read_text())
     doc["rms_limit_um"] = limit
-    (out / "study.json").write_text(json.dumps(doc, indent=1) + "\n")
+    (out / "study.json").write_text(json_text(doc))
     if stats["already_done"]:
         print(f"  {stats['already_done']} runs already in {out / 'results.csv'} (skipped)")
     if stats["ran"]:

@@ -28,7 +28,7 @@ class ReferenceNode:
         self.node = node
         self.cfg = node.declare_parameters("reference", self.on_change)
         self.model = ReferenceModel(self.cfg)
-        self.dt_ns = int(round(self.cfg["dt"] * 1e9))
+        self.dt_ns = round(self.cfg["dt"] * 1e9)
         self.epoch: int | None = None
         self.pre_seen = False
         self.next_k = 0
@@ -46,6 +46,7 @@ class ReferenceNode:
         return None
 
     def _publish_upto(self, k_last: int) -> None:
+        assert self.epoch is not None  # set by the first measurement
         while self.next_k <= k_last:
             t = self.next_k * self.cfg["dt"]
             r = command(self.cfg, t)
@@ -70,7 +71,7 @@ class ReferenceNode:
             self.epoch = t
             if self.pre_seen:
                 self.next_k = 1  # sample 0 went out with the last pre-roll sample (the model at rest)
-        k = int(round((t - self.epoch) / self.dt_ns))
+        k = round((t - self.epoch) / self.dt_ns)
         self._publish_upto(k + 1)
 
 

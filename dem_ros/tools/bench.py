@@ -31,10 +31,11 @@ __all__ = ["bench_loop", "bench_record", "bench_sim", "machine", "run"]
 def machine() -> dict:
     cpu = platform.processor() or ""
     try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
     except OSError:
         pass
     return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()}
@@ -109,7 +110,7 @@ def _peer(cfg, duration: float, ref_arrays):
 
     _, ref = ref_arrays
     dt = pc["dt"]
-    n = int(round(duration / dt))
+    n = round(duration / dt)
     x, u0 = hover_state(pc, pc["gap0"])
     ctrl = make_controller(cfg["controller"], "adaptive")
     ctrl.reset(x.copy(), u0)
@@ -159,9 +160,9 @@ def bench_sim(batch: int = 64, peer_duration: float = 5.0) -> dict:
 
     offsets = np.linspace(0.0, 3.0, batch)
     simulate_batch(cfg, offsets[:2], controller="adaptive", duration=1.0)  # compile
-    t = time.perf_counter()
+    t_batch = time.perf_counter()
     simulate_batch(cfg, offsets, controller="adaptive", duration=100.0)
-    bw = time.perf_counter() - t
+    bw = time.perf_counter() - t_batch
     out["batch"] = {"plants": batch, "wall_s": bw}
     out["batch_runs_per_s"] = batch / bw
 

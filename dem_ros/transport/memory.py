@@ -45,14 +45,14 @@ START_NS = 1_700_000_000_000_000_000
 @dataclass
 class _Subscription:
     node: MemoryNode
-    callback: Callable[[Any], None]
+    callback: Callable[[Any], object]
     raw: bool
 
 
 class MemoryTimer:
     """A periodic callback on the bus's manual clock (absolute deadlines, like the DDS timer)."""
 
-    def __init__(self, node: MemoryNode, period_s: float, callback: Callable[[], None]):
+    def __init__(self, node: MemoryNode, period_s: float, callback: Callable[[], object]):
         if not period_s > 0:
             raise ValueError(f"timer period must be positive, got {period_s!r} s")
         self.node = node
@@ -145,18 +145,18 @@ class MemoryNode:
     def publisher(self, topic: Topic) -> MemoryPublisher:
         return MemoryPublisher(self.bus, self.resolve(topic.name), topic.type)
 
-    def _subscribe(self, topic: Topic, callback: Callable[[Any], None], raw: bool) -> None:
+    def _subscribe(self, topic: Topic, callback: Callable[[Any], object], raw: bool) -> None:
         name = self.resolve(topic.name)
         sub = _Subscription(self, self._guard.wrap(f"subscription {name}", callback), raw)
         self.bus.subscriptions.setdefault(name, []).append(sub)
 
-    def subscribe(self, topic: Topic, callback: Callable[[Any], None]) -> None:
+    def subscribe(self, topic: Topic, callback: Callable[[Any], object]) -> None:
         self._subscribe(topic, callback, raw=False)
 
     def subscribe_raw(self, topic: Topic, callback: RawCallback) -> None:
         self._subscribe(topic, callback, raw=True)
 
-    def timer(self, period_s: float, callback: Callable[[], None]) -> MemoryTimer:
+    def timer(self, period_s: float, callback: Callable[[], object]) -> MemoryTimer:
         t = MemoryTimer(self, period_s, self._guard.wrap(f"timer {period_s:g} s", callback))
         self.bus.timers.append(t)
         return t

@@ -115,8 +115,9 @@ class MemoryNode:
                  ignore_undeclared: bool = False):
         self.bus = bus
         self._ros_args = parse_ros_args(list(args or []))
-        self.name = self._ros_args.node_name or name
-        self.namespace = self._ros_args.namespace or "/"
+        self._given_name = name  # node-targeted ROS arguments name this one
+        self.name = self._ros_args.name_for(name)
+        self.namespace = self._ros_args.namespace_for(name)
         self._ignore_undeclared = ignore_undeclared
         self.logger = _Logger(self)
         self._guard = CallbackGuard(lambda: self.logger)
@@ -140,7 +141,7 @@ class MemoryNode:
         return dict(self._guard.errors)
 
     def resolve(self, topic_name: str) -> str:
-        return self._ros_args.resolve(topic_name, self.namespace)
+        return self._ros_args.resolve(topic_name, self.namespace, self._given_name)
 
     def publisher(self, topic: Topic) -> MemoryPublisher:
         return MemoryPublisher(self.bus, self.resolve(topic.name), topic.type)

@@ -269,8 +269,9 @@ class DdsNode:
         does not declare is left to the other nodes of the process (composition) instead of
         being an error."""
         self._ros_args: RosArgs = parse_ros_args(args)
-        self.name = self._ros_args.node_name or name
-        self.namespace = self._ros_args.namespace or "/"
+        self._given_name = name  # node-targeted ROS arguments name this one
+        self.name = self._ros_args.name_for(name)
+        self.namespace = self._ros_args.namespace_for(name)
         self._p = Participant.get(domain_id)
         self._ignore_undeclared = ignore_undeclared
         self._reader_gids: list[bytes] = []
@@ -302,7 +303,7 @@ class DdsNode:
 
     def resolve(self, topic_name: str) -> str:
         """Absolute topic name after ``-r from:=to`` remaps (relative names join the namespace)."""
-        return self._ros_args.resolve(topic_name, self.namespace)
+        return self._ros_args.resolve(topic_name, self.namespace, self._given_name)
 
     @property
     def settings(self) -> wire.Settings:

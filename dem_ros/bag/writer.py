@@ -53,6 +53,7 @@ class _DirectStream:
     def __init__(self, path: Path) -> None:
         self.fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
         self.pos = 0
+        self.writes = 0
 
     def write(self, data: bytes | bytearray | memoryview) -> int:
         view = memoryview(data)
@@ -61,6 +62,7 @@ class _DirectStream:
             k = os.write(self.fd, view)
             view = view[k:]
         self.pos += n
+        self.writes += 1
         return n
 
     def tell(self) -> int:
@@ -292,6 +294,7 @@ class BagWriter:
         self._schema: dict[str, int] = {}
         self._start = 2**63 - 1
         self._end = 0
+        self._count = 0
         self._chunk_open_since: float | None = None
         self._last_refresh = time.monotonic()
         self._closed = False
@@ -344,6 +347,7 @@ class BagWriter:
         t = int(log_time_ns)
         chunk_written = self._mcap.add_message(cid, t, cdr_bytes, t if publish_time_ns is None else int(publish_time_ns))
         self._topics[topic]["count"] += 1
+        self._count += 1
         if t < self._start:
             self._start = t
         if t > self._end:

@@ -35,6 +35,7 @@ import numpy as np
 from numba import njit
 
 __all__ = [
+    "PlantParams",
     "derived",
     "dynamics",
     "hover_current",
@@ -49,6 +50,7 @@ __all__ = [
 
 # Layout of the plant parameter vector ``p`` used by the kernels.
 IP, IQ, IA, IB, IC, ID, IK, IR, IN1, IN2, IG = range(11)
+NPP = 11
 
 
 def derived(L: float, l: float, m: float, I: float) -> tuple[float, float, float, float, float, float]:
@@ -68,6 +70,17 @@ def plant_vector(cfg: dict, m: float | None = None) -> np.ndarray:
     mass = cfg["m"] if m is None else m
     P, Q, A, B, C, D = derived(cfg["L"], cfg["l"], mass, cfg["I"])
     return np.array([P, Q, A, B, C, D, cfg["K"], cfg["R"], cfg["N1"], cfg["N2"], cfg["g"]])
+
+
+class PlantParams:
+    """Convenience wrapper: named physical parameters and their kernel vector."""
+
+    def __init__(self, cfg: dict):
+        self.cfg = dict(cfg)
+        self.vector = plant_vector(cfg)
+
+    def with_mass(self, m: float) -> np.ndarray:
+        return plant_vector(self.cfg, m)
 
 
 @njit(cache=True)

@@ -123,66 +123,62 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
             bag_args = ["--bag", str(bag), "--meta", str(meta_file)] if bag is not None else []
             extra = bag_args if name in ("recorder", "container") else []
             logs[name] = workdir / f"{name}.log"
-            cmd = _node_cmd(name, transport, params, extra)
-            if name == lead:
-                procs[name] = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                               start_new_session=True, text=True)
-            else:
-                with open(logs[name], "wb") as out:  # the child has its own descriptor
-                    procs[name] = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT,
-                                                   start_new_session=True)
+            out = subprocess.PIPE if name == lead else open(logs[name], "wb")
+            procs[name] = subprocess.Popen(_node_cmd(name, transport, params, extra), env=env, stdout=out,
+                                           stderr=subprocess.STDOUT, start_new_session=True,
+                                           text=(name == lead))
             started[name] = time.monotonic()
             if name == "controller":  # every other node is up: wait for their "ready"
                 _wait_ready({n: logs[n] for n in procs if n != "plant_sim"}, procs, timeout=120.0)
         plant = procs[lead]
-        assert plant.stdout is not None
-        with open(logs[lead], "w") as plant_log:
-            limit = time.monotonic() + 60.0 + 10.0 * (duration + cfg["plant_sim"]["preroll"])  # lockstep may run below real time
-            os.set_blocking(plant.stdout.fileno(), False)
-            buf = ""
-            while plant.poll() is None and not interrupted and time.monotonic() < limit:
-                for name, p in procs.items():
-                    if name != lead and p.poll() is not None:
-                        raise GraphError(f"node {name} exited early with code {p.returncode}; see {logs[name]}")
-                time.sleep(0.1)
-                try:
-                    chunk = plant.stdout.read()
-                except (BlockingIOError, TypeError):
-                    chunk = None
-                if chunk:
-                    plant_log.write(chunk)
-                    plant_log.flush()  # users (and tests) follow the run in the log
-                    buf += chunk
-                    lines = buf.split("\n")
-                    buf = lines[-1]
-                    for line in lines[:-1]:
-                        if line.startswith("t =") and cpu_start is None:  # the run (t >= 0) has begun
-                            cpu_start = {n: _cpu_seconds(p.pid) for n, p in procs.items()}
-                            started = {n: time.monotonic() for n in procs}
-                        if status and line.startswith("t ="):
-                            print("\r  " + line.strip(), end="", file=sys.stderr, flush=True)
-            if status:
-                print(file=sys.stderr)
-            rest = plant.stdout.read() if plant.poll() is not None else None
-            if rest:
-                plant_log.write(rest)
+        plant_log = open(logs[lead], "w")
+        limit = time.monotonic() + 60.0 + 10.0 * (duration + cfg["plant_sim"]["preroll"])  # lockstep may run below real time
+        os.set_blocking(plant.stdout.fileno(), False)
+        buf = ""
+        while plant.poll() is None and not interrupted and time.monotonic() < limit:
+            for name, p in procs.items():
+                if name != lead and p.poll() is not None:
+                    raise GraphError(f"node {name} exited early with code {p.returncode}; see {logs[name]}")
+            time.sleep(0.1)
+            try:
+                chunk = plant.stdout.read()
+            except (BlockingIOError, TypeError):
+                chunk = None
+            if chunk:
+                plant_log.write(chunk)
+                plant_log.flush()  # users (and tests) follow the run in the log
+                buf += chunk
+                lines = buf.split("\n")
+                buf = lines[-1]
+                for line in lines[:-1]:
+                    if line.startswith("t =") and cpu_start is None:  # the run (t >= 0) has begun
+                        cpu_start = {n: _cpu_seconds(p.pid) for n, p in procs.items()}
+                        started = {n: time.monotonic() for n in procs}
+                    if status and line.startswith("t ="):
+                        print("\r  " + line.strip(), end="", file=sys.stderr, flush=True)
+        if status:
+            print(file=sys.stderr)
+        rest = plant.stdout.read() if plant.poll() is not None else None
+        if rest:
+            plant_log.write(rest)
+        plant_log.close()
     finally:
         wall = time.monotonic() - t0
         for name, p in procs.items():
             cpu[name] = _cpu_seconds(p.pid)
         # stop: plant (if still running) and controllers first, recorder last
         for name in ("container", "plant_sim", "controller", "estimator", "reference", "recorder"):
-            proc = procs.get(name)
-            if proc is None or proc.poll() is not None:
+            p = procs.get(name)
+            if p is None or p.poll() is not None:
                 continue
             if name == "recorder":
                 time.sleep(0.3)  # last samples in flight
-            proc.send_signal(signal.SIGINT)
+            p.send_signal(signal.SIGINT)
             try:
-                proc.wait(timeout=10)
+                p.wait(timeout=10)
             except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+                p.kill()
+                p.wait()
         for s, h in old.items():
             signal.signal(s, h)
     elapsed = {n: (time.monotonic() - started[n]) for n in procs}

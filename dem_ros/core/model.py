@@ -12,7 +12,9 @@ the corrected dynamics are (notes section 1; errata 1-3)::
 
     d1'' = -A F1 - B F2 + C N1 + D N2 + g                           (Eq. 3a)
     d2'' = -B F1 - A F2 + D N1 + C N2 + g                           (Eq. 3b)
-    i_j' = (delta_j / 2K)(u_j - R i_j) + i_j delta_j' / delta_j      (from u = R i + d(2K i/delta)/dt)
+    i_j' = (delta_j / 2K)(u_j - R_j i_j) + i_j delta_j' / delta_j    (from u = R_j i + d(2K i/delta)/dt)
+
+(each coil has its own resistance R_j; the control laws assume R1 = R2 = R).
 
 With a_j = i_j^2/delta_j, b_j = i_j/delta_j, q_j = b_j^2 the output has
 relative degree (3, 3) and (notes 1 a-b)::
@@ -31,15 +33,21 @@ called from the simulators and from the controller classes alike.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 from numba import njit
 
 __all__ = [
     "PlantParams",
+    "apply_schedule",
     "derived",
     "dynamics",
+    "equilibrium",
     "hover_current",
+    "hover_forces",
     "hover_state",
+    "initial_state",
     "lie_terms",
     "plant_vector",
     "regressors",
@@ -48,9 +56,14 @@ __all__ = [
     "theta_of",
 ]
 
-# Layout of the plant parameter vector ``p`` used by the kernels.
-IP, IQ, IA, IB, IC, ID, IK, IR, IN1, IN2, IG = range(11)
-NPP = 11
+# Layout of the plant parameter vector ``p`` used by the kernels (R1, R2: per coil).
+IP, IQ, IA, IB, IC, ID, IK, IR1, IN1, IN2, IG, IR2 = range(12)
+NPP = 12
+
+# Layout of a row of the plant schedule (time-varying truth, one row per sample):
+# mass m (kg), pitch inertia I (kg m^2), loads N1, N2 (N), resistances R1, R2 (ohm).
+SM, SI, SN1, SN2, SR1, SR2 = range(6)
+NSCHED = 6
 
 
 def derived(L: float, l: float, m: float, I: float) -> tuple[float, float, float, float, float, float]:
@@ -65,11 +78,18 @@ def derived(L: float, l: float, m: float, I: float) -> tuple[float, float, float
     )
 
 
-def plant_vector(cfg: dict, m: float | None = None) -> np.ndarray:
-    """Kernel parameter vector from a ``plant_sim``-like dict (L, l, I, m, K, R, N1, N2, g)."""
+def coil_resistances(cfg: Mapping) -> tuple[float, float]:
+    """(R1, R2) at t = 0 (ohm): ``R1``/``R2`` when set (non-zero), else ``R`` for both."""
+    R = cfg["R"]
+    return (cfg.get("R1") or R, cfg.get("R2") or R)
+
+
+def plant_vector(cfg: Mapping, m: float | None = None) -> np.ndarray:
+    """Kernel parameter vector from a ``plant_sim``-like dict (L, l, I, m, K, R [, R1, R2], N1, N2, g)."""
     mass = cfg["m"] if m is None else m
     P, Q, A, B, C, D = derived(cfg["L"], cfg["l"], mass, cfg["I"])
-    return np.array([P, Q, A, B, C, D, cfg["K"], cfg["R"], cfg["N1"], cfg["N2"], cfg["g"]])
+    R1, R2 = coil_resistances(cfg)
+    return np.array([P, Q, A, B, C, D, cfg["K"], R1, cfg["N1"], cfg["N2"], cfg["g"], R2])
 
 
 class PlantParams:
@@ -93,9 +113,19 @@ def set_mass(p: np.ndarray, m: float, L: float, l: float, I: float) -> None:
 
 
 @njit(cache=True)
+def apply_schedule(p: np.ndarray, row: np.ndarray, L: float, l: float) -> None:
+    """Set the time-varying truth of ``p`` from a schedule row (layout S*: m, I, N1, N2, R1, R2)."""
+    set_mass(p, row[SM], L, l, row[SI])
+    p[IN1] = row[SN1]
+    p[IN2] = row[SN2]
+    p[IR1] = row[SR1]
+    p[IR2] = row[SR2]
+
+
+@njit(cache=True)
 def dynamics(x: np.ndarray, u: np.ndarray, p: np.ndarray, dx: np.ndarray) -> None:
     """dx = f(x) + G(x) u, written into ``dx`` (shape (6,))."""
-    P, Q, A, B, C, D, K, R = p[IP], p[IQ], p[IA], p[IB], p[IC], p[ID], p[IK], p[IR]
+    P, Q, A, B, C, D, K = p[IP], p[IQ], p[IA], p[IB], p[IC], p[ID], p[IK]
     d1 = P * x[0] + Q * x[2]
     d2 = Q * x[0] + P * x[2]
     dd1 = P * x[1] + Q * x[3]
@@ -107,8 +137,8 @@ def dynamics(x: np.ndarray, u: np.ndarray, p: np.ndarray, dx: np.ndarray) -> Non
     dx[1] = -A * F1 - B * F2 + C * p[IN1] + D * p[IN2] + load
     dx[2] = x[3]
     dx[3] = -B * F1 - A * F2 + D * p[IN1] + C * p[IN2] + load
-    dx[4] = d1 / (2.0 * K) * (u[0] - R * x[4]) + x[4] * dd1 / d1
-    dx[5] = d2 / (2.0 * K) * (u[1] - R * x[5]) + x[5] * dd2 / d2
+    dx[4] = d1 / (2.0 * K) * (u[0] - p[IR1] * x[4]) + x[4] * dd1 / d1
+    dx[5] = d2 / (2.0 * K) * (u[1] - p[IR2] * x[5]) + x[5] * dd2 / d2
 
 
 @njit(cache=True)
@@ -211,6 +241,46 @@ def regressors(ab: np.ndarray, u: np.ndarray, N1: float, N2: float, W3: np.ndarr
     W2[7, 1] = N1
 
 
+def hover_forces(cfg: Mapping, m: float | None = None) -> tuple[float, float]:
+    """Magnet forces (F1, F2) (N) that hold the plate at rest, at any gaps (level or tilted).
+
+    With d'' = 0 in Eq. 3: the sum of Eqs. 3a, 3b gives F1 + F2 = N1 + N2 + m g (A + B = C + D = 2/m)
+    and their difference F1 - F2 = (L/l)(N1 - N2) ((C - D)/(A - B) = L/l). The gaps do not enter:
+    a tilted equilibrium carries the same forces as the level one, with i_j = delta_j sqrt(F_j/K).
+    """
+    from .params import ConfigError
+
+    mass = cfg["m"] if m is None else m
+    heave = 0.5 * (cfg["N1"] + cfg["N2"] + mass * cfg["g"])
+    pitch = 0.5 * cfg["L"] / cfg["l"] * (cfg["N1"] - cfg["N2"])
+    F1, F2 = heave + pitch, heave - pitch
+    if not (F1 > 0.0 and F2 > 0.0):
+        raise ConfigError(f"no hover: the loads N1 = {cfg['N1']:g} N, N2 = {cfg['N2']:g} N need magnet forces "
+                          f"({F1:.3g}, {F2:.3g}) N; a magnet can only attract (both must be > 0)")
+    return F1, F2
+
+
+def equilibrium(cfg: Mapping, d1: float, d2: float, R: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(x0, u0): the exact equilibrium with gaps (d1, d2) (m) and the voltages (V) that hold it.
+
+    Currents i_j = delta_j sqrt(F_j / K) with F_j of :func:`hover_forces` and delta_j of Eq. 6;
+    voltages u_j = R_j i_j (R: per-coil resistances, default :func:`coil_resistances`).
+    """
+    P, Q = (cfg["L"] + cfg["l"]) / (2 * cfg["L"]), (cfg["L"] - cfg["l"]) / (2 * cfg["L"])
+    F1, F2 = hover_forces(cfg)
+    de1, de2 = P * d1 + Q * d2, Q * d1 + P * d2
+    i1, i2 = de1 * np.sqrt(F1 / cfg["K"]), de2 * np.sqrt(F2 / cfg["K"])
+    R1, R2 = coil_resistances(cfg) if R is None else R
+    return np.array([d1, 0.0, d2, 0.0, i1, i2]), np.array([R1 * i1, R2 * i2])
+
+
+def initial_state(pc: Mapping) -> tuple[np.ndarray, np.ndarray]:
+    """(x0, u0) of a ``plant_sim`` group: the equilibrium at (d1_0, d2_0) (0: gap0) with R1, R2 at t = 0."""
+    d1 = pc.get("d1_0") or pc["gap0"]
+    d2 = pc.get("d2_0") or pc["gap0"]
+    return equilibrium(pc, d1, d2)
+
+
 def hover_current(cfg: dict, gap: float, m: float | None = None) -> float:
     """Coil current that holds a symmetric hover at ``gap``: K i^2/gap^2 = N + m g/2."""
     mass = cfg["m"] if m is None else m
@@ -220,8 +290,6 @@ def hover_current(cfg: dict, gap: float, m: float | None = None) -> float:
     return float(gap * np.sqrt(F0 / cfg["K"]))
 
 
-def hover_state(cfg: dict, gap: float) -> tuple[np.ndarray, np.ndarray]:
-    """(x0, u0): exact symmetric equilibrium at ``gap`` and the voltage that holds it."""
-    i0 = hover_current(cfg, gap)
-    x0 = np.array([gap, 0.0, gap, 0.0, i0, i0])
-    return x0, np.array([cfg["R"] * i0, cfg["R"] * i0])
+def hover_state(cfg: Mapping, gap: float) -> tuple[np.ndarray, np.ndarray]:
+    """(x0, u0): exact level equilibrium at ``gap`` (both magnets) and the voltages that hold it."""
+    return equilibrium(cfg, gap, gap)

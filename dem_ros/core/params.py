@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = [
+    "SAFETY_SPECS",
     "SCHEMA",
     "TABLE2",
     "ConfigError",
@@ -224,6 +225,15 @@ def _check_plant(v: Mapping[str, Any]) -> str | None:
         return f"gap0 = {v['gap0']:g} m must lie inside (gap_min, gap_max) = ({v['gap_min']:g}, {v['gap_max']:g})"
     if not v["mass_ramp_end"] >= v["mass_ramp_start"]:
         return "mass_ramp_end must not precede mass_ramp_start"
+    if not v["heating_end"] >= v["heating_start"]:
+        return "heating_end must not precede heating_start"
+    for name in ("R1", "R2"):
+        if 0.0 < v[name] < 0.01:
+            return f"{name} = {v[name]:g} ohm: expected 0 (take R) or a resistance in [0.01, 1e4] ohm"
+    for name in ("d1_0", "d2_0"):
+        if v[name] != 0.0 and not v["gap_min"] < v[name] < v["gap_max"]:
+            return (f"{name} = {v[name]:g} m must be 0 (take gap0) or lie inside (gap_min, gap_max) = "
+                    f"({v['gap_min']:g}, {v['gap_max']:g})")
     return None
 
 
@@ -231,6 +241,33 @@ def _check_reference(v: Mapping[str, Any]) -> str | None:
     a2, a1, a0 = v["a2"], v["a1"], v["a0"]
     if not (a2 > 0 and a1 > 0 and a0 > 0 and a2 * a1 > a0):
         return f"reference model denominator s^3+{a2:g}s^2+{a1:g}s+{a0:g} is not Hurwitz"
+    return None
+
+
+# The board's hard limits and watchdog (dem_ros.core.safety.Supervisor): one list, included in every
+# group whose node is (or simulates) the board that drives the coils: plant_sim, hw_driver.
+SAFETY_SPECS = (
+    ParamSpec("u_max", float, 150.0, "V", "coil driver bus: applied voltages are clipped to +-this (hover needs 50-80 V, transients ~120 V)", 1.0, 1e4),
+    ParamSpec("i_max", float, 10.0, "A", "coil current trip: above this the board latches a fault and lands the plate", 0.1, 1e3),
+    ParamSpec("trip_gap_min", float, 0.0015, "m", "gap trip toward the rail: an estimated load-point gap below this latches a fault and lands", 0.0, 0.1),
+    ParamSpec("trip_gap_max", float, 0.013, "m", "gap trip away from the rail: an estimated gap above this latches a fault (the plate is on its support or falling)", 1e-4, 1.0),
+    ParamSpec("hold_timeout", float, 0.05, "s", "a sample without a fresh command holds the last voltage at most this long, then the board lands the plate (unstable poles: e-folding 17-20 ms)", 1e-3, 1.0),
+    ParamSpec("landing_gap", float, 0.011, "m", "landing position: the plate rests on its support at this load-point gap (larger gap = away from the rail)", 1e-4, 0.1),
+    ParamSpec("landing_speed", float, 0.01, "m/s", "a landing descends no faster than this", 1e-4, 1.0),
+)
+
+
+def _check_safety(v: Mapping[str, Any]) -> str | None:
+    if not v["trip_gap_min"] < v["landing_gap"] <= v["trip_gap_max"]:
+        return (f"need trip_gap_min < landing_gap <= trip_gap_max; got {v['trip_gap_min']:g}, "
+                f"{v['landing_gap']:g}, {v['trip_gap_max']:g} m")
+    if "gap_min" in v and not v["gap_min"] < v["trip_gap_min"]:
+        return f"trip_gap_min = {v['trip_gap_min']:g} m must lie above the rail-contact gap_min = {v['gap_min']:g} m"
+    if "gap_max" in v and not v["trip_gap_max"] < v["gap_max"]:
+        return f"trip_gap_max = {v['trip_gap_max']:g} m must lie below gap_max = {v['gap_max']:g} m"
+    if "gap0" in v and not v["trip_gap_min"] < v["gap0"] < v["landing_gap"]:
+        return (f"gap0 = {v['gap0']:g} m must lie between trip_gap_min = {v['trip_gap_min']:g} m and "
+                f"landing_gap = {v['landing_gap']:g} m")
     return None
 
 
@@ -251,21 +288,34 @@ SCHEMA = Schema(
             ParamSpec("mass_delta", float, 0.0, "kg", "added mass at O (unknown to the controllers)", -1e3, 1e3),
             ParamSpec("mass_ramp_start", float, 20.0, "s", "time the added mass starts ramping in", 0.0, 1e6),
             ParamSpec("mass_ramp_end", float, 40.0, "s", "time the added mass is fully on", 0.0, 1e6),
+            ParamSpec("mass_offset", float, 0.0, "", "where the added mass sits: fraction of L from O towards magnet 1 (0: at O; 0.3: S6)", -1.0, 1.0),
+            ParamSpec("R1", float, 0.0, "ohm", "true resistance of coil 1 at t = 0 (0: R)", 0.0, 1e4),
+            ParamSpec("R2", float, 0.0, "ohm", "true resistance of coil 2 at t = 0 (0: R)", 0.0, 1e4),
+            ParamSpec("R1_rise", float, 0.0, "", "coil heating: relative rise of R1 reached at heating_end, linear from heating_start (0.2: +20 %)", -0.5, 2.0),
+            ParamSpec("R2_rise", float, 0.0, "", "coil heating: relative rise of R2 reached at heating_end, linear from heating_start", -0.5, 2.0),
+            ParamSpec("heating_start", float, 0.0, "s", "time the coil resistances start rising", 0.0, 1e6),
+            ParamSpec("heating_end", float, 100.0, "s", "time the coil resistances reach R_j (1 + Rj_rise) and stay", 0.0, 1e6),
+            ParamSpec("d1_0", float, 0.0, "m", "initial hover gap of magnet 1 (0: gap0); the plant starts in exact equilibrium there", 0.0, 0.1),
+            ParamSpec("d2_0", float, 0.0, "m", "initial hover gap of magnet 2 (0: gap0)", 0.0, 0.1),
+            ParamSpec("gap_offset_1", float, 0.0, "m", "gap sensor 1 reads scale_1 d1 + offset_1 (+ noise)", -0.01, 0.01),
+            ParamSpec("gap_offset_2", float, 0.0, "m", "gap sensor 2 offset", -0.01, 0.01),
+            ParamSpec("gap_scale_1", float, 1.0, "", "gap sensor 1 scale (gain) error, 1 = exact; also scales the measured rate", 0.5, 2.0),
+            ParamSpec("gap_scale_2", float, 1.0, "", "gap sensor 2 scale (gain) error", 0.5, 2.0),
             ParamSpec("noise_scale", float, 0.0, "", "measurement noise X: uniform +-X*[1e-3 m, 1e-3 m/s, 1e-2 A] (paper Eq. 47)", 0.0, 1e3),
             ParamSpec("measure_velocity", bool, True, "", "the sensors also deliver the gap rates"),
             ParamSpec("perturbation", str, "none", "", "additive input perturbation waveform", choices=("none", "uniform", "sine")),
             ParamSpec("perturbation_amplitude", float, 0.0, "V", "perturbation amplitude (uniform: +-a, sine: a)", 0.0, 1e4),
             ParamSpec("perturbation_frequency", float, 50.0, "Hz", "sine perturbation frequency", 0.0, 1e5),
             ParamSpec("seed", int, 1, "", "seed of the noise and perturbation generators", 0, 2**31 - 1),
-            ParamSpec("command_timeout", float, 0.02, "s", "hold the last command at most this long, then apply 0 V (watchdog)", 1e-4, 10.0),
             ParamSpec("command_delay", int, 1, "samples", "the command computed from sample k is held over [t_k+d, t_k+d+1): d = 1 gives the graph a full period to deliver it", 0, 8),
             ParamSpec("duration", float, 0.0, "s", "graph: stop after this much simulated time (0: run until stopped)", 0.0, 1e7),
-            ParamSpec("lockstep", bool, True, "", "graph: wait for the command a sample needs (simulated clock may fall behind wall time); false: hardware-like timing"),
-            ParamSpec("lockstep_timeout", float, 1.0, "s", "lockstep: wait this long for a command before the watchdog applies 0 V (a dead controller)", 1e-3, 600.0),
+            ParamSpec("lockstep", bool, True, "", "graph: wait for the command a sample needs (simulated clock may fall behind wall time); false: free-running, hardware-like timing (a late command is held at most hold_timeout, then the board lands the plate)"),
+            ParamSpec("lockstep_timeout", float, 1.0, "s", "lockstep: wait this long for a command, then the board lands the plate (a dead controller)", 1e-3, 600.0),
             ParamSpec("preroll", float, 1.0, "s", "graph: levitate in closed loop this long before t = 0 (frame_id dem/preroll)", 0.0, 600.0),
             ParamSpec("start_delay", float, 3.0, "s", "graph: wait at least this long after start-up before t = 0 (discovery)", 0.0, 600.0),
             ParamSpec("min_subscribers", int, 2, "", "graph: wait (up to 30 s) until this many readers match /dem/measurement (estimator, reference)", 0, 100),
-        ),
+        )
+        + SAFETY_SPECS,
         "reference": (
             ParamSpec("b0", float, 0.25, "s^-3", "reference model numerator, M(s) = b0/(s^3+a2 s^2+a1 s+a0) (Eq. 46)", 1e-9, 1e9),
             ParamSpec("a2", float, 2.0, "s^-1", "reference model denominator coefficient", 1e-9, 1e9),
@@ -322,6 +372,7 @@ SCHEMA = Schema(
             ParamSpec("q_R", float, 0.0, "s^-1", "random-walk rate of the scaled R", 0.0, 1e9),
             ParamSpec("q_K", float, 0.0, "s^-1", "random-walk rate of the scaled K", 0.0, 1e9),
             ParamSpec("hover_init", bool, True, "", "initialise the estimates from the measured hover before start (notes 6 A2 iv)"),
+            ParamSpec("hover_window", float, 0.2, "s", "hover initialisation: average this much of the pre-roll (the law holds the applied voltage meanwhile)", 0.0, 60.0),
             ParamSpec("w", float, 50.0, "", "leakage weight of Eq. 48 (adaptive_enhanced)", 0.0, 1e9),
             ParamSpec("R0", float, 10.0, "s^-1", "dead zone of Eq. 48: adapt only while ||dP/dt|| > R0 (adaptive_enhanced, deadzone=pdot)", 0.0, 1e12),
             ParamSpec("deadzone", str, "pdot", "", "dead-zone rule of adaptive_enhanced", choices=("pdot", "error", "off")),
@@ -337,7 +388,7 @@ SCHEMA = Schema(
         ),
     },
     checks={
-        "plant_sim": (_check_plant,),
+        "plant_sim": (_check_plant, _check_safety),
         "reference": (_check_reference,),
         "estimator": (_check_geometry,),
         "controller": (_check_geometry, _check_hurwitz, _check_bounds),

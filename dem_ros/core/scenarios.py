@@ -1,8 +1,18 @@
-"""Scenarios of notes section 7 (S1, S2, S3a-c, S4a-c): named overrides of the schema.
+r"""Scenarios of notes section 7 (S1, S2, S3a-c, S4a-c) and rig conditions (S5, S6): named overrides of the schema.
 
 The definitions live in ``config/scenarios.yaml``; this module finds and
-validates them and builds the time profiles (mass, noise, perturbation) a
-scenario implies, all seeded.
+validates them and builds what a scenario implies, all seeded:
+
+* the plant schedule (time-varying truth, one row per sample, layout ``model.S*``):
+  mass m(t) = m + dm f(t), f = clip((t - t0)/(t1 - t0), 0, 1) (added mass ramped in);
+  an added mass at s L from O towards magnet 1 (``mass_offset`` s) adds the couple of
+  its weight as loads N1 += dm f g s/2, N2 -= dm f g s/2 and its inertia
+  I(t) = I + dm f (s L)^2 (the shift of the centre of mass, dm s L, is neglected);
+  coil heating R_j(t) = R_j (1 + rise_j h(t)), h the linear ramp over
+  [heating_start, heating_end] (copper: +0.39 %/K);
+* the sensors: z = G x + b + n with G = diag(s1, s1, s2, s2, 1, 1) (gap scale, also
+  on the measured rate), b = (o1, 0, o2, 0, 0, 0) (gap offsets), n the noise of Eq. 47;
+* the input perturbation d (V).
 """
 
 from __future__ import annotations
@@ -14,9 +24,22 @@ from typing import Any
 
 import numpy as np
 
+from .model import NSCHED, SI, SM, SN1, SN2, SR1, SR2, coil_resistances
 from .params import ConfigError, apply_overrides, default_config
 
-__all__ = ["Scenario", "config_dir", "get_scenario", "load_scenarios", "mass_profile", "noise_samples", "perturbation_samples"]
+__all__ = [
+    "Disturbances",
+    "Scenario",
+    "config_dir",
+    "disturbances",
+    "get_scenario",
+    "load_scenarios",
+    "mass_profile",
+    "noise_samples",
+    "perturbation_samples",
+    "plant_schedule",
+    "sensor_model",
+]
 
 
 def config_dir() -> Path:
@@ -76,14 +99,67 @@ def get_scenario(name: str, path: str | Path | None = None) -> Scenario:
     return scenarios[name]
 
 
-def mass_profile(pc: Mapping, t: np.ndarray) -> np.ndarray:
-    """m(t) = m + dm clip((t - t0)/(t1 - t0), 0, 1) (kg): a poise added at O."""
-    t0, t1 = pc["mass_ramp_start"], pc["mass_ramp_end"]
+def _ramp(t: np.ndarray, t0: float, t1: float) -> np.ndarray:
+    """0 before t0, 1 after t1, linear in between (a step at t0 when t1 == t0)."""
     if t1 > t0:
-        frac = np.clip((t - t0) / (t1 - t0), 0.0, 1.0)
-    else:
-        frac = (t >= t0).astype(float)
-    return pc["m"] + pc["mass_delta"] * frac
+        return np.clip((t - t0) / (t1 - t0), 0.0, 1.0)
+    return (t >= t0).astype(float)
+
+
+def mass_profile(pc: Mapping, t: np.ndarray) -> np.ndarray:
+    """m(t) = m + dm clip((t - t0)/(t1 - t0), 0, 1) (kg): the added mass ramped in."""
+    return pc["m"] + pc["mass_delta"] * _ramp(np.asarray(t, float), pc["mass_ramp_start"], pc["mass_ramp_end"])
+
+
+def plant_schedule(pc: Mapping, t: np.ndarray) -> np.ndarray:
+    """The time-varying truth at times ``t`` (s): shape (n, NSCHED), columns m, I, N1, N2, R1, R2 (module docstring)."""
+    t = np.asarray(t, float)
+    out = np.empty((t.size, NSCHED))
+    dm = pc["mass_delta"] * _ramp(t, pc["mass_ramp_start"], pc["mass_ramp_end"])
+    s = pc.get("mass_offset", 0.0)
+    out[:, SM] = pc["m"] + dm
+    out[:, SI] = pc["I"] + dm * (s * pc["L"]) ** 2
+    out[:, SN1] = pc["N1"] + 0.5 * dm * pc["g"] * s
+    out[:, SN2] = pc["N2"] - 0.5 * dm * pc["g"] * s
+    h = _ramp(t, pc.get("heating_start", 0.0), pc.get("heating_end", 0.0))
+    R1, R2 = coil_resistances(pc)
+    out[:, SR1] = R1 * (1.0 + pc.get("R1_rise", 0.0) * h)
+    out[:, SR2] = R2 * (1.0 + pc.get("R2_rise", 0.0) * h)
+    return out
+
+
+def sensor_model(pc: Mapping) -> tuple[np.ndarray, np.ndarray]:
+    """(G, b), each (6,): the sensors read z = G x + b (+ noise); module docstring."""
+    s1, s2 = pc.get("gap_scale_1", 1.0), pc.get("gap_scale_2", 1.0)
+    G = np.array([s1, s1, s2, s2, 1.0, 1.0])
+    b = np.array([pc.get("gap_offset_1", 0.0), 0.0, pc.get("gap_offset_2", 0.0), 0.0, 0.0, 0.0])
+    return G, b
+
+
+@dataclass(frozen=True)
+class Disturbances:
+    """What the plant sees during a run of n samples (t_k = k dt).
+
+    Attributes:
+        schedule (n, NSCHED): time-varying truth (m, I, N1, N2, R1, R2).
+        noise (n, 6): measurement noise [m, m/s, m, m/s, A, A] (rates 0 when not measured).
+        pert (n, 2): input perturbation (V).
+    """
+
+    schedule: np.ndarray
+    noise: np.ndarray
+    pert: np.ndarray
+
+
+def disturbances(pc: Mapping, n: int, seed: int | None = None) -> Disturbances:
+    """The seeded disturbances of a run (one generator: noise first, then perturbation)."""
+    t = np.arange(n) * pc["dt"]
+    rng = np.random.default_rng(pc["seed"] if seed is None else seed)
+    noise = noise_samples(pc, n, rng)
+    if not pc["measure_velocity"]:
+        noise[:, [1, 3]] = 0.0
+    pert = perturbation_samples(pc, t, rng)
+    return Disturbances(plant_schedule(pc, t), noise, pert)
 
 
 NOISE_UNIT = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-2, 1e-2])  # paper Eq. 47 for X = 1

@@ -22,9 +22,9 @@ from numba import njit, prange
 from .controllers import CEController, PIDController, make_controller
 from .controllers import kernels as CK
 from .estimator import KalmanEstimator, ekf_step, make_estimator
-from .model import IP, IQ, hover_state, plant_vector, rk4, set_mass
+from .model import IP, IQ, SM, apply_schedule, initial_state, plant_vector, rk4
 from .reference import reference_trajectory
-from .scenarios import NOISE_UNIT, mass_profile, noise_samples, perturbation_samples
+from .scenarios import NOISE_UNIT, disturbances, plant_schedule, sensor_model
 
 __all__ = ["SimResult", "simulate", "simulate_batch"]
 
@@ -33,7 +33,7 @@ __all__ = ["SimResult", "simulate", "simulate_batch"]
 def _closed_loop(
     is_pid, mode, cp, theta, v, scale, v0, Pc, Z, uh, Ad, Bd, pid_cp, integ,
     est_on, s, Pe, mask, pe, Te, qc, rm,
-    x, pp, L, l, I, mass, noise, pert, ref, dt, nsub, gap_min, gap_max, delay, u0,
+    x, pp, L, l, sched, sg, sb, noise, pert, ref, dt, nsub, gap_min, gap_max, delay, u0,
     X_log, U_log, D_log, log,
 ):
     """Run the loop; returns the index of the first failed sample or -1."""
@@ -50,7 +50,7 @@ def _closed_loop(
     ua = np.empty(2)
     for k in range(n):
         for i in range(6):
-            z[i] = x[i] + noise[k, i]
+            z[i] = sg[i] * x[i] + sb[i] + noise[k, i]
         if est_on:
             ekf_step(s, Pe, z, mask, u_prev, pe, Te, qc, rm, xh)
         else:
@@ -76,7 +76,7 @@ def _closed_loop(
             U_log[k, 1] = u_prev[1]
             for i in range(CK.NDIAG):
                 D_log[k, i] = diag[i]
-        set_mass(pp, mass[k], L, l, I)
+        apply_schedule(pp, sched[k], L, l)
         rk4(x, ua, pp, dt, nsub)
         de1 = pp[IP] * x[0] + pp[IQ] * x[2]
         de2 = pp[IQ] * x[0] + pp[IP] * x[2]
@@ -126,6 +126,7 @@ class SimResult:
     r: np.ndarray  # (N, 2) command (m)
     diag: np.ndarray  # (N, 9) m_hat, R_hat, K_hat, ec1, ec2, e1, e2, adapting, fault
     mass: np.ndarray  # (N,) kg
+    schedule: np.ndarray  # (N, 6) true m, I, N1, N2, R1, R2 (model.S*)
     failed: bool
     fail_time: float | None
     wall_time: float
@@ -166,18 +167,42 @@ def _controller_args(ctrl):
 
 
 def prepare(cfg: Mapping, duration: float, seed: int | None = None):
-    """Reference, mass, noise and perturbation arrays for a run of ``duration`` s."""
+    """(t, r, ref, mass, noise, pert) of a run of ``duration`` s (see :func:`.scenarios.disturbances`)."""
     pc = cfg["plant_sim"]
     dt = pc["dt"]
-    n = int(round(duration / dt))
+    n = round(duration / dt)
     t = np.arange(n) * dt
     r, ref = reference_trajectory({**cfg["reference"], "dt": dt}, n)
-    rng = np.random.default_rng(pc["seed"] if seed is None else seed)
-    noise = noise_samples(pc, n, rng)
-    if not pc["measure_velocity"]:
-        noise[:, [1, 3]] = 0.0
-    pert = perturbation_samples(pc, t, rng)
-    return t, r, ref, mass_profile(pc, t), noise, pert
+    dist = disturbances(pc, n, seed)
+    return t, r, ref, dist.schedule[:, SM].copy(), dist.noise, dist.pert
+
+
+def preroll(pc: Mapping, est, x0: np.ndarray, u0: np.ndarray, sg: np.ndarray, sb: np.ndarray,
+            window: float, seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The graph's pre-roll, offline: the plate rests at x0 under u0 for ``preroll`` s before t = 0.
+
+    The estimator runs on the sensor readings z = G x0 + b + noise (noise from a separate stream,
+    so the run's own sequences are unchanged); returns the controller's hover window: the last
+    ``window`` s (at least one sample) of what it sees (estimates (n, 6)) and the applied voltages (n, 2).
+    """
+    dt = pc["dt"]
+    n_pre = max(round(pc["preroll"] / dt), 1)
+    n_win = min(max(round(window / dt), 1), n_pre)
+    rng = np.random.default_rng([pc["seed"] if seed is None else seed, 1])
+    a = pc["noise_scale"] * NOISE_UNIT
+    Zw = np.empty((n_win, 6))
+    for k in range(n_pre):
+        z = sg * x0 + sb + (rng.uniform(-1.0, 1.0, 6) * a if pc["noise_scale"] > 0 else 0.0)
+        if not pc["measure_velocity"]:
+            z[[1, 3]] = 0.0
+        if k == 0:
+            est.reset(z)
+            xh = est.out
+        else:
+            xh = est.step(z, u0)
+        if k >= n_pre - n_win:
+            Zw[k - (n_pre - n_win)] = xh
+    return Zw, np.repeat(u0[None], n_win, axis=0)
 
 
 def simulate(
@@ -207,24 +232,17 @@ def simulate(
         cfg["controller"]["command_delay"] = int(delay)
     pc = cfg["plant_sim"]
     delay = pc["command_delay"]
-    t, r, ref, mass, noise, pert = prepare(cfg, duration, seed)
-    n = t.size
-    x0, u0 = hover_state(pc, pc["gap0"])
+    dt = pc["dt"]
+    n = round(duration / dt)
+    t = np.arange(n) * dt
+    r, ref = reference_trajectory({**cfg["reference"], "dt": dt}, n)
+    dist = disturbances(pc, n, seed)
+    x0, u0 = initial_state(pc)
+    sg, sb = sensor_model(pc)
     ctrl = make_controller(cfg["controller"], controller)
     est = make_estimator(cfg["estimator"], estimator, pc["measure_velocity"])
-    z0 = x0 + noise[0]
-    est.reset(z0)
-    if isinstance(est, KalmanEstimator):
-        # the graph levitates for `preroll` s before t = 0: the filter converges on the hover
-        # (noise from a separate stream, so the run's own sequences are unchanged)
-        rng_pre = np.random.default_rng([pc["seed"] if seed is None else seed, 1])
-        for _ in range(int(round(pc["preroll"] / pc["dt"]))):
-            zp = x0 + rng_pre.uniform(-1.0, 1.0, 6) * pc["noise_scale"] * NOISE_UNIT
-            if not pc["measure_velocity"]:
-                zp[[1, 3]] = 0.0
-            est.step(zp, u0)
-        est.step(z0, u0)
-    ctrl.reset(est.out.copy(), u0)
+    Zw, Uw = preroll(pc, est, x0, u0, sg, sb, cfg["controller"]["hover_window"], seed)
+    ctrl.reset(Zw, Uw)
     x = x0.copy()
     pp = plant_vector(pc)
     X = np.zeros((n, 6))
@@ -232,14 +250,17 @@ def simulate(
     D = np.full((n, CK.NDIAG), np.nan)
     k_fail = _closed_loop(
         *_controller_args(ctrl), *_estimator_args(est, pc["measure_velocity"]),
-        x, pp, pc["L"], pc["l"], pc["I"], mass, noise, pert, ref, pc["dt"], pc["substeps"],
+        x, pp, pc["L"], pc["l"], dist.schedule, sg, sb, dist.noise, dist.pert, ref, dt, pc["substeps"],
         pc["gap_min"], pc["gap_max"], int(delay), u0.copy(), X, U, D, True,
     )
+    mass = dist.schedule[:, SM]
+    pert = dist.pert
     failed = k_fail >= 0
     m = k_fail if failed else n
     return SimResult(
         scenario=scenario, controller=ctrl.name, estimator=est.name, config={g: dict(v) for g, v in cfg.items()},
         t=t[:m], x=X[:m], u=U[:m], d=pert[:m], ref=ref[:m], r=r[:m], diag=D[:m], mass=mass[:m],
+        schedule=dist.schedule[:m],
         failed=bool(failed), fail_time=float(k_fail * pc["dt"]) if failed else None,
         wall_time=time.perf_counter() - wall0,
         extra={"delay": int(delay), "final_estimates": _final_estimates(D[:m])},
@@ -249,13 +270,15 @@ def simulate(
 @njit(cache=True, parallel=True)
 def _batch(
     is_pid, mode, cp, theta, v, scale, v0, Pc, Z, uh, Ad, Bd, pid_cp, integ,
-    x0, pp, L, l, I, masses, ref, dt, nsub, gap_min, gap_max, u0, start, delay, out,
+    x0, pp, L, l, scheds, ref, dt, nsub, gap_min, gap_max, u0, start, delay, out,
 ):
-    B = masses.shape[0]
+    B = scheds.shape[0]
     n = ref.shape[0]
     noise = np.zeros((n, 6))
     pert = np.zeros((n, 2))
     mask = np.ones(6)
+    sg = np.ones(6)
+    sb = np.zeros(6)
     for b in prange(B):
         X = np.zeros((n, 6))
         U = np.zeros((n, 2))
@@ -265,7 +288,7 @@ def _batch(
         kf = _closed_loop(
             is_pid, mode, cp.copy(), theta[b], v[b], scale[b], v0[b], Pc[b], Z[b], uh[b], Ad, Bd, pid_cp, integ[b],
             False, np.zeros(8), np.eye(8), mask, pp, dt, np.zeros(3), np.zeros(6),
-            x, ppb, L, l, I, masses[b], noise, pert, ref, dt, nsub, gap_min, gap_max, delay, u0,
+            x, ppb, L, l, scheds[b], sg, sb, noise, pert, ref, dt, nsub, gap_min, gap_max, delay, u0,
             X, U, D, True,
         )
         m = n if kf < 0 else kf
@@ -280,16 +303,18 @@ def simulate_batch(cfg: Mapping, mass_offsets: np.ndarray, *, controller: str | 
     fail index (-1 = none).
     """
     pc = cfg["plant_sim"]
-    t, r, ref, _, _, _ = prepare(cfg, duration)
-    masses = np.stack([mass_profile({**pc, "mass_delta": float(dm)}, t) for dm in mass_offsets])
-    x0, u0 = hover_state(pc, pc["gap0"])
+    t, _, ref, _, _, _ = prepare(cfg, duration)
+    scheds = np.stack([plant_schedule({**pc, "mass_delta": float(dm)}, t) for dm in mass_offsets])
+    x0, u0 = initial_state(pc)
     ctrl = make_controller(cfg["controller"], controller)
-    ctrl.reset(x0, u0)
+    sg, sb = sensor_model(pc)
+    ctrl.reset(*preroll(pc, make_estimator(cfg["estimator"], "none", pc["measure_velocity"]), x0, u0, sg, sb,
+                        cfg["controller"]["hover_window"]))
     args = list(_controller_args(ctrl))
     B = len(mass_offsets)
     for i in (3, 4, 5, 6, 7, 8, 9, 13):  # per-run state arrays
         args[i] = np.ascontiguousarray(np.repeat(args[i][None], B, axis=0))
     out = np.zeros((B, 7))
-    _batch(*args, x0, plant_vector(pc), pc["L"], pc["l"], pc["I"], masses, ref, pc["dt"], pc["substeps"],
-           pc["gap_min"], pc["gap_max"], u0, int(round(40.0 / pc["dt"])), int(pc["command_delay"]), out)
+    _batch(*args, x0, plant_vector(pc), pc["L"], pc["l"], scheds, ref, pc["dt"], pc["substeps"],
+           pc["gap_min"], pc["gap_max"], u0, round(40.0 / pc["dt"]), int(pc["command_delay"]), out)
     return out

@@ -11,18 +11,21 @@ import numpy as np
 from ..contract import FRAME, MAGNETS
 
 __all__ = [
+    "JointStates",
     "LatencyStats",
     "all_finite",
     "clipped",
     "diag_array",
     "joint_state",
     "meas_array",
+    "meas_into",
     "named_vector",
     "set_stamp",
     "stamp_ns",
 ]
 
 _isfinite = math.isfinite
+_EMPTY: list[float] = []  # shared by messages without that field; never modified
 
 
 def all_finite(values) -> bool:
@@ -58,6 +61,38 @@ def joint_state(cls: type, t_ns: int, position=(), velocity=(), effort=(), names
     return m
 
 
+class JointStates:
+    """Builds the JointState messages of the 1 kHz loop at the least cost (~1 us each, ~2x less
+    than :func:`joint_state`).
+
+    The stamp is computed once per sample: :meth:`header` makes one ``std_msgs/Header``
+    (stamp t [ns], frame) that every message of that sample shares, and :meth:`make` takes
+    ``name`` as a list made once per publisher and the values as lists of Python floats
+    (``ndarray.tolist()``: one call, no per-element conversion). Nothing is copied: published
+    messages are immutable by the transport's contract (intra-process subscribers and the
+    recorder hold them), so shared headers and name lists are never modified. Works for the
+    DDS transport's classes and for rclpy's alike (both take keyword fields).
+    """
+
+    __slots__ = ("Header", "Time", "cls")
+
+    def __init__(self, cls: type):
+        probe = cls()
+        self.cls = cls
+        self.Header = type(probe.header)
+        self.Time = type(probe.header.stamp)
+
+    def header(self, t_ns: int, frame: str = FRAME) -> Any:
+        """The header of the sample stamped ``t_ns`` (ns) in ``frame``."""
+        return self.Header(stamp=self.Time(sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000), frame_id=frame)
+
+    def make(self, header: Any, names: list[str], position: list[float] = _EMPTY, velocity: list[float] = _EMPTY,
+             effort: list[float] = _EMPTY) -> Any:
+        """A JointState: gaps [m] in ``position``, rates [m/s] in ``velocity``, currents [A] or
+        voltages [V] in ``effort`` (or a named vector in ``position``, contract convention)."""
+        return self.cls(header=header, name=names, position=position, velocity=velocity, effort=effort)
+
+
 def named_vector(cls: type, t_ns: int, names: Sequence[str], values, frame: str = FRAME) -> Any:
     """A named vector carried in JointState.position (contract convention)."""
     return joint_state(cls, t_ns, position=values, names=names, frame=frame)
@@ -71,6 +106,22 @@ def meas_array(msg: Any) -> tuple[np.ndarray, bool]:
     has_v = len(v) >= 2
     z = np.array([p[0], v[0] if has_v else 0.0, p[1], v[1] if has_v else 0.0, e[0], e[1]], dtype=float)
     return z, has_v
+
+
+def meas_into(msg: Any, out: np.ndarray) -> bool:
+    """Fill ``out`` (6,) with [d1, d1', d2, d2', i1, i2] from a measurement/estimate JointState
+    (m, m/s, A; rates 0 when not measured), without allocating; True when rates were measured."""
+    p = msg.position
+    v = msg.velocity
+    e = msg.effort
+    has_v = len(v) >= 2
+    out[0] = p[0]
+    out[2] = p[1]
+    out[1] = v[0] if has_v else 0.0
+    out[3] = v[1] if has_v else 0.0
+    out[4] = e[0]
+    out[5] = e[1]
+    return has_v
 
 
 class LatencyStats:

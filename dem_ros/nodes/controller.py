@@ -24,7 +24,7 @@ from .. import contract
 from ..core.controllers import make_controller
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import all_finite, clipped, diag_array, joint_state, meas_array, named_vector, stamp_ns
+from .common import JointStates, all_finite, clipped, diag_array, meas_into, stamp_ns
 
 __all__ = ["ControllerNode", "main"]
 
@@ -37,12 +37,18 @@ class ControllerNode:
         self.cfg = node.declare_parameters("controller", self.on_change)
         self.ctrl = make_controller(self.cfg)
         self.started = False
-        self.refs: dict[int, np.ndarray] = {}  # reference samples by stamp (the newest REF_KEEP)
-        self.u_applied = None
+        # reference samples by stamp, the newest REF_KEEP: stamp -> row of ref_ring, filled in place
+        self.refs: dict[int, np.ndarray] = {}
+        self.ref_ring = np.zeros((REF_KEEP + 1, 8))
+        self.ref_next = 0
+        self.xh = np.zeros(6)  # the estimate being acted on [d1, d1', d2, d2', i1, i2]
+        self.u_applied: np.ndarray | None = None
         self.ref_lag = float("nan")
         self.counts = {"steps": 0, "stale": 0, "non_finite_input": 0, "non_finite_output": 0, "reference_mismatch": 0}
         warm_up()  # kernels resident before we subscribe (no stale first samples)
-        self.JS = node.msg("sensor_msgs/msg/JointState")
+        self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
+        self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
+        self.names_state = list(contract.CONTROLLER_STATE_NAMES)
         self.D = (node.msg("diagnostic_msgs/msg/DiagnosticArray"), node.msg("diagnostic_msgs/msg/DiagnosticStatus"),
                   node.msg("diagnostic_msgs/msg/KeyValue"))
         self.pub_cmd = node.publisher(contract.COMMAND)
@@ -72,9 +78,12 @@ class ControllerNode:
     def on_reference(self, msg) -> None:
         if len(msg.position) >= 8:
             refs = self.refs
-            refs[stamp_ns(msg)] = np.array(msg.position[:8], dtype=float)
-            if len(refs) > REF_KEEP:
-                del refs[next(iter(refs))]  # the oldest
+            if len(refs) >= REF_KEEP:
+                del refs[next(iter(refs))]  # the oldest (its row is reused REF_KEEP + 1 samples later)
+            row = self.ref_ring[self.ref_next]
+            self.ref_next = (self.ref_next + 1) % (REF_KEEP + 1)
+            row[:] = msg.position[:8]
+            refs[stamp_ns(msg)] = row
 
     def _reference(self, t: int) -> tuple[np.ndarray | None, int]:
         """The reference for stamp ``t``, else the newest older one; (vector, stamp)."""
@@ -89,12 +98,16 @@ class ControllerNode:
 
     def on_applied(self, msg) -> None:
         if len(msg.effort) >= 2:
-            self.u_applied = np.array(msg.effort[:2], dtype=float)
+            if self.u_applied is None:
+                self.u_applied = np.zeros(2)
+            self.u_applied[0] = msg.effort[0]
+            self.u_applied[1] = msg.effort[1]
 
     def on_estimate(self, msg) -> None:
         t = stamp_ns(msg)
         age = (self.node.now_ns() - t) * 1e-9
-        xh, _ = meas_array(msg)
+        xh = self.xh
+        meas_into(msg, xh)
         fault = 0.0
         if self.cfg["max_age"] > 0 and age > self.cfg["max_age"]:
             self.counts["stale"] += 1
@@ -113,7 +126,7 @@ class ControllerNode:
         if self.ref_lag != 0:
             self.counts["reference_mismatch"] += 1
         if not self.started:
-            u0 = self.u_applied if self.u_applied is not None else np.zeros(2)
+            u0 = self.u_applied.copy() if self.u_applied is not None else np.zeros(2)
             self.ctrl.reset(xh.copy(), u0)
             self.started = True
         u = self.ctrl.step(xh, ref)
@@ -123,13 +136,15 @@ class ControllerNode:
             self._warn_every("non_finite_output", "the law produced no valid voltage: no command sent")
             return self._state(t, age, 1.0)
         lim = self.cfg["voltage_limit"]
-        self.pub_cmd.publish(joint_state(self.JS, t, effort=clipped(u, lim)))
-        self._state(t, age, fault)
+        h = self.js.header(t)
+        self.pub_cmd.publish(self.js.make(h, self.names, effort=clipped(u, lim)))
+        self._state(t, age, fault, h)
 
-    def _state(self, t: int, age: float, fault: float) -> None:
-        d = self.ctrl.diag
-        self.pub_state.publish(named_vector(self.JS, t, contract.CONTROLLER_STATE_NAMES,
-                                            (d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7], age, fault, self.ref_lag)))
+    def _state(self, t: int, age: float, fault: float, header=None) -> None:
+        J = self.js
+        values = self.ctrl.diag[:8].tolist()
+        values += (age, fault, float(self.ref_lag))
+        self.pub_state.publish(J.make(header if header is not None else J.header(t), self.names_state, values))
 
     def _warn_every(self, key: str, text: str) -> None:
         n = self.counts[key]

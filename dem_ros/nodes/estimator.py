@@ -20,7 +20,7 @@ from .. import contract
 from ..core.estimator import make_estimator
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import all_finite, joint_state, meas_array, stamp_ns
+from .common import JointStates, all_finite, meas_into, stamp_ns
 
 __all__ = ["EstimatorNode", "main"]
 
@@ -33,13 +33,19 @@ class EstimatorNode:
         self.cfg = node.declare_parameters("estimator", self.on_change)
         self.est = None
         self.has_v: bool | None = None
-        self.u_prev = None  # the newest applied voltage
-        self.volts: dict[int, np.ndarray] = {}  # applied voltages by stamp (the newest KEEP)
+        self.u_prev: np.ndarray | None = None  # the newest applied voltage (a row of ``u_ring``)
+        # applied voltages by stamp, the newest KEEP: stamp -> row of u_ring (V), filled in place
+        self.volts: dict[int, np.ndarray] = {}
+        self.u_ring = np.zeros((KEEP + 1, 2))
+        self.u_next = 0
+        self.z = np.zeros(6)  # the measurement being processed [d1, d1', d2, d2', i1, i2]
+        self.u_zero = np.zeros(2)
         self.pending = None  # a measurement waiting for its applied voltage
         self.bad = 0
         self.unpaired = 0  # measurements processed without the voltage of their stamp
         warm_up()  # kernels resident before we subscribe (no stale first samples)
-        self.JS = node.msg("sensor_msgs/msg/JointState")
+        self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
+        self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
         self.pub = node.publisher(contract.ESTIMATE)
         node.subscribe(contract.APPLIED, self.on_applied)
         node.subscribe(contract.MEASUREMENT, self.on_measurement)
@@ -54,9 +60,14 @@ class EstimatorNode:
         if len(msg.effort) >= 2:
             t = stamp_ns(msg)
             volts = self.volts
-            volts[t] = self.u_prev = np.array(msg.effort[:2], dtype=float)
-            if len(volts) > KEEP:
-                del volts[next(iter(volts))]  # the oldest
+            if len(volts) >= KEEP:
+                del volts[next(iter(volts))]  # the oldest (its row is reused KEEP + 1 samples later)
+            u = self.u_ring[self.u_next]
+            self.u_next = (self.u_next + 1) % (KEEP + 1)
+            e = msg.effort
+            u[0] = e[0]
+            u[1] = e[1]
+            volts[t] = self.u_prev = u
             pending = self.pending
             if pending is not None and stamp_ns(pending) == t:
                 self.pending = None
@@ -75,7 +86,8 @@ class EstimatorNode:
         self._step(msg)
 
     def _step(self, msg) -> None:
-        z, has_v = meas_array(msg)
+        z = self.z
+        has_v = meas_into(msg, z)
         if not all_finite(z):
             self.bad += 1
             if self.bad in (1, 10, 100, 1000):
@@ -83,10 +95,11 @@ class EstimatorNode:
         if self.est is None or has_v != self.has_v:
             self.est = make_estimator(self.cfg, None, has_v)
             self.has_v = has_v
-        u = self.volts.get(stamp_ns(msg), self.u_prev)
-        xh = self.est.step(z, u if u is not None else np.zeros(2))
-        self.pub.publish(joint_state(self.JS, stamp_ns(msg), position=(xh[0], xh[2]), velocity=(xh[1], xh[3]),
-                                     effort=(xh[4], xh[5])))
+        t = stamp_ns(msg)
+        u = self.volts.get(t, self.u_prev)
+        x = self.est.step(z, u if u is not None else self.u_zero).tolist()
+        J = self.js
+        self.pub.publish(J.make(J.header(t), self.names, [x[0], x[2]], [x[1], x[3]], [x[4], x[5]]))
 
 
 def main(args=None) -> int:

@@ -6,17 +6,25 @@ k-1-d (``command_delay`` d; zero-order hold), then publishes
 ``/dem/applied_voltage``, ``/dem/plant/truth`` and ``/dem/measurement`` for t_k.
 Every sample is published, in order.
 
+The coils are driven through the simulated board, :class:`dem_ros.core.safety.Supervisor`
+(the same class as the rig emulator's board): every applied voltage is clipped to
+``u_max``, current and gap trips latch a fault, and a missing command never cuts the
+coils at hover: the board holds the last voltage at most ``hold_timeout``, then lands
+the plate at no more than ``landing_speed`` (``LANDED`` ends the run: the simulated
+plate rests on its support). The board knows the datasheet (Table 2) m, R, K, not the
+simulated truth. Holds, the landing and its reason are logged once when they engage
+and reported on ``/diagnostics`` (status ``plant_sim: loop``) with their counters.
+
 Two timing modes:
 
 * ``lockstep: true`` (default, simulation): when the command a sample needs has
   not arrived by its deadline, the plant waits for it (a counted deadline
   miss) and its clock falls behind wall time; the closed loop is then exactly
   the offline simulator's, however slow the machine. After ``lockstep_timeout``
-  without it, the plant proceeds with 0 V (watchdog), so a dead controller
-  cannot freeze the simulation.
-* ``lockstep: false`` (hardware-like): time does not wait; a missing command is
-  a counted deadline miss, the last voltage is held, and after
-  ``command_timeout`` the coils get 0 V.
+  without it the board lands the plate (a dead controller cannot freeze the
+  simulation, nor drop the plate).
+* ``lockstep: false`` (free-running, hardware-like): time does not wait; a
+  missing command is a counted deadline miss and a board hold (see above).
 
 Before t = 0 the plant levitates in closed loop for ``preroll`` seconds
 (frame_id ``dem/preroll``; a missing command then just holds the voltage).
@@ -32,10 +40,12 @@ import time
 import numpy as np
 
 from .. import contract
+from ..core.params import TABLE2
 from ..core.plant import DemPlant
+from ..core.safety import SAFETY_KEYS, Mode, Supervisor
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import LatencyStats, all_finite, diag_array, joint_state, stamp_ns
+from .common import JointStates, LatencyStats, all_finite, diag_array, stamp_ns
 
 __all__ = ["PlantSimNode", "main"]
 
@@ -48,10 +58,13 @@ class PlantSimNode:
         self.cfg = node.declare_parameters("plant_sim", self.on_change)
         c = self.cfg
         self.dt_ns = int(round(c["dt"] * 1e9))
+        self.early_ns = self.dt_ns // 2  # a tick this much before ``due`` publishes the sample
         self.plant = DemPlant(c, c["duration"])
         self.n_end = int(round(c["duration"] / c["dt"])) if c["duration"] > 0 else 0
         warm_up()  # kernels resident before we subscribe (no slow first samples)
-        self.JS = node.msg("sensor_msgs/msg/JointState")
+        self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
+        self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
+        self.names_truth = [*contract.MAGNETS, "mass"]
         self.pub_meas = node.publisher(contract.MEASUREMENT)
         self.pub_truth = node.publisher(contract.TRUTH)
         self.pub_applied = node.publisher(contract.APPLIED)
@@ -63,7 +76,10 @@ class PlantSimNode:
         self.cmd_u = np.zeros((RING, 2))
         self.pub_wall = np.zeros(RING, dtype=np.int64)  # when each sample was published (wall clock, ns)
         self.u_applied = self.plant.u0.copy()
-        self.last_fresh_k = 0
+        # the simulated board: datasheet m, R, K (not the simulated truth), the plate hovering under u0
+        board = {**c, **{k: TABLE2[k] for k in ("m", "R", "K")}}
+        self.board = Supervisor(board, c["dt"], mode=Mode.RUN, u0=self.plant.u0)
+        self.z_board = self.plant.x.tolist()  # what the board measured at the last published sample
         self.started = False
         self.finished = False
         self.n_pre = 0
@@ -76,7 +92,7 @@ class PlantSimNode:
         self.t_boot = time.monotonic()
         self.misses = 0
         self.preroll_misses = 0
-        self.watchdog = 0
+        self.lockstep_landing = 0
         self.lat = LatencyStats()
         self.late = LatencyStats()
         self.timer = node.timer(c["dt"], self.tick)
@@ -84,7 +100,7 @@ class PlantSimNode:
 
     # -- parameters / inputs ------------------------------------------------------------------
     def on_change(self, values) -> str | None:
-        for key in ("dt", "substeps", "command_delay", "duration", "lockstep", "preroll"):
+        for key in ("dt", "substeps", "command_delay", "duration", "lockstep", "preroll", *SAFETY_KEYS):
             if values[key] != self.cfg[key]:
                 return f"{key} cannot change during a run"
         self.cfg = dict(values)
@@ -132,7 +148,10 @@ class PlantSimNode:
             mode = "lockstep" if self.cfg["lockstep"] else "real time"
             self.node.logger.info(f"levitating at {self.plant.x[0] * 1e3:.3f} mm, {self.plant.u0[0]:.2f} V ({mode});"
                                   f" t = 0 in {self.cfg['preroll']:g} s")
-        while not self.finished and now >= self.due:
+        # The timer's grid and ``due`` are both 1 ms apart but their phases differ by the wake-up
+        # lateness of the first tick: a tick counts for the sample due within half a period
+        # (without this, a timer firing 1 us before ``due`` publishes that sample 1 ms late).
+        while not self.finished and now >= self.due - self.early_ns:
             if not self._advance(now):
                 return  # lockstep: waiting for a command
             self._publish(self.k_next)
@@ -154,16 +173,15 @@ class PlantSimNode:
             return True  # the first sample: nothing to integrate yet
         src = k - 1 - self.cfg["command_delay"]  # the sample whose command is held over [t_k-1, t_k]
         slot = src % RING
+        board = self.board
         if src < -self.n_pre:
-            self.u_applied = self.plant.u0  # before the loop closed the coils held the hover voltage
+            cmd = self.plant.u0  # before the loop closed the board held the hover voltage
         elif self.cmd_stamp[slot] == self.epoch + src * self.dt_ns:
-            self.u_applied = self.cmd_u[slot].copy()
-            self.last_fresh_k = src
-            if self.wait_since is not None:
-                self.wait_since = None
+            cmd = self.cmd_u[slot]
+            self.wait_since = None
         else:
-            timeout = (k - 1 - self.last_fresh_k) * self.cfg["dt"] > self.cfg["command_timeout"]
-            if self.cfg["lockstep"]:
+            cmd = None
+            if self.cfg["lockstep"] and board.mode in (Mode.RUN, Mode.HOLD):
                 if self.wait_since is None:
                     self.wait_since = now
                     if k > 0:
@@ -173,15 +191,19 @@ class PlantSimNode:
                 if (now - self.wait_since) * 1e-9 < self.cfg["lockstep_timeout"]:
                     return False
                 self.wait_since = None
-                self.u_applied = np.zeros(2)  # the controller is gone: watchdog
-                self.watchdog += 1
-            elif k <= 0:
-                self.preroll_misses += 1  # levitating before t = 0: hold the last voltage
-            else:
-                self.misses += 1
-                if timeout:
-                    self.u_applied = np.zeros(2)
-                    self.watchdog += 1
+                self.lockstep_landing += 1
+                board.land(f"no command for {self.cfg['lockstep_timeout']:g} s of wall time (lockstep_timeout:"
+                           " a dead controller)")
+            elif not self.cfg["lockstep"]:
+                if k > 0:
+                    self.misses += 1
+                else:
+                    self.preroll_misses += 1
+        prev = board.mode
+        z = self.z_board  # the board computes [t_k-1, t_k) from its sample of t_k-1
+        self.u_applied = board.step(self.epoch + (k - 1) * self.dt_ns, (z[0], z[2]), (z[4], z[5]), cmd)
+        if board.mode != prev:
+            self._board_event(prev, k - 1)
         p = self.plant
         if k <= 0:
             p.hold(self.u_applied)  # pre-roll: true dynamics, no scenario disturbances, clock at 0
@@ -193,19 +215,43 @@ class PlantSimNode:
             return False
         return True
 
+    def _board_event(self, prev: Mode, k: int) -> None:
+        """Log a board mode change once, and report landings and faults on /diagnostics at once."""
+        b = self.board
+        when = f"{'pre-roll ' if k < 0 else ''}t = {k * self.cfg['dt']:.3f} s"
+        log = self.node.logger
+        if b.mode == Mode.HOLD:
+            if b.counters["hold_events"] == 1:
+                log.warn(f"{when}: command missing, the board holds the last voltage (at most"
+                         f" {self.cfg['hold_timeout'] * 1e3:g} ms); further holds are counted")
+            return
+        if b.mode == Mode.RUN:
+            return
+        if b.mode == Mode.LAND:
+            x = self.plant.x
+            log.error(f"{when}: safe landing from gaps {x[0] * 1e3:.3f} / {x[2] * 1e3:.3f} mm to"
+                      f" {self.cfg['landing_gap'] * 1e3:g} mm at <= {self.cfg['landing_speed'] * 1e3:g} mm/s: {b.reason}")
+            self.publish_diag(2 if b.fault else 1, f"landing: {b.reason}")
+        elif b.mode == Mode.LANDED:
+            self.finish(f"landed safely at {when}"
+                        f" (gaps {self.plant.x[0] * 1e3:.3f} / {self.plant.x[2] * 1e3:.3f} mm): {b.reason}",
+                        level=2 if b.fault else 1)
+        elif b.mode == Mode.FAULT:
+            self.finish(f"board fault at {when}: {b.fault}", level=2)
+
     def _publish(self, k: int) -> None:
         p = self.plant
-        t_ns = self.epoch + k * self.dt_ns
-        frame = contract.FRAME if k >= 0 else contract.FRAME_PREROLL
-        JS = self.JS
-        x = p.x
-        z = p.measurement() if k >= 0 else p.measurement_preroll()
+        J = self.js
+        h = J.header(self.epoch + k * self.dt_ns, contract.FRAME if k >= 0 else contract.FRAME_PREROLL)
+        x = p.x.tolist()
+        z = (p.measurement() if k >= 0 else p.measurement_preroll()).tolist()
+        self.z_board = z  # the board's sample of t_k: it computes the voltage of [t_k, t_k+1) from it
+        u = self.u_applied
         self.pub_wall[k % RING] = time.monotonic_ns()
-        self.pub_applied.publish(joint_state(JS, t_ns, effort=self.u_applied, frame=frame))
-        self.pub_truth.publish(joint_state(JS, t_ns, position=(x[0], x[2], p.mass), velocity=(x[1], x[3]),
-                                           effort=(x[4], x[5]), names=(*contract.MAGNETS, "mass"), frame=frame))
-        vel = (z[1], z[3]) if self.cfg["measure_velocity"] else ()
-        self.pub_meas.publish(joint_state(JS, t_ns, position=(z[0], z[2]), velocity=vel, effort=(z[4], z[5]), frame=frame))
+        self.pub_applied.publish(J.make(h, self.names, effort=[float(u[0]), float(u[1])]))
+        self.pub_truth.publish(J.make(h, self.names_truth, [x[0], x[2], p.mass], [x[1], x[3]], [x[4], x[5]]))
+        vel = [z[1], z[3]] if self.cfg["measure_velocity"] else []
+        self.pub_meas.publish(J.make(h, self.names, [z[0], z[2]], vel, [z[4], z[5]]))
 
     # -- reporting ----------------------------------------------------------------------------
     def stats(self) -> dict:
@@ -216,7 +262,7 @@ class PlantSimNode:
         cpu = time.process_time() - self.cpu0 if self.cpu0 is not None else 0.0
         return {
             "cycles": k, "t_sim_s": round(k * self.cfg["dt"], 3), "deadline_misses": self.misses,
-            "preroll_misses": self.preroll_misses, "watchdog_zero_voltage": self.watchdog,
+            "preroll_misses": self.preroll_misses, **self.board_stats(),
             "lockstep": self.cfg["lockstep"], "realtime_factor": round(k * self.cfg["dt"] / wall, 3) if k else 0.0,
             "epoch_ns": self.epoch, "cpu_s": round(cpu, 3), "wall_s": round(wall if k else 0.0, 3),
             "latency_p50_us": round(lat["p50"], 1), "latency_p99_us": round(lat["p99"], 1), "latency_max_us": round(lat["max"], 1),
@@ -224,8 +270,19 @@ class PlantSimNode:
             "failed": self.plant.fault is not None, "fault": self.plant.fault or "",
         }
 
+    def board_stats(self) -> dict:
+        """The board's mode, counters and landing, as /diagnostics values."""
+        b = self.board
+        c = b.counters
+        return {
+            "board_mode": b.mode.name, "holds": c["holds"], "hold_events": c["hold_events"],
+            "clipped": c["clipped"], "trips": c["trips"], "landing": c["landings"] > 0 or b.mode == Mode.LANDED,
+            "landed": c["landed"] > 0, "landing_reason": b.reason if c["landings"] else "",
+            "board_fault": b.fault, "lockstep_timeouts": self.lockstep_landing,
+        }
+
     def publish_diag(self, level: int, message: str, stats: dict | None = None) -> None:
-        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), "plant_sim: loop", level, message,
+        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), contract.LOOP_STATUS, level, message,
                                          stats if stats is not None else self.stats()))
 
     def status(self) -> None:
@@ -234,9 +291,11 @@ class PlantSimNode:
         s = self.stats()
         x = self.plant.x
         print(f"t = {s['t_sim_s']:7.1f} s  gaps {x[0] * 1e3:6.3f} / {x[2] * 1e3:6.3f} mm  misses {s['deadline_misses']}"
+              f"  holds {s['holds']}  board {s['board_mode']}"
               f"  latency p50 {s['latency_p50_us']:.0f} us p99 {s['latency_p99_us']:.0f} us  x{s['realtime_factor']:.2f} real time",
               flush=True)
-        self.publish_diag(0 if s["deadline_misses"] == 0 else 1, "running", s)
+        level = 0 if s["deadline_misses"] == 0 and s["holds"] == 0 else 1
+        self.publish_diag(2 if s["landing"] else level, "landing" if s["landing"] else "running", s)
 
     def finish(self, message: str, level: int) -> None:
         self.finished = True

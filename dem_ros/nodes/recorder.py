@@ -14,18 +14,22 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from dataclasses import replace
 from pathlib import Path
 
 from .. import __version__, contract
 from ..bag import Recorder
+from ..realtime import ENV as RT_ENV
 from ..transport import Node, run_node, serialize
 
 __all__ = ["RecorderNode", "main", "parse_recorder_args"]
 
 #: reader history of the recorder's subscriptions (samples per topic; 1 s at 1 kHz)
 RECORDER_DEPTH = 1000
+#: SCHED_FIFO priority of a recorder process (the loop's nodes: 50, dem_ros.realtime) unless DEM_ROS_RT_PRIORITY is set
+RECORDER_PRIORITY = 40
 
 
 class RecorderNode:
@@ -93,13 +97,22 @@ def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
 
 
 def main(args=None) -> int:
+    # a process of its own: not on the loop's path, so below the loop's nodes (dem_ros.realtime);
+    # with SCHED_FIFO at their priority it would take their core for its ~30 % of one
+    own_priority = RT_ENV["priority"] not in os.environ
+    if own_priority:
+        os.environ[RT_ENV["priority"]] = str(RECORDER_PRIORITY)
     argv, ros_args = split_ros_args(list(sys.argv[1:] if args is None else args))
     p = argparse.ArgumentParser(prog="recorder", description="record the dem_ros graph to a rosbag2 MCAP bag")
     p.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
     a, meta = parse_recorder_args(p, argv)
     rec: list[RecorderNode] = []
-    code = run_node("recorder", lambda node: rec.append(RecorderNode(node, Path(a.bag), meta)),
-                    args=ros_args, transport=a.transport)
+    try:
+        code = run_node("recorder", lambda node: rec.append(RecorderNode(node, Path(a.bag), meta)),
+                        args=ros_args, transport=a.transport)
+    finally:
+        if own_priority:
+            del os.environ[RT_ENV["priority"]]
     if rec:
         rec[0].close()
     return code

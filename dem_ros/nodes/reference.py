@@ -18,7 +18,7 @@ from .. import contract
 from ..core.reference import ReferenceModel, command
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import named_vector, stamp_ns
+from .common import JointStates, stamp_ns
 
 __all__ = ["ReferenceNode", "main"]
 
@@ -33,7 +33,8 @@ class ReferenceNode:
         self.pre_seen = False
         self.next_k = 0
         warm_up()  # kernels resident before we subscribe (no stale first samples)
-        self.JS = node.msg("sensor_msgs/msg/JointState")
+        self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
+        self.names = list(contract.REFERENCE_NAMES)  # shared by every message published (never modified)
         self.pub = node.publisher(contract.REFERENCE)
         node.subscribe(contract.MEASUREMENT, self.on_measurement)
         node.logger.info("ready")
@@ -51,9 +52,12 @@ class ReferenceNode:
             t = self.next_k * self.cfg["dt"]
             r = command(self.cfg, t)
             y = self.model.step(r)
-            self.pub.publish(named_vector(self.JS, self.epoch + self.next_k * self.dt_ns, contract.REFERENCE_NAMES,
-                                          np.concatenate([y, r])))
+            self._send(self.epoch + self.next_k * self.dt_ns, y.tolist() + np.asarray(r, float).tolist())
             self.next_k += 1
+
+    def _send(self, t_ns: int, vec: list[float], frame: str = contract.FRAME) -> None:
+        """Publish [y_d (8), r (2)] stamped ``t_ns`` (see ``contract.REFERENCE_NAMES``)."""
+        self.pub.publish(self.js.make(self.js.header(t_ns, frame), self.names, vec))
 
     def on_measurement(self, msg) -> None:
         t = stamp_ns(msg)
@@ -61,11 +65,11 @@ class ReferenceNode:
             # levitating before t = 0: the model rests at the initial command
             y = self.model.step_hold()
             r = command(self.cfg, -1.0)
-            vec = np.concatenate([y, r])
+            vec = y.tolist() + np.asarray(r, float).tolist()
             if not self.pre_seen:
                 self.pre_seen = True
-                self.pub.publish(named_vector(self.JS, t, contract.REFERENCE_NAMES, vec, frame=contract.FRAME_PREROLL))
-            self.pub.publish(named_vector(self.JS, t + self.dt_ns, contract.REFERENCE_NAMES, vec, frame=contract.FRAME_PREROLL))
+                self._send(t, vec, contract.FRAME_PREROLL)
+            self._send(t + self.dt_ns, vec, contract.FRAME_PREROLL)
             return
         if self.epoch is None:
             self.epoch = t

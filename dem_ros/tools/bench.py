@@ -18,8 +18,12 @@ controller) with the speed ratio and the largest trajectory difference.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
+import shutil
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -27,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from ..realtime import ENV
+from .common import UsageError
 from .launcher import GraphError, launch
 
 __all__ = ["bench_loop", "bench_record", "bench_sim", "machine", "run"]
@@ -196,35 +202,173 @@ def _print_sim(r: dict) -> None:
           f" ours is {p['speedup']:.0f}x faster; max |gap difference| {p['max_abs_diff_um']:.2e} um")
 
 
-def bench_loop(args: argparse.Namespace) -> dict[str, Any]:
-    duration = args.duration or 60.0
-    compose = bool(getattr(args, "compose", False))
-    a = argparse.Namespace(scenario="S1", params=None, set=None, controller=None, estimator=None, duration=duration,
-                           transport=args.transport, bag_dir=tempfile.mkdtemp(prefix="dem_ros_bench_"), no_record=True,
-                           domain_id=None, json=None, compose=compose)
-    floor = timer_floor(5.0)
-    before = cpu_times()
-    metrics, _ = launch(a, quiet=False)
-    steal = steal_percent(before, cpu_times())
+#: a neighbour's load: one busy Python process at normal priority
+_BUSY = "while True: pass"
 
-    m = machine()
+
+def _busy(n: int) -> list[subprocess.Popen]:
+    """``n`` processes that spin at normal priority until killed (``bench loop --load N``)."""
+    return [subprocess.Popen([sys.executable, "-c", _BUSY], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL, start_new_session=True) for _ in range(max(0, n))]
+
+
+def _stop(procs: list[subprocess.Popen]) -> None:
+    for p in procs:
+        p.kill()
+    for p in procs:
+        p.wait()
+
+
+def _floor_child(seconds: float, env: dict[str, str]) -> dict[str, float]:
+    """:func:`timer_floor` in a child process with the nodes' real-time settings (``env``)."""
+    code = ("import json; from dem_ros.realtime import enter_loop; enter_loop(report=False);"
+            f" from dem_ros.tools.bench import timer_floor; print('FLOOR ' + json.dumps(timer_floor({seconds!r})))")
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60 + 2 * seconds)
+    for line in r.stdout.splitlines():
+        if line.startswith("FLOOR "):
+            return json.loads(line[6:])
+    raise GraphError(f"the timer-floor probe failed: {(r.stderr or r.stdout).strip()[-500:]}")
+
+
+def _rt_granted(logs: Path) -> dict[str, Any]:
+    """What each node process was granted (its ``REALTIME {json}`` line), by process name."""
+    from ..realtime import REPORT_PREFIX
+
+    out: dict[str, Any] = {}
+    for log in sorted(logs.glob("*.log")):
+        for line in log.read_text(errors="replace").splitlines():
+            if line.startswith(REPORT_PREFIX):
+                out[log.stem] = json.loads(line[len(REPORT_PREFIX):])
+    return out
+
+
+def _plant_status(bag: Path) -> dict[str, str]:
+    """The key/values of the plant's last loop status in ``bag`` (holds, landing, ... when reported)."""
+    from .. import contract
+    from ..bag import BagReader
+
+    last: dict[str, str] = {}
+    for _, _, msg in BagReader(bag).messages([contract.DIAGNOSTICS.name]):
+        for st in msg.status:
+            if st.name == contract.LOOP_STATUS:
+                last = {kv.key: kv.value for kv in st.values}
+    return last
+
+
+def _rclpy_missing() -> str | None:
+    """Why the rclpy transport cannot be the peer here (None: it can)."""
+    try:
+        import rclpy  # noqa: F401
+    except Exception as exc:  # ImportError, or a broken ROS environment
+        return f"rclpy does not import ({type(exc).__name__}: {exc})"
+    return None
+
+
+def _one_loop(transport: str, compose: bool, free_run: bool, duration: float) -> dict[str, Any]:
+    """One graph run (S1, recorded to a temporary bag): loop figures, RMS, holds, landing, rt."""
+    tmp = Path(tempfile.mkdtemp(prefix="dem_ros_bench_"))
+    try:
+        a = argparse.Namespace(scenario="S1", params=None, set=["plant_sim.lockstep=false"] if free_run else None,
+                               controller=None, estimator=None, duration=duration, transport=transport,
+                               bag_dir=str(tmp), no_record=False, domain_id=None, json=None, compose=compose)
+        metrics, info = launch(a, quiet=False)
+        bag = Path(info["bag"])
+        status = _plant_status(bag)
+        rt = _rt_granted(bag.parent / (bag.name + "_logs"))
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
     if metrics.loop is None:
         raise GraphError("the plant reported no loop statistics (see the launch logs)")
-    L = metrics.loop
+    holds = status.get("holds")
+    return {"loop": metrics.to_dict()["loop"], "failed": metrics.failed, "fail_time_s": metrics.fail_time_s,
+            "rms_error_um": metrics.rms_error_um, "offline_rms_error_um": info["offline_rms_error_um"],
+            "holds": int(holds) if holds is not None else None,
+            "landing": status.get("landing") == "True" if "landing" in status else None,
+            "landing_reason": status.get("landing_reason") or None, "rt": rt}
+
+
+def _print_loop(r: dict[str, Any], label: str) -> None:
+    L = r["loop"]
+    lat = L["latency_us"]
+    cyc = max(L["cycles"], 1)
+    failed = f"yes, at t = {r['fail_time_s']:.3f} s" if r["failed"] else "no"
+    print(f"  [{label}] cycles {L['cycles']}, deadline misses {L['deadline_misses']}"
+          f" ({100.0 * L['deadline_misses'] / cyc:.3f} %), holds {r['holds'] if r['holds'] is not None else 'n/a'},"
+          f" landing {'n/a' if r['landing'] is None else ('YES: ' + str(r['landing_reason'])) if r['landing'] else 'no'},"
+          f" failed {failed}")
+    print(f"  [{label}] latency sensor stamp -> command at plant: p50 {lat['p50']:.0f} us, p99 {lat['p99']:.0f} us,"
+          f" max {lat['max']:.0f} us")
+    print(f"  [{label}] CPU [% of one core]: " + ", ".join(f"{k} {v:.1f}" for k, v in L["cpu_percent"].items())
+          + f"; all nodes {sum(L['cpu_percent'].values()):.1f}")
+    rms, off = r["rms_error_um"], r["offline_rms_error_um"]
+    if rms:
+        print(f"  [{label}] RMS error e1 / e2 [um]: {rms[0]:.2f} / {rms[1]:.2f} (offline, same timing: {off[0]:.2f} / {off[1]:.2f})")
+    for proc, g in r["rt"].items():
+        got = (f"SCHED_FIFO {g['fifo_priority']} ({', '.join(g['fifo_threads'])})" if g["fifo_priority"]
+               else "normal scheduling")
+        extra = ", memory locked" if g["memory_locked"] else ""
+        miss = f"; refused: {', '.join(g['missing'])}" if g["missing"] else ""
+        print(f"  [{label}] real time {proc}: {got if g['requested'] else 'off (--no-rt)'}{extra if g['requested'] else ''}{miss}")
+
+
+def bench_loop(args: argparse.Namespace) -> dict[str, Any]:
+    """``bench loop [--compose] [--free-run] [--load N] [--rt/--no-rt]``: the graph's loop, measured.
+
+    ``--load N`` runs N busy processes for the whole benchmark (floor and run), as a neighbour
+    would; the machine floor (a bare 1 kHz sleep loop with the nodes' real-time settings) is
+    measured under that load just before the run. With ``--transport dds`` and rclpy
+    importable, the same graph also runs on rclpy as the peer and the ratio is printed.
+    """
+    duration = args.duration or 60.0
+    compose = bool(getattr(args, "compose", False))
+    free_run = bool(getattr(args, "free_run", False))
+    load = int(getattr(args, "load", 0) or 0)
+    rt = getattr(args, "rt", True)
+    if load < 0:
+        raise UsageError(f"--load {load}: give a number of busy processes >= 0")
+    saved = os.environ.get(ENV["enabled"])
+    os.environ[ENV["enabled"]] = "1" if rt else "0"  # the node processes inherit it
+    busy = _busy(load)
+    try:
+        floor = _floor_child(5.0, dict(os.environ))
+        before = cpu_times()
+        up_before = os.getloadavg()
+        ours = _one_loop(args.transport, compose, free_run, duration)
+        steal = steal_percent(before, cpu_times())
+        up_after = os.getloadavg()
+        peer: dict[str, Any] | None = None
+        if args.transport == "dds":
+            why = _rclpy_missing()
+            peer = {"transport": "rclpy", "skipped": why} if why else {"transport": "rclpy", **_one_loop("rclpy", compose, free_run, duration)}
+    finally:
+        _stop(busy)
+        if saved is None:
+            os.environ.pop(ENV["enabled"], None)
+        else:
+            os.environ[ENV["enabled"]] = saved
+
+    m = machine()
     how = "all nodes in one process (--compose)" if compose else "one process per node"
-    print(f"dem-ros bench loop on {m['cpu']} ({m['cores']} cores), transport {args.transport}, {how}, {duration:g} s of S1")
-    print(f"  cycles {L.cycles}, deadline misses {L.deadline_misses} ({100.0 * L.deadline_misses / max(L.cycles, 1):.3f} %)")
-    print(f"  latency sensor stamp -> command at plant: p50 {L.latency_us['p50']:.0f} us, p99 {L.latency_us['p99']:.0f} us,"
-          f" max {L.latency_us['max']:.0f} us")
-    print("  CPU [% of one core]: " + ", ".join(f"{k} {v:.1f}" for k, v in L.cpu_percent.items())
-          + f"; all nodes {sum(L.cpu_percent.values()):.1f}")
+    timing = "free-running (plant_sim.lockstep=false)" if free_run else "lockstep"
+    print(f"dem-ros bench loop on {m['cpu']} ({m['cores']} cores), transport {args.transport}, {how}, {timing},"
+          f" {duration:g} s of S1, real time {'on' if rt else 'off'}, {load} busy processes beside it")
+    print(f"  load average (1 min) {up_before[0]:.2f} before, {up_after[0]:.2f} after the run")
+    _print_loop(ours, args.transport)
+    if peer is not None:
+        if peer.get("skipped"):
+            print(f"  [rclpy] peer skipped: {peer['skipped']}")
+        else:
+            _print_loop(peer, "rclpy")
+            p50 = peer["loop"]["latency_us"]["p50"] / max(ours["loop"]["latency_us"]["p50"], 1e-9)
+            print(f"  latency p50 rclpy / {args.transport}: {p50:.1f}x")
     if steal is not None:  # a VM whose host is busy loses whole milliseconds: say so next to the figures
         print(f"  CPU stolen by the hypervisor during the run: {steal:.1f} % of this VM's time")
-    print(f"  machine floor (a bare 1 kHz sleep loop, 5 s before the run): late p50 {floor['p50_us']:.0f} us,"
-          f" p99 {floor['p99_us']:.0f} us, p99.9 {floor['p99_9_us']:.0f} us, max {floor['max_us']:.0f} us;"
-          f" {floor['over_1ms_percent']:.3f} % of wake-ups > 1 ms late")
-    return {"loop": metrics.to_dict()["loop"], "machine": m, "transport": args.transport, "composed": compose,
-            "duration_s": duration, "hypervisor_steal_percent": steal, "timer_floor": floor}
+    print(f"  machine floor (a bare 1 kHz sleep loop with the same real-time settings, 5 s before the run):"
+          f" late p50 {floor['p50_us']:.0f} us, p99 {floor['p99_us']:.0f} us, p99.9 {floor['p99_9_us']:.0f} us,"
+          f" max {floor['max_us']:.0f} us; {floor['over_1ms_percent']:.3f} % of wake-ups > 1 ms late")
+    return {**ours, "machine": m, "transport": args.transport, "composed": compose, "free_run": free_run,
+            "duration_s": duration, "load_processes": load, "load_average": {"before": up_before[0], "after": up_after[0]},
+            "hypervisor_steal_percent": steal, "timer_floor": floor, "peer": peer}
 
 
 def _per_call_us(fn: Any, n: int) -> float:

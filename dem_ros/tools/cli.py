@@ -139,6 +139,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--duration", type=float, default=None, help="bench loop/record: seconds (default 60 / 10)")
     b.add_argument("--transport", default="dds", choices=["auto", "rclpy", "dds"])
     b.add_argument("--compose", action="store_true", help="bench loop: all nodes in one process (see dem-ros launch --compose)")
+    b.add_argument("--free-run", action="store_true", help="bench loop: the plant does not wait for late commands (plant_sim.lockstep=false)")
+    b.add_argument("--load", type=int, default=0, metavar="N", help="bench loop: N busy processes beside the graph (default 0)")
+    b.add_argument("--rt", action=argparse.BooleanOptionalAction, default=True,
+                   help="bench loop: real-time process settings for the nodes (SCHED_FIFO, mlockall; default on)")
     b.set_defaults(func=cmd_bench)
 
     c = sub.add_parser("config", help="print the parameter schema or a params file of the defaults")
@@ -154,6 +158,9 @@ def build_parser() -> argparse.ArgumentParser:
     lg.add_argument("--compose", action="store_true",
                     help="all nodes in one process on one executor, topics between them in memory (dds); "
                          "the real-time configuration")
+    lg.add_argument("--free-run", action="store_true",
+                    help="free-running plant (plant_sim.lockstep false): hardware-like timing, a late command is held "
+                         "at most hold_timeout, then the simulated board lands the plate; default: lockstep (exact)")
     lg.add_argument("--params", default=None, help="ROS 2 params file")
     lg.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE")
     lg.add_argument("--bag-dir", default="bags", help="where the run's bag goes (default ./bags)")

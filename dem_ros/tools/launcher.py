@@ -201,6 +201,8 @@ def _config_from_args(args: Any) -> tuple[dict[str, dict[str, Any]], Scenario, f
         cfg["controller"]["type"] = args.controller
     if args.estimator:
         cfg["estimator"]["type"] = args.estimator
+    if getattr(args, "free_run", False):
+        cfg["plant_sim"]["lockstep"] = False
     duration = args.duration if args.duration is not None else sc.duration
     return cfg, sc, duration
 

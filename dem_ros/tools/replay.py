@@ -102,7 +102,13 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     cfg = run.get("config")
     if not cfg:
         raise BagError(f"{bag}: no recorded configuration (run_info); cannot re-run the controller")
-    cfg = apply_overrides(default_config(), {g: v for g, v in cfg.items() if g in SCHEMA.groups}, "recorded config")
+    # only the controller's parameters matter here; a bag recorded by another version may name
+    # parameters this schema no longer has (they are listed in the result, not an error)
+    recorded = dict(cfg.get("controller") or {})
+    known = {p.name for p in SCHEMA.groups["controller"]}
+    ignored = sorted(k for k in recorded if k not in known)
+    cfg = apply_overrides(default_config(), {"controller": {k: v for k, v in recorded.items() if k in known}},
+                          "recorded config")
     recorded_law = cfg["controller"]["type"]
     ccfg = dict(cfg["controller"])
     for text in sets or []:
@@ -159,6 +165,7 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     d = np.abs(new - old)
     return {
         "law": name, "recorded_law": recorded_law, "changes": sets or [], "samples": len(stamps),
+        "ignored_recorded_parameters": ignored,
         "max_abs_diff_v": float(d.max()), "rms_diff_v": float(np.sqrt(np.mean(d**2))),
         "reproduces_recording": bool(d.max() <= 1e-9 * max(1.0, float(np.abs(old).max()))),
         "t": ((np.array(stamps) - stamps[0]) * 1e-9).tolist(), "u_replayed": new.tolist(), "u_recorded": old.tolist(),

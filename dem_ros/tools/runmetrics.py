@@ -50,6 +50,10 @@ class LoopStats:
     epoch_ns: int | None = None
     plant_cpu_percent: float | None = None
     cpu_percent: dict[str, float] = field(default_factory=dict)
+    holds: int = 0  # samples the board held the last voltage for a missing command
+    landing: bool = False  # the board landed the plate (or was landing it when the run ended)
+    landing_reason: str = ""
+    board_mode: str = ""  # the board's last mode (dem_ros.core.safety.Mode name)
 
     @classmethod
     def from_status(cls, values: Mapping[str, str]) -> LoopStats:
@@ -67,6 +71,10 @@ class LoopStats:
             lockstep=values.get("lockstep") == "True",
             epoch_ns=int(epoch) if epoch is not None else None,
             plant_cpu_percent=plant_cpu,
+            holds=int(values.get("holds", 0)),
+            landing=values.get("landing") == "True",
+            landing_reason=values.get("landing_reason", ""),
+            board_mode=values.get("board_mode", ""),
         )
 
     def summary(self) -> str:
@@ -75,7 +83,8 @@ class LoopStats:
         text = (f"cycles {self.cycles}, deadline misses {self.deadline_misses} ({share:.3f} %),"
                 f" latency p50 {lat['p50']:.0f} us, p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us")
         if math.isfinite(self.realtime_factor):
-            text += f"; x{self.realtime_factor:.2f} real time{' (lockstep)' if self.lockstep else ''}"
+            text += f"; x{self.realtime_factor:.2f} real time{' (lockstep)' if self.lockstep else ' (free-running)'}"
+        text += f"; holds {self.holds}; landing: " + (f"yes ({self.landing_reason})" if self.landing else "no")
         return text
 
 

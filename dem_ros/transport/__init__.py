@@ -33,7 +33,6 @@ LOCALHOST), ``ROS_STATIC_PEERS``, ``CYCLONEDDS_URI``.
 from __future__ import annotations
 
 import contextlib
-import gc
 import os
 import signal
 import sys
@@ -230,11 +229,11 @@ def run_nodes(
                 if node.is_shutdown:
                     return 0  # stopped (Ctrl-C / SIGTERM) while setting up: not an error
                 raise
-        # Everything allocated so far (numba, the middleware, the nodes) lives for the whole run:
-        # move it out of the collector's reach. A full collection over it takes ~100 ms, which a
-        # 1 kHz loop cannot absorb; afterwards collections only scan what the loop allocates.
-        gc.collect()
-        gc.freeze()
+        # Set-up is done: freeze what it allocated (out of the collector's reach), then the
+        # process's real-time settings (SCHED_FIFO, mlockall, timer slack; see dem_ros.realtime).
+        from ..realtime import enter_loop
+
+        enter_loop()
         # Helper threads (the bag writer) must hand the GIL back to the executor thread quickly:
         # with Python's default 5 ms switch interval a waking 1 kHz loop can wait 5 ms for it.
         sys.setswitchinterval(SWITCH_INTERVAL_S)

@@ -17,11 +17,11 @@ from dem_ros.core.scenarios import (
 )
 from dem_ros.core.simulate import prepare
 
-NAMES = ["S1", "S2", "S3a", "S3b", "S3c", "S4a", "S4b", "S4c"]
+NAMES = ["S1", "S2", "S3a", "S3b", "S3c", "S4a", "S4b", "S4c", "S5", "S6"]
 DT = 1e-3
 
 
-def test_all_eight_scenarios_load_and_validate(scenarios):
+def test_all_scenarios_load_and_validate(scenarios):
     assert (config_dir() / "scenarios.yaml").is_file()
     assert sorted(scenarios) == sorted(NAMES)
     for name in NAMES:

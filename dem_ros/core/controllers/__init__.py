@@ -12,7 +12,8 @@ name                        what it is
 ==========================  =====================================================
 
 Every controller has ``reset(meas0, u0)`` (start from a measured hover with the
-voltage that held it) and ``step(meas, ref) -> u`` where ``meas`` =
+voltage that held it: one sample (6,), (2,) or a window of pre-roll samples
+(n, 6), (n, 2), see :mod:`.hover`) and ``step(meas, ref) -> u`` where ``meas`` =
 [d1, d1', d2, d2', i1, i2] (m, m/s, A) and ``ref`` the 8-vector of
 :mod:`dem_ros.core.reference`; after a step, ``diag`` holds
 m_hat, R_hat, K_hat, e_c (2), e (2), adapting, fault.
@@ -25,9 +26,10 @@ from collections.abc import Mapping
 import numpy as np
 
 from ..lti import AllPoleFilter
-from ..model import lie_terms, regressors, theta_jacobian, theta_of
+from ..model import lie_terms, regressors, theta_of
 from ..params import SCHEMA, ConfigError
 from . import kernels as K
+from .hover import HoverFit, solve_hover, window_means
 
 __all__ = ["CONTROLLERS", "CEController", "Controller", "PIDController", "make_controller"]
 
@@ -111,6 +113,7 @@ class CEController(Controller):
         self._filter()
         self.diag = np.full(K.NDIAG, np.nan)
         self.u = np.zeros(2)
+        self.hover_fit: HoverFit | None = None
         self.reset(None, None)
 
     def _filter(self) -> None:
@@ -122,6 +125,11 @@ class CEController(Controller):
         """Fresh estimates and zero filters; with a measured hover (meas0, u0), hover-initialise A1/A2."""
         c = self.cfg
         cp = self.cp
+        window = None
+        if meas0 is not None and u0 is not None:
+            window = (np.atleast_2d(np.asarray(meas0, float)), np.atleast_2d(np.asarray(u0, float)))
+            meas0, u0 = window_means(*window)
+        self.hover_fit = None
         self.Z = np.zeros((3, 18))
         self.uh = np.zeros((K.NUH, 2))
         if u0 is not None:
@@ -152,8 +160,8 @@ class CEController(Controller):
                 self.scale[:3] = phi0
                 self.v[:3] = 1.0
                 self.P[:3, :3] = np.diag([c["P0_m"], c["P0_R"], c["P0_K"]])
-                if meas0 is not None and c["hover_init"]:
-                    self._hover_init_a2(meas0, u0)
+                if window is not None and c["hover_init"]:
+                    self._hover_init_a2(*window)
                 phi = self.scale[:3] * self.v[:3]
                 self.theta = _theta(phi, cp)
             self.v0[:] = self.v
@@ -168,28 +176,17 @@ class CEController(Controller):
         else:
             K.physical_estimates(self.theta, self.diag)
 
-    def _hover_init_a2(self, meas0: np.ndarray, u0: np.ndarray) -> None:
-        """Notes 6 A2 (iv): 3 Gauss-Newton steps on W3^T theta = 0 and k1 (W2^T theta + g) = 0.
-
-        Minimum-P0^{-1}-norm steps in the scaled coordinates: R_hat = u0/i0 exactly and
-        K_hat i0^2/delta0^2 = N + m_hat g/2.
-        """
+    def _hover_init_a2(self, Zw: np.ndarray, Uw: np.ndarray) -> None:
+        """Notes 6 A2 (iv) from a window of pre-roll samples: :func:`.hover.solve_hover`."""
         cp = self.cp
-        W3, W2 = hover_regressors(cp, meas0, u0)
-        k1 = cp[K.CP_K1]
-        P0 = self.P[:3, :3].copy()
-        for _ in range(3):
-            phi = self.scale[:3] * self.v[:3]
-            th = _theta(phi, cp)
-            J = np.empty((8, 3))
-            theta_jacobian(phi, cp[K.CP_CA], J)
-            r = np.concatenate([W3.T @ th, k1 * (W2.T @ th + cp[K.CP_G])])
-            Jr = np.vstack([W3.T @ J, k1 * (W2.T @ J)]) * self.scale[:3]
-            S = Jr @ P0 @ Jr.T
-            self.v[:3] -= P0 @ Jr.T @ np.linalg.pinv(S, rcond=1e-10) @ r
-            lo = np.array([cp[K.CP_MU_MIN], cp[K.CP_R_MIN], cp[K.CP_K_MIN]])
-            hi = np.array([cp[K.CP_MU_MAX], cp[K.CP_R_MAX], cp[K.CP_K_MAX]])
-            self.v[:3] = np.clip(self.scale[:3] * self.v[:3], lo, hi) / self.scale[:3]
+        geo = {"P": cp[K.CP_P], "Q": cp[K.CP_Q], "cA": cp[K.CP_CA], "cC": cp[K.CP_CC], "N1": cp[K.CP_N1],
+               "N2": cp[K.CP_N2], "g": cp[K.CP_G], "floor": cp[K.CP_FLOOR]}
+        lo = np.array([cp[K.CP_MU_MIN], cp[K.CP_R_MIN], cp[K.CP_K_MIN]])
+        hi = np.array([cp[K.CP_MU_MAX], cp[K.CP_R_MAX], cp[K.CP_K_MAX]])
+        scale = self.scale[:3].copy()
+        fit = solve_hover(scale * self.v[:3], scale, self.P[:3, :3], Zw, Uw, geo, lo, hi)
+        self.v[:3] = fit.phi / scale
+        self.hover_fit = fit
 
     def _hover_init_a1(self, meas0: np.ndarray, u0: np.ndarray) -> None:
         """Notes 6 A1: minimum-norm correction so that W_p^T theta = -k1 g; then P = 1e5 (I - proj)."""

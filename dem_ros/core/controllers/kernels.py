@@ -49,7 +49,26 @@ import numpy as np
 from numba import njit
 
 from ..lti import filter_step
-from ..model import IA, IB, IC, ID, IG, IK, IN1, IN2, IP, IQ, IR, lie_terms, regressors, rk4, theta_jacobian, theta_of
+from ..model import (
+    IA,
+    IB,
+    IC,
+    ID,
+    IG,
+    IK,
+    IN1,
+    IN2,
+    IP,
+    IQ,
+    IR1,
+    IR2,
+    NPP,
+    lie_terms,
+    regressors,
+    rk4,
+    theta_jacobian,
+    theta_of,
+)
 
 MODE_FIXED, MODE_PAPER, MODE_PAPER_FIX, MODE_ADAPTIVE, MODE_ENHANCED = 0, 1, 2, 3, 4
 
@@ -277,7 +296,7 @@ def _predict(mode, cp, theta, v, scale, uh, delay, x) -> bool:
         mu = 1.0 / est[0]
         R = est[1]
         Kc = est[2]
-    p = np.empty(11)
+    p = np.empty(NPP)
     p[IP] = cp[CP_P]
     p[IQ] = cp[CP_Q]
     p[IA] = mu + cp[CP_CA]
@@ -285,7 +304,8 @@ def _predict(mode, cp, theta, v, scale, uh, delay, x) -> bool:
     p[IC] = mu + cp[CP_CC]
     p[ID] = mu - cp[CP_CC]
     p[IK] = Kc
-    p[IR] = R
+    p[IR1] = R
+    p[IR2] = R
     p[IN1] = cp[CP_N1]
     p[IN2] = cp[CP_N2]
     p[IG] = cp[CP_G]

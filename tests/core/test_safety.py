@@ -1,0 +1,338 @@
+"""The board's supervisor: state machine, limits, and the landing law tested as physics on the core plant.
+
+Physics runs: the true plant is :class:`dem_ros.core.plant.DemPlant` (RK4, 10 sub-steps per 1 ms sample)
+with its own m, R, K; the supervisor knows only the nominal (Table 2) values, the measured gaps and
+currents (seeded uniform noise, ``noise_scale`` as in paper Eq. 47). The board computes the voltage of
+[t_k, t_k+1) from the sample of t_k (a board has no transport delay).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from dem_ros.core.model import IP, IQ
+from dem_ros.core.params import SCHEMA, TABLE2, ConfigError, apply_overrides, default_config
+from dem_ros.core.plant import DemPlant
+from dem_ros.core.safety import (
+    LANDING_OVERSHOOT,
+    SAFETY_KEYS,
+    SPEED_FRACTION,
+    Mode,
+    SafetyError,
+    Supervisor,
+    observer_gains,
+)
+
+T = 1e-3
+T_NS = 1_000_000
+
+
+def board_cfg(**changes) -> dict:
+    """The simulated board's configuration: the plant_sim group (Table 2 nominal values, safety specs)."""
+    c = SCHEMA.defaults("plant_sim")
+    c.update(changes)
+    return c
+
+
+# -- the mechanism -------------------------------------------------------------------------------------
+
+
+def test_mode_values_are_the_link_mode_byte():
+    assert [(m.name, int(m)) for m in Mode] == [
+        ("OFF", 0), ("RUN", 1), ("HOLD", 2), ("LAND", 3), ("LANDED", 4), ("FAULT", 5)]
+
+
+def test_safety_specs_live_in_the_plant_sim_group_once():
+    names = [p.name for p in SCHEMA.groups["plant_sim"]]
+    for k in SAFETY_KEYS:
+        assert names.count(k) == 1, k
+
+
+@pytest.mark.parametrize("change, words", [
+    ({"landing_gap": 0.02}, "landing_gap <= trip_gap_max"),
+    ({"trip_gap_min": 0.00005}, "rail-contact gap_min"),
+    ({"trip_gap_max": 0.04}, "below gap_max"),
+    ({"gap0": 0.013, "trip_gap_max": 0.016}, "gap0"),
+])
+def test_schema_rejects_inconsistent_safety_specs(change, words):
+    with pytest.raises(ConfigError, match=words.replace("+", r"\+")):
+        apply_overrides(default_config(), {"plant_sim": change})
+
+
+def test_supervisor_rejects_bad_configuration():
+    with pytest.raises(SafetyError, match="lacks"):
+        Supervisor({"u_max": 1.0}, T)
+    with pytest.raises(SafetyError, match="u_max"):
+        Supervisor(board_cfg(u_max=-1.0), T)
+    with pytest.raises(SafetyError, match="trip_gap_min < landing_gap"):
+        Supervisor(board_cfg(landing_gap=0.001), T)
+    with pytest.raises(SafetyError, match="dt"):
+        Supervisor(board_cfg(), float("nan"))
+
+
+def test_observer_poles_are_placed():
+    w, wb = 150.0, 30.0
+    Lo = observer_gains(T, w, wb)
+    A = np.array([[1, T, T * T / 2], [0, 1, T], [0, 0, 1]])
+    C = np.array([[1.0, 0, 0]])
+    ev = np.sort(np.linalg.eigvals((np.eye(3) - np.outer(Lo, C)) @ A).real)
+    want = np.sort([math.exp(-w * T), math.exp(-w * T), math.exp(-wb * T)])
+    np.testing.assert_allclose(ev, want, atol=2e-4)  # a double pole: eigenvalues to ~sqrt(eps)
+
+
+def _hover_measurement(gap=0.008):
+    i0 = gap * math.sqrt((TABLE2["N1"] + TABLE2["m"] * TABLE2["g"] / 2) / TABLE2["K"])
+    return np.array([gap, gap]), np.array([i0, i0])
+
+
+def test_run_clips_to_u_max_and_counts():
+    s = Supervisor(board_cfg(u_max=100.0), T)
+    y, i = _hover_measurement()
+    assert s.mode == Mode.OFF
+    np.testing.assert_array_equal(s.step(0, y, i, None), [0.0, 0.0])  # OFF: nothing until a command
+    np.testing.assert_array_equal(s.step(T_NS, y, i, np.array([80.0, 120.0])), [80.0, 100.0])
+    assert s.mode == Mode.RUN and s.counters["clipped"] == 1
+    np.testing.assert_array_equal(s.step(2 * T_NS, y, i, np.array([-300.0, 50.0])), [-100.0, 50.0])
+    assert s.counters["clipped"] == 2
+
+
+def test_hold_then_land_after_hold_timeout():
+    s = Supervisor(board_cfg(hold_timeout=0.01), T)
+    y, i = _hover_measurement()
+    u = np.array([80.0, 81.0])
+    s.step(0, y, i, u)
+    for k in range(1, 11):  # 10 ms without a command: the last voltage is held
+        np.testing.assert_array_equal(s.step(k * T_NS, y, i, None), u)
+        assert s.mode == Mode.HOLD
+    assert s.counters["holds"] == 10 and s.counters["hold_events"] == 1
+    s.step(11 * T_NS, y, i, u)  # a fresh command: back to RUN
+    assert s.mode == Mode.RUN and s.reason == ""
+    for k in range(12, 22):
+        s.step(k * T_NS, y, i, None)
+    assert s.mode == Mode.HOLD
+    s.step(22 * T_NS, y, i, None)  # 11 ms without a command: more than hold_timeout
+    assert s.mode == Mode.LAND and "no command for 11.0 ms" in s.reason
+    assert s.counters["hold_events"] == 2 and s.counters["landings"] == 1
+    assert s.fault == ""  # a lost command stream is not a board fault
+    s.step(23 * T_NS, y, i, u)  # commands are ignored while landing (latched)
+    assert s.mode == Mode.LAND
+
+
+def test_non_finite_command_is_rejected_and_held():
+    s = Supervisor(board_cfg(), T)
+    y, i = _hover_measurement()
+    s.step(0, y, i, np.array([80.0, 80.0]))
+    np.testing.assert_array_equal(s.step(T_NS, y, i, np.array([np.nan, 1e3])), [80.0, 80.0])
+    assert s.counters["rejected"] == 1 and s.mode == Mode.HOLD
+
+
+def test_current_trip_latches_a_fault_and_lands_until_clear():
+    s = Supervisor(board_cfg(i_max=5.0), T)
+    y, i = _hover_measurement()
+    s.step(0, y, i, np.array([80.0, 80.0]))
+    s.step(T_NS, y, np.array([4.0, 5.5]), np.array([80.0, 80.0]))
+    assert s.mode == Mode.LAND and s.counters["trips"] == 1
+    assert "5.50 A above i_max = 5 A" in s.fault
+    s.step(2 * T_NS, y, i, np.array([80.0, 80.0]))
+    assert s.mode == Mode.LAND and s.fault  # latched
+    s.clear()
+    assert s.mode == Mode.OFF and s.fault == ""
+
+
+def test_gap_trip_uses_the_estimate():
+    s = Supervisor(board_cfg(), T)
+    y, i = _hover_measurement()
+    s.step(0, y, i, np.array([80.0, 80.0]))
+    s.step(T_NS, np.array([0.001, 0.008]), i, np.array([80.0, 80.0]))  # one wild sample: no trip
+    assert s.mode == Mode.RUN
+    k = 2
+    while s.mode == Mode.RUN and k < 200:  # the plate really is at 1 mm
+        s.step(k * T_NS, np.array([0.001, 0.008]), i, np.array([80.0, 80.0]))
+        k += 1
+    assert s.mode == Mode.LAND and "below trip_gap_min" in s.fault
+
+
+def test_non_finite_sensor_is_a_fault_with_zero_volts():
+    s = Supervisor(board_cfg(), T)
+    y, i = _hover_measurement()
+    s.step(0, y, i, np.array([80.0, 80.0]))
+    np.testing.assert_array_equal(s.step(T_NS, np.array([np.nan, 0.008]), i, np.array([80.0, 80.0])), [0, 0])
+    assert s.mode == Mode.FAULT and "non-finite" in s.fault
+    s.step(2 * T_NS, y, i, np.array([80.0, 80.0]))
+    assert s.mode == Mode.FAULT
+
+
+def test_requested_land_and_estop():
+    y, i = _hover_measurement()
+    s = Supervisor(board_cfg(), T)
+    s.step(0, y, i, np.array([80.0, 80.0]))
+    s.step(T_NS, y, i, np.array([80.0, 80.0]), requested=Mode.LAND)
+    assert s.mode == Mode.LAND and s.reason == "LAND requested" and s.fault == ""
+    s = Supervisor(board_cfg(), T)
+    s.step(0, y, i, np.array([80.0, 80.0]))
+    s.estop("button")
+    assert s.mode == Mode.LAND and s.fault == "e-stop: button" and s.counters["estops"] == 1
+    off = Supervisor(board_cfg(), T)
+    off.estop("button")  # nothing airborne under the board's control: stays unpowered
+    assert off.mode == Mode.LANDED and off.fault
+    np.testing.assert_array_equal(off.step(0, y, np.zeros(2), np.array([80.0, 80.0])), [0.0, 0.0])
+
+
+# -- the landing law, as physics ------------------------------------------------------------------------
+
+
+def _feasible(g: float, fm: float, fR: float, fK: float, dm: float, cfg: dict) -> bool:
+    """Can the bus hold the true plate at the landing gap at all? (R i <= 0.95 u_max)."""
+    m = TABLE2["m"] * fm + dm
+    i = (cfg["landing_gap"] + LANDING_OVERSHOOT) * math.sqrt((TABLE2["N1"] + m * TABLE2["g"] / 2) / (TABLE2["K"] * fK))
+    return TABLE2["R"] * fR * i <= 0.95 * cfg["u_max"]
+
+
+def land(g1, g2, fm=1.0, fR=1.0, fK=1.0, dm=0.0, noise=0.03, seed=1, kick=0.0, via="watchdog", t_max=4.0):
+    """Hover at (g1, g2) on the true plant, then lose the commands (or ask to land) and record the landing.
+
+    kick: a gap rate [m/s] given to both load points when the landing starts (negative: toward the rail).
+    Returns a dict of arrays (true state x (n, 6), applied u (n, 2), mode (n,)) and the supervisor.
+    """
+    cfg = board_cfg()
+    pc = SCHEMA.defaults("plant_sim")
+    pc.update(m=TABLE2["m"] * fm + dm, R=TABLE2["R"] * fR, K=TABLE2["K"] * fK, noise_scale=noise, seed=seed,
+              measure_velocity=False)
+    plant = DemPlant(pc)
+    P, Q = plant.p[IP], plant.p[IQ]
+    delta = np.array([P * g1 + Q * g2, Q * g1 + P * g2])
+    i0 = delta * math.sqrt((pc["N1"] + pc["m"] * pc["g"] / 2) / pc["K"])  # N1 = N2: equal forces hold any tilt
+    plant.x[:] = [g1, 0.0, g2, 0.0, i0[0], i0[1]]
+    u0 = pc["R"] * i0
+    sup = Supervisor(cfg, T)
+    X, U, M = [], [], []
+    n = round(t_max / T)
+    for k in range(n):
+        z = plant.measurement()
+        cmd = u0 if k < 20 else None
+        if via == "land" and k == 20:
+            sup.land("test")
+        if kick and k == 20:
+            plant.x[1] = plant.x[3] = kick
+        u = sup.step(k * T_NS, z[[0, 2]], z[[4, 5]], cmd)
+        X.append(plant.x.copy())
+        U.append(u.copy())
+        M.append(int(sup.mode))
+        if sup.mode == Mode.LANDED:
+            break
+        plant.advance(u)
+        assert plant.fault is None, plant.fault
+    return {"x": np.array(X), "u": np.array(U), "mode": np.array(M), "sup": sup, "u0": u0, "P": P, "Q": Q}
+
+
+CASES = [  # (g1, g2, fm, fR, fK, dm)
+    (0.004, 0.004, 1, 1, 1, 0),
+    (0.006, 0.006, 1, 1, 1, 0),
+    (0.008, 0.008, 1, 1, 1, 0),
+    (0.010, 0.010, 1, 1, 1, 0),
+    (0.005, 0.009, 1, 1, 1, 0),
+    (0.009, 0.005, 1, 1, 1, 0),
+    (0.004, 0.007, 1, 1, 1, 0),
+    (0.008, 0.008, 1.25, 1, 1, 0),
+    (0.008, 0.008, 0.75, 1, 1, 0),
+    (0.008, 0.008, 1, 1.25, 1, 0),
+    (0.008, 0.008, 1, 0.75, 1, 0),
+    (0.008, 0.008, 1, 1, 1.25, 0),
+    (0.008, 0.008, 1, 1, 0.75, 0),
+    (0.008, 0.008, 1, 1, 1, 3.0),
+    (0.004, 0.004, 1.25, 1, 0.75, 0),
+    (0.004, 0.004, 0.75, 1.25, 1.25, 0),
+    (0.010, 0.006, 1, 0.75, 1, 3.0),
+    (0.005, 0.005, 1.25, 1.25, 1.25, 0),
+]
+
+
+def _check_landing(r, cfg, g_start):
+    x, u, mode = r["x"], r["u"], r["mode"]
+    assert mode[-1] == Mode.LANDED, f"not landed after {len(mode)} samples: {r['sup'].snapshot()}"
+    land = mode == Mode.LAND
+    assert land.sum() > 0
+    # descent speed: true gap rates at both load points, every sample of the landing
+    v_max = float(np.max(x[land][:, [1, 3]]))
+    assert v_max <= cfg["landing_speed"], f"descent {v_max * 1e3:.2f} mm/s > {cfg['landing_speed'] * 1e3:g} mm/s"
+    # never toward the rail: no load-point gap or magnet gap below where it started (50 um tolerance) or trip_gap_min
+    P, Q = r["P"], r["Q"]
+    d1 = P * x[:, 0] + Q * x[:, 2]
+    d2 = Q * x[:, 0] + P * x[:, 2]
+    g_low = min(x[:, 0].min(), x[:, 2].min())
+    assert g_low >= min(g_start) - 50e-6 and g_low > cfg["trip_gap_min"], f"gap {g_low * 1e3:.3f} mm"
+    assert min(d1.min(), d2.min()) > cfg["trip_gap_min"]
+    # never a 0 V cut while airborne: the coils keep at least half the hover voltage until LANDED
+    assert np.all(u[land] >= 0.5 * r["u0"].min())
+    # it lands in about the time the reference needs (distance / v_ref), plus 0.5 s
+    v_ref = SPEED_FRACTION * cfg["landing_speed"]
+    t_need = (cfg["landing_gap"] - min(g_start)) / v_ref + 0.5
+    assert land.sum() * T <= t_need
+
+
+@pytest.mark.parametrize("case", CASES, ids=[
+    f"{g1 * 1e3:g}/{g2 * 1e3:g}mm-m{fm:g}-R{fR:g}-K{fK:g}+{dm:g}kg" for g1, g2, fm, fR, fK, dm in CASES])
+def test_landing_from_hover_with_model_errors_and_noise(case):
+    """Watchdog landing: ~50 ms of held voltage, then the law; noise +-30 um / +-0.3 mA (noise_scale 0.03)."""
+    cfg = board_cfg()
+    g1, g2, fm, fR, fK, dm = case
+    assert _feasible(max(g1, g2), fm, fR, fK, dm, cfg)
+    r = land(g1, g2, fm, fR, fK, dm, noise=0.03, seed=7)
+    assert r["sup"].counters["holds"] == round(cfg["hold_timeout"] / T)
+    assert r["sup"].reason.startswith("no command for")
+    _check_landing(r, cfg, (g1, g2))
+
+
+@pytest.mark.parametrize("gap", [0.004, 0.008])
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_landing_with_s3c_noise(gap, seed):
+    """noise_scale 0.1 (+-100 um gaps, +-1 mA: scenario S3c): it lands, never toward the rail; the motion
+    the noise drives through the loop adds to the reference speed: peak descent 0.99-1.28 landing_speed
+    measured (4 and 8 mm, seeds 1-4); stated tolerance 1.5 landing_speed."""
+    cfg = board_cfg()
+    r = land(gap, gap, noise=0.1, seed=seed)
+    x, mode = r["x"], r["mode"]
+    assert mode[-1] == Mode.LANDED
+    land_ = mode == Mode.LAND
+    assert np.max(x[land_][:, [1, 3]]) <= 1.5 * cfg["landing_speed"]
+    assert min(x[:, 0].min(), x[:, 2].min()) >= gap - 50e-6
+
+
+def test_landing_captures_a_plate_moving_toward_the_rail():
+    """Landing starts while the plate rises at 20 mm/s toward the rail: it is caught within 1 mm, then lands."""
+    cfg = board_cfg()
+    r = land(0.006, 0.006, via="land", kick=-0.02, noise=0.03)
+    x, mode = r["x"], r["mode"]
+    assert mode[-1] == Mode.LANDED
+    assert min(x[:, 0].min(), x[:, 2].min()) > 0.005
+    later = np.flatnonzero(mode == Mode.LAND)[100:]  # after 100 ms the descent speed bound holds
+    assert np.max(x[later][:, [1, 3]]) <= cfg["landing_speed"]
+
+
+def test_landed_removes_the_current_on_the_support():
+    """Once LANDED (the plate resting on its support) the coil currents are driven to zero, then 0 V."""
+    cfg = board_cfg()
+    r = land(0.008, 0.008, noise=0.0)
+    sup = r["sup"]
+    assert sup.mode == Mode.LANDED and sup.counters["landed"] == 1
+    pc = SCHEMA.defaults("plant_sim")
+    plant = DemPlant(pc)
+    plant.x[:] = r["x"][-1]
+    rest = plant.x[[0, 2]].copy()
+    k0 = len(r["x"])
+    currents = []
+    for k in range(k0, k0 + 200):
+        u = sup.step(k * T_NS, plant.x[[0, 2]], plant.x[[4, 5]], None)
+        plant.advance(u)
+        plant.x[[0, 2]] = rest  # the support holds the plate
+        plant.x[[1, 3]] = 0.0
+        currents.append(plant.x[[4, 5]].copy())
+    currents = np.array(currents)
+    assert np.all(np.abs(currents[-1]) < 0.03)
+    assert np.all(np.abs(currents[60:]) < 0.1)  # removed within 60 ms (L/R alone would take ~40 ms per e)
+    np.testing.assert_array_equal(sup.u, [0.0, 0.0])
+    assert sup.mode == Mode.LANDED
+    assert cfg["landing_gap"] <= rest.min()

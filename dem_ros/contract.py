@@ -25,12 +25,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "LOOP_STATUS", "MAGNETS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic"]
+__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "HW_LOOP_STATUS", "LOOP_STATUS", "MAGNETS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic", "markdown_table"]
 
 FRAME = "dem"
 FRAME_PREROLL = "dem/preroll"
 #: the name of the plant's once-a-second loop status on /diagnostics (cycles, deadline misses, latency, epoch_ns)
 LOOP_STATUS = "plant_sim: loop"
+#: the hardware driver's loop status: the same keys, standing in for the plant's on a rig
+HW_LOOP_STATUS = "hw_driver: loop"
 MAGNETS = ("magnet_1", "magnet_2")
 #: y_d [m], y_d' [m/s], y_d'' [m/s^2], y_d''' [m/s^3] for both magnets.
 REFERENCE_NAMES = (
@@ -124,4 +126,39 @@ PARAMETER_EVENTS = Topic(
     "standard ROS 2 parameter change events",
 )
 
-TOPICS = (MEASUREMENT, TRUTH, APPLIED, ESTIMATE, REFERENCE, COMMAND, CONTROLLER_STATE, DIAGNOSTICS, RUN_INFO, PARAMETER_EVENTS)
+HW_STATE = Topic(
+    "/dem/hw/state", "diagnostic_msgs/msg/DiagnosticStatus", QOS_LATCHED, 10.0, "hw_driver",
+    ("dem-ros hw", "recorder"),
+    "the hardware driver's state (message: inactive | armed | active | fault; level 2 on a fault) with key/values: "
+    "reason, board mode and status, link statistics (lost, late, duplicated, reordered, corrupt by reason), "
+    "holds, trips, clock drift, the answer to the last request",
+)
+HW_REQUEST = Topic(
+    "/dem/hw/request", "std_msgs/msg/String", QoS(reliable=True, transient_local=False, depth=10), None, "dem-ros hw",
+    ("hw_driver", "recorder"),
+    "operator requests: 'arm', 'disarm' (a controlled landing), 'clear', 'estop [reason]', 'status'",
+)
+HW_ESTOP = Topic(
+    "/dem/hw/estop", "std_msgs/msg/String", QoS(reliable=True, transient_local=False, depth=10), None, "any",
+    ("hw_driver", "recorder"),
+    "emergency stop: any message latches a fault and lands the plate; data = the reason",
+)
+
+TOPICS = (MEASUREMENT, TRUTH, APPLIED, ESTIMATE, REFERENCE, COMMAND, CONTROLLER_STATE, DIAGNOSTICS, RUN_INFO, PARAMETER_EVENTS,
+          HW_STATE, HW_REQUEST, HW_ESTOP)
+
+
+def markdown_table() -> str:
+    """The contract as a Markdown table (``docs/manual/topics.md`` holds it; a test keeps them equal)."""
+
+    def cell(s: str) -> str:
+        return s.replace("|", "\\|")
+
+    lines = ["| topic | type | fields (SI) | rate | QoS | publisher | subscribers |", "|---|---|---|---|---|---|---|"]
+    for t in TOPICS:
+        q = t.qos
+        qos = f"{'reliable' if q.reliable else 'best effort'}, {'transient local' if q.transient_local else 'volatile'}, depth {q.depth}"
+        rate = f"{t.rate_hz:g} Hz" if t.rate_hz else "on change"
+        lines.append(" | ".join(["", f"`{t.name}`", f"`{t.type}`", cell(t.fields), rate, qos, cell(t.publisher),
+                                 cell(", ".join(t.subscribers)), ""]).strip())
+    return "\n".join(lines) + "\n"

@@ -244,10 +244,13 @@ def _check_reference(v: Mapping[str, Any]) -> str | None:
     return None
 
 
+#: default gap-sensor calibration: 16-bit ADC over ~0..20 mm, mildly nonlinear (c0..c3; m, m/count, ...)
+_GAP_POLY = (0.0, 2.5e-7, 8.0e-13, 0.0)
+
 # The board's hard limits and watchdog (dem_ros.core.safety.Supervisor): one list, included in every
 # group whose node is (or simulates) the board that drives the coils: plant_sim, hw_driver.
 SAFETY_SPECS = (
-    ParamSpec("u_max", float, 150.0, "V", "coil driver bus: applied voltages are clipped to +-this (hover needs 50-80 V, transients ~120 V)", 1.0, 1e4),
+    ParamSpec("u_max", float, 200.0, "V", "coil driver bus: applied voltages are clipped to +-this (hover 50-80 V, transients ~120 V, scenario S4b asks 155 V)", 1.0, 1e4),
     ParamSpec("i_max", float, 10.0, "A", "coil current trip: above this the board latches a fault and lands the plate", 0.1, 1e3),
     ParamSpec("trip_gap_min", float, 0.0015, "m", "gap trip toward the rail: an estimated load-point gap below this latches a fault and lands", 0.0, 0.1),
     ParamSpec("trip_gap_max", float, 0.013, "m", "gap trip away from the rail: an estimated gap above this latches a fault (the plate is on its support or falling)", 1e-4, 1.0),
@@ -265,9 +268,10 @@ def _check_safety(v: Mapping[str, Any]) -> str | None:
         return f"trip_gap_min = {v['trip_gap_min']:g} m must lie above the rail-contact gap_min = {v['gap_min']:g} m"
     if "gap_max" in v and not v["trip_gap_max"] < v["gap_max"]:
         return f"trip_gap_max = {v['trip_gap_max']:g} m must lie below gap_max = {v['gap_max']:g} m"
-    if "gap0" in v and not v["trip_gap_min"] < v["gap0"] < v["landing_gap"]:
-        return (f"gap0 = {v['gap0']:g} m must lie between trip_gap_min = {v['trip_gap_min']:g} m and "
-                f"landing_gap = {v['landing_gap']:g} m")
+    for name in ("gap0", "d1_0", "d2_0"):  # d1_0, d2_0: 0 takes gap0
+        if v.get(name) and not v["trip_gap_min"] < v[name] < v["landing_gap"]:
+            return (f"{name} = {v[name]:g} m must lie between trip_gap_min = {v['trip_gap_min']:g} m and "
+                    f"landing_gap = {v['landing_gap']:g} m (the plate hovers above its support)")
     return None
 
 
@@ -386,12 +390,59 @@ SCHEMA = Schema(
             ParamSpec("max_age", float, 0.0, "s", "never act on a measurement older than this (wall clock - stamp); 0: no check (lockstep simulation, whose clock lags wall time); 0.005 with hardware", 0.0, 10.0),
             ParamSpec("voltage_limit", float, 1e4, "V", "commands are clipped to +-this before publishing", 0.0, 1e6),
         ),
+        "hw_driver": (
+            ParamSpec("url", str, "udp://127.0.0.1:9870", "", "device link: udp://HOST:PORT (the board's address) or serial:///dev/PATH[?baud=N]"),
+            ParamSpec("dt", float, 1e-3, "s", "the board's sample period (its hello must agree)", 1e-5, 0.1, read_only=True),
+            ParamSpec("command_delay", int, 1, "samples", "the board holds the command for sample k over [t_k+d, t_k+d+1) (the controller's command_delay)", 1, 8, read_only=True),
+            *(
+                ParamSpec(f"gap{j}_c{p}", float, _GAP_POLY[p], f"m/count^{p}" if p else "m",
+                          f"gap sensor {j} calibration: gap = sum_p c_p n^p (n: ADC counts), coefficient of n^{p}", -1e3, 1e3)
+                for j in (1, 2) for p in range(4)
+            ),
+            ParamSpec("gap_table", str, "", "", "CSV of 'counts, gap1_m, gap2_m' rows (interpolated) instead of the polynomials; '' = polynomials"),
+            ParamSpec("current1_gain", float, 10.0 / 32768, "A/count", "coil current sensor 1: i = gain (n - offset)", -1e3, 1e3),
+            ParamSpec("current1_offset", float, 32768.0, "count", "coil current sensor 1: counts at zero current", -1e6, 1e6),
+            ParamSpec("current2_gain", float, 10.0 / 32768, "A/count", "coil current sensor 2: i = gain (n - offset)", -1e3, 1e3),
+            ParamSpec("current2_offset", float, 32768.0, "count", "coil current sensor 2: counts at zero current", -1e6, 1e6),
+            ParamSpec("voltage_input", str, "volts", "", "the link's voltage fields are volts, or duty ratios in [-1, 1] of the measured bus voltage", choices=("volts", "duty")),
+            # the board's limits, reused by the driver: commands clipped to u_max; a measured current above
+            # i_max or a measured gap outside [trip_gap_min, trip_gap_max] for trip_samples samples trips
+            # (the board lands); no controller command for hold_timeout (steady clock) -> fault, LAND
+            *SAFETY_SPECS,
+            ParamSpec("trip_samples", int, 3, "samples", "consecutive out-of-limit samples that trip (a single spike is counted, not tripped on)", 1, 1000),
+            ParamSpec("link_timeout", float, 0.05, "s", "no sensor frame this long while armed or active -> fault (the board's own watchdog lands it)", 1e-3, 10.0),
+            ParamSpec("late_threshold", float, 1e-3, "s", "a sensor frame received later than this after its sample is counted late", 1e-6, 1.0),
+            ParamSpec("clock_sync_frames", int, 200, "", "frames whose minimum (receive - board time) sets the fixed board -> ROS time offset", 1, 100000),
+            ParamSpec("arm_samples", int, 200, "samples", "armed -> active after this many consecutive controller commands in time (the loop proves itself live before the board gets a command)", 1, 100000),
+            ParamSpec("auto_arm", bool, False, "", "arm at start-up (the launcher's emulated runs); false: wait for 'dem-ros hw arm'"),
+            ParamSpec("preroll", float, 1.0, "s", "levitate in closed loop this long after becoming active before t = 0 (frame_id dem/preroll)", 0.0, 600.0),
+            ParamSpec("duration", float, 0.0, "s", "land and stop this long after t = 0 (0: run until stopped)", 0.0, 1e7),
+        ),
+        "rig": (
+            ParamSpec("url", str, "udp://127.0.0.1:9870", "", "dem-ros rig: where the emulated board listens: udp://HOST:PORT, or pty:// (a new pseudo-terminal; its serial:// path is printed)"),
+            ParamSpec("board_id", int, 1, "", "the board id its hello reports", 1, 2**31 - 1),
+            ParamSpec("adc_bits", int, 16, "bits", "ADC resolution of the gap and current channels", 8, 16),
+            ParamSpec("adc_vref", float, 10.0, "V", "ADC full-scale voltage (reported in the hello)", 0.1, 100.0),
+            ParamSpec("gap_gain_error", float, 0.0, "", "gap sensors: relative gain error against their data-sheet calibration", -0.5, 0.5),
+            ParamSpec("gap_offset_error", float, 0.0, "m", "gap sensors: offset error against their data-sheet calibration", -0.01, 0.01),
+            ParamSpec("gap_noise", float, 0.0, "m", "gap sensors: Gaussian noise standard deviation (on top of the scenario's noise)", 0.0, 0.01),
+            ParamSpec("current_noise", float, 0.0, "A", "current sensors: Gaussian noise standard deviation (on top of the scenario's noise)", 0.0, 10.0),
+            ParamSpec("pwm_bits", int, 16, "bits", "coil drivers: PWM resolution (signed duty in steps of 2^-(bits-1)); the adaptive law has no current loop: 12 bits at 200 V (0.1 V steps) limit-cycle at ~95 um RMS, 14 bits ~17 um, 16 bits ~4.5 um (S1 in lockstep)", 2, 24),
+            ParamSpec("bus_voltage", float, 200.0, "V", "coil drivers: DC bus voltage without load", 0.0, 1e4),
+            ParamSpec("bus_resistance", float, 0.5, "ohm", "coil drivers: bus source resistance (sag = R_bus (|i1| + |i2|))", 0.0, 1e3),
+            ParamSpec("bus_min", float, 100.0, "V", "below this the board reports bus undervoltage", 0.0, 1e4),
+            ParamSpec("current_limit", float, 9.0, "A", "coil drivers: hardware current limit (no positive voltage above it)", 0.0, 1e3),
+            ParamSpec("support_gap", float, 0.0112, "m", "the plate's mechanical support: gaps never exceed it", 1e-3, 0.1),
+            ParamSpec("start", str, "hover", "", "hover: clamped at the scenario's hover until the first RUN command; landed: on the support, no current", choices=("hover", "landed")),
+            ParamSpec("seed", int, 7, "", "seed of the rig's sensor noise and frame corruption", 0, 2**31 - 1),
+        ),
     },
     checks={
         "plant_sim": (_check_plant, _check_safety),
         "reference": (_check_reference,),
         "estimator": (_check_geometry,),
         "controller": (_check_geometry, _check_hurwitz, _check_bounds),
+        "hw_driver": (_check_safety,),
     },
 )
 

@@ -27,7 +27,11 @@ Two timing modes:
   missing command is a counted deadline miss and a board hold (see above).
 
 Before t = 0 the plant levitates in closed loop for ``preroll`` seconds
-(frame_id ``dem/preroll``; a missing command then just holds the voltage).
+(frame_id ``dem/preroll``). Until the first command arrives (at most 300 ms,
+``START_GRACE_SAMPLES``) a free-running board keeps the initial hover voltage
+(the simulated plate starts in exact equilibrium, so that costs nothing); from
+then on a missing command is held at most ``hold_timeout``: a graph that cannot
+keep up lands the plate.
 Latency = receive time of a command - publish time of the measurement it
 answers. A hardware driver replaces this node by honouring the same topics.
 """
@@ -50,6 +54,10 @@ from .common import JointStates, LatencyStats, all_finite, diag_array, stamp_ns
 __all__ = ["PlantSimNode", "main"]
 
 RING = 256  # commands / publish times kept by sample index
+# Free-running pre-roll: before the first command the board keeps the initial hover voltage for at most
+# this many samples. The simulated plate starts in exact equilibrium; with the voltage held, rounding
+# errors (~1e-18 m) grow by e^(62 rad/s * 0.3 s) ~ 1e8 in 300 ms: still far below 1 nm.
+START_GRACE_SAMPLES = 300
 
 
 class PlantSimNode:
@@ -80,6 +88,7 @@ class PlantSimNode:
         board = {**c, **{k: TABLE2[k] for k in ("m", "R", "K")}}
         self.board = Supervisor(board, c["dt"], mode=Mode.RUN, u0=self.plant.u0)
         self.z_board = self.plant.x.tolist()  # what the board measured at the last published sample
+        self.loop_closed = False  # a first command has arrived
         self.started = False
         self.finished = False
         self.n_pre = 0
@@ -174,11 +183,18 @@ class PlantSimNode:
         src = k - 1 - self.cfg["command_delay"]  # the sample whose command is held over [t_k-1, t_k]
         slot = src % RING
         board = self.board
+        prev = board.mode
         if src < -self.n_pre:
             cmd = self.plant.u0  # before the loop closed the board held the hover voltage
         elif self.cmd_stamp[slot] == self.epoch + src * self.dt_ns:
             cmd = self.cmd_u[slot]
             self.wait_since = None
+            self.loop_closed = True
+        elif not self.loop_closed and k <= 0 and k + self.n_pre <= START_GRACE_SAMPLES and not self.cfg["lockstep"]:
+            # free-running pre-roll before the first command: the simulated plate starts in exact equilibrium
+            # under u0, so holding u0 costs nothing for a while (see START_GRACE_SAMPLES)
+            cmd = self.plant.u0
+            self.preroll_misses += 1
         else:
             cmd = None
             if self.cfg["lockstep"] and board.mode in (Mode.RUN, Mode.HOLD):
@@ -199,11 +215,12 @@ class PlantSimNode:
                     self.misses += 1
                 else:
                     self.preroll_misses += 1
-        prev = board.mode
         z = self.z_board  # the board computes [t_k-1, t_k) from its sample of t_k-1
         self.u_applied = board.step(self.epoch + (k - 1) * self.dt_ns, (z[0], z[2]), (z[4], z[5]), cmd)
         if board.mode != prev:
             self._board_event(prev, k - 1)
+            if self.finished:
+                return False  # LANDED: the plate rests on its support (not simulated): the run ends here
         p = self.plant
         if k <= 0:
             p.hold(self.u_applied)  # pre-roll: true dynamics, no scenario disturbances, clock at 0
@@ -229,7 +246,7 @@ class PlantSimNode:
             return
         if b.mode == Mode.LAND:
             x = self.plant.x
-            log.error(f"{when}: safe landing from gaps {x[0] * 1e3:.3f} / {x[2] * 1e3:.3f} mm to"
+            (log.error if b.fault else log.warn)(f"{when}: safe landing from gaps {x[0] * 1e3:.3f} / {x[2] * 1e3:.3f} mm to"
                       f" {self.cfg['landing_gap'] * 1e3:g} mm at <= {self.cfg['landing_speed'] * 1e3:g} mm/s: {b.reason}")
             self.publish_diag(2 if b.fault else 1, f"landing: {b.reason}")
         elif b.mode == Mode.LANDED:
@@ -276,6 +293,7 @@ class PlantSimNode:
         c = b.counters
         return {
             "board_mode": b.mode.name, "holds": c["holds"], "hold_events": c["hold_events"],
+            "longest_hold_ms": c["longest_hold_us"] / 1000,
             "clipped": c["clipped"], "trips": c["trips"], "landing": c["landings"] > 0 or b.mode == Mode.LANDED,
             "landed": c["landed"] > 0, "landing_reason": b.reason if c["landings"] else "",
             "board_fault": b.fault, "lockstep_timeouts": self.lockstep_landing,
@@ -299,7 +317,8 @@ class PlantSimNode:
 
     def finish(self, message: str, level: int) -> None:
         self.finished = True
-        (self.node.logger.error if level else self.node.logger.info)(message)
+        log = self.node.logger
+        (log.error if level >= 2 else log.warn if level == 1 else log.info)(message)
         self.publish_diag(level, "finished: " + message)
         # give the last samples time to reach subscribers, then stop the node
         self.node.timer(0.3, self.node.shutdown)

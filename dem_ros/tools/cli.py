@@ -9,6 +9,8 @@
     dem-ros replay    metrics, plots and what-if re-runs from a bag
     dem-ros bag       check a bag
     dem-ros param     get/set a parameter of a running node
+    dem-ros rig       the DEM rig and its I/O board, emulated behind the device link
+    dem-ros hw        arm | disarm | estop | status of the running hardware driver
     dem-ros config    print the parameter schema or the default params file
 
 Bad input ends with a one-line error and exit status 2, never a traceback.
@@ -106,6 +108,21 @@ def cmd_param(args: argparse.Namespace) -> int:
     return 1
 
 
+def cmd_hw(args: argparse.Namespace) -> int:
+    from ..nodes.hw_driver import request
+
+    try:
+        v = request(args.action, args.reason, domain_id=args.domain_id, timeout_s=args.timeout)
+    except TimeoutError as exc:
+        raise UsageError(str(exc)) from None
+    keys = ("state", "reason", "answer", "board_mode", "t_sim_s", "lost", "late", "corrupt", "hold_samples", "trips",
+            "latency_p50_us", "latency_p99_us")
+    for k in keys:
+        if v.get(k, "") != "":
+            print(f"  {k:<16} {v[k]}")
+    return 0 if v["state"] != "fault" or args.action == "estop" else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="dem-ros", description="DEM maglev adaptive control: simulation, ROS 2 graph, recording and analysis.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -167,7 +184,25 @@ def build_parser() -> argparse.ArgumentParser:
     lg.add_argument("--no-record", action="store_true", help="do not record a bag")
     lg.add_argument("--json", default=None, help="write the summary as JSON")
     lg.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID for this run")
+    lg.add_argument("--hardware", default=None, metavar="LINK",
+                    help="hw_driver instead of plant_sim, on udp://HOST:PORT or serial:///dev/PATH; 'rig' (UDP) or "
+                         "'rig-serial' (a pty pair) also start the emulator 'dem-ros rig'")
+    lg.add_argument("--fault", action="append", default=None, metavar="SPEC",
+                    help="with --hardware rig: inject a rig fault, e.g. linkloss@10+0.05 (dem-ros rig --help-faults)")
     lg.set_defaults(func=launcher.cmd_launch)
+
+    from ..hardware import rig
+
+    rg = sub.add_parser("rig", help="emulate the DEM rig and its I/O board behind the device link (free-running 1 kHz)")
+    rig.build_parser(rg)
+    rg.set_defaults(func=rig.cmd_rig)
+
+    hw = sub.add_parser("hw", help="the hardware driver: arm | disarm (a controlled landing) | estop | status")
+    hw.add_argument("action", choices=["arm", "disarm", "estop", "status"])
+    hw.add_argument("reason", nargs="?", default="", help="estop: why (recorded with the fault)")
+    hw.add_argument("--domain-id", type=int, default=None)
+    hw.add_argument("--timeout", type=float, default=5.0, help="seconds to find the driver and get its answer (default 5)")
+    hw.set_defaults(func=cmd_hw)
 
     nd = sub.add_parser("node", help="run one node of the graph")
     nd.add_argument("name", choices=NODES)

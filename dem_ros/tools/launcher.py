@@ -20,6 +20,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Sequence
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -82,16 +83,25 @@ def _node_cmd(name: str, transport: str, params: Path, extra: list[str]) -> list
 
 def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, meta: dict,
               domain_id: int | None = None, status: bool = True, workdir: Path | None = None,
-              compose: bool = False) -> dict:
+              compose: bool = False, hardware: str | None = None, faults: Sequence[str] = ()) -> dict:
     """Start the graph, wait for the plant to finish ``duration`` s, stop everything; return raw facts.
 
     ``compose``: all nodes in one ``container`` process (intra-process topics)
-    instead of one process per node.
+    instead of one process per node. ``hardware``: ``hw_driver`` in place of
+    ``plant_sim``, on the link ``udp://HOST:PORT`` or ``serial:///dev/...``; ``rig``
+    (UDP on loopback) or ``rig-serial`` (a pty pair) also start the emulator
+    ``dem-ros rig`` with ``faults`` (see :mod:`dem_ros.hardware.rig`).
     """
     workdir = workdir or Path(tempfile.mkdtemp(prefix="dem_ros_launch_"))
     workdir.mkdir(parents=True, exist_ok=True)
     cfg = {g: dict(v) for g, v in cfg.items()}
     cfg["plant_sim"]["duration"] = float(duration)
+    rig = None
+    if hardware is not None:
+        cfg["hw_driver"]["duration"] = float(duration)
+        cfg["hw_driver"]["auto_arm"] = True  # the launcher's run is the operator's arm
+        if hardware not in ("rig", "rig-serial"):
+            cfg["hw_driver"]["url"] = hardware
     params = write_params_file(cfg, workdir / "params.yaml")
     env = dict(os.environ)
     if domain_id is None:
@@ -115,21 +125,30 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     old = {}
     if threading.current_thread() is threading.main_thread():  # Ctrl-C / SIGTERM stop the graph cleanly
         old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    lead = "container" if compose else "plant_sim"  # its exit ends the run; its stdout has the status lines
-    names = ["container"] if compose else [n for n in NODES if n != "recorder" or bag is not None]
+    plant_node = "plant_sim" if hardware is None else "hw_driver"
+    lead = "container" if compose and hardware is None else plant_node  # its exit ends the run; its stdout has the status lines
+    names = ["container"] if compose else [n if n != "plant_sim" else plant_node for n in NODES if n != "recorder" or bag is not None]
+    if compose and hardware is not None:  # the loop's nodes composed, the driver beside them (it owns the link)
+        names = ["container", "hw_driver"]
     t0 = time.monotonic()
     try:
         for name in names:
             bag_args = ["--bag", str(bag), "--meta", str(meta_file)] if bag is not None else []
             extra = bag_args if name in ("recorder", "container") else []
+            if name == "container" and hardware is not None:
+                extra = [*extra, "--nodes", "estimator,controller,reference"]
             logs[name] = workdir / f"{name}.log"
             out = subprocess.PIPE if name == lead else open(logs[name], "wb")
-            procs[name] = subprocess.Popen(_node_cmd(name, transport, params, extra), env=env, stdout=out,
+            node_params = params
+            if name == "hw_driver" and hardware in ("rig", "rig-serial"):  # the emulator starts last, with the driver
+                rig, cfg["hw_driver"]["url"] = _start_rig(cfg, hardware, faults, workdir)
+                node_params = write_params_file(cfg, workdir / "hw_driver_params.yaml")
+            procs[name] = subprocess.Popen(_node_cmd(name, transport, node_params, extra), env=env, stdout=out,
                                            stderr=subprocess.STDOUT, start_new_session=True,
                                            text=(name == lead))
             started[name] = time.monotonic()
-            if name == "controller":  # every other node is up: wait for their "ready"
-                _wait_ready({n: logs[n] for n in procs if n != "plant_sim"}, procs, timeout=120.0)
+            if name == "controller" or (name == "container" and hardware is not None):  # wait for their "ready"
+                _wait_ready({n: logs[n] for n in procs if n != plant_node}, procs, timeout=120.0)
         plant = procs[lead]
         plant_log = open(logs[lead], "w")
         limit = time.monotonic() + 60.0 + 10.0 * (duration + cfg["plant_sim"]["preroll"])  # lockstep may run below real time
@@ -167,7 +186,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
         for name, p in procs.items():
             cpu[name] = _cpu_seconds(p.pid)
         # stop: plant (if still running) and controllers first, recorder last
-        for name in ("container", "plant_sim", "controller", "estimator", "reference", "recorder"):
+        for name in ("container", "plant_sim", "hw_driver", "controller", "estimator", "reference", "recorder"):
             p = procs.get(name)
             if p is None or p.poll() is not None:
                 continue
@@ -179,6 +198,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
+        rig_summary = _stop_rig(rig)
         for s, h in old.items():
             signal.signal(s, h)
     elapsed = {n: (time.monotonic() - started[n]) for n in procs}
@@ -192,7 +212,59 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
             if line.startswith("RECORDER "):
                 recorder_counts = json.loads(line[len("RECORDER "):])
     return {"interrupted": interrupted, "wall_s": wall, "cpu_percent": cpu_pct, "returncodes": {n: p.returncode for n, p in procs.items()},
-            "logs": {n: str(p) for n, p in logs.items()}, "recorder": recorder_counts, "domain_id": domain_id, "workdir": str(workdir)}
+            "logs": {n: str(p) for n, p in logs.items()}, "recorder": recorder_counts, "domain_id": domain_id, "workdir": str(workdir),
+            "rig": rig_summary}
+
+
+def _start_rig(cfg: dict, kind: str, faults: Sequence[str], workdir: Path) -> tuple[subprocess.Popen, str]:
+    """Start ``dem-ros rig`` (UDP on a free loopback port, or a pty) and return (process, the URL the driver opens)."""
+    import socket
+
+    if kind == "rig":
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:  # a free port (the rig binds it next)
+            sock.bind(("127.0.0.1", 0))
+            url = f"udp://127.0.0.1:{sock.getsockname()[1]}"
+    else:
+        url = "pty://"
+    cfg["rig"]["url"] = url
+    params = write_params_file(cfg, workdir / "rig_params.yaml")
+    cmd = [sys.executable, "-m", "dem_ros.hardware.rig", "--params", str(params), "--url", url]
+    for f in faults:
+        cmd += ["--fault", f]
+    log = workdir / "rig.log"
+    with open(log, "w") as out:
+        proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+    end = time.monotonic() + 60.0
+    while time.monotonic() < end:
+        for line in log.read_text(errors="replace").splitlines():
+            if line.startswith("RIG ") and '"listening"' in line:
+                proc.log = log  # type: ignore[attr-defined]
+                return proc, json.loads(line[4:])["url"]
+        if proc.poll() is not None:
+            break
+        time.sleep(0.05)
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
+    raise GraphError(f"dem-ros rig did not start (code {proc.returncode}); see {log}")
+
+
+def _stop_rig(proc: subprocess.Popen | None) -> dict | None:
+    """Stop the emulator (after the driver: it has landed the plate) and return its summary."""
+    if proc is None:
+        return None
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+    summary = None
+    for line in proc.log.read_text(errors="replace").splitlines():  # type: ignore[attr-defined]
+        if line.startswith("RIG ") and '"summary"' in line:
+            summary = json.loads(line[4:])
+    return summary
 
 
 def _config_from_args(args: Any) -> tuple[dict[str, dict[str, Any]], Scenario, float]:
@@ -235,10 +307,17 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
               f" {duration:g} s, transport {args.transport}", file=sys.stderr)
     compose = bool(getattr(args, "compose", False))
     meta["composed"] = compose
+    hardware = getattr(args, "hardware", None)
+    if hardware is not None:  # a rig measures no gap rates: the offline comparison neither
+        cfg["plant_sim"]["measure_velocity"] = False
+        # one command delay: the controller predicts over it, the board applies it, offline simulates it
+        d = cfg["controller"]["command_delay"]
+        cfg["hw_driver"]["command_delay"] = cfg["plant_sim"]["command_delay"] = d
+        meta["hardware"] = hardware
     try:
         facts = run_graph(cfg, duration=duration, transport=args.transport, bag=bag, meta=meta, domain_id=args.domain_id,
                           status=not quiet, workdir=(bag.parent / (bag.name + "_logs")) if record else None,
-                          compose=compose)
+                          compose=compose, hardware=hardware, faults=getattr(args, "fault", None) or ())
         metrics = RunMetrics.from_bag(bag)
     finally:
         if tmp is not None:
@@ -247,11 +326,12 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
     if metrics.loop is not None:  # the plant's process exits before the launcher can read its CPU time: it reports it
         cpu = dict(facts["cpu_percent"])
         if metrics.loop.plant_cpu_percent is not None:
-            cpu["container" if compose else "plant_sim"] = metrics.loop.plant_cpu_percent
+            cpu["hw_driver" if hardware is not None else ("container" if compose else "plant_sim")] = metrics.loop.plant_cpu_percent
         metrics.loop.cpu_percent = cpu
     offline = simulate(cfg, controller=cfg["controller"]["type"], estimator=cfg["estimator"]["type"], duration=duration,
                        scenario=sc.name).metrics()
     info = {"composed": compose, "offline_rms_error_um": offline["rms_error_um"], "bag": str(bag) if record else None,
+            "hardware": hardware, "rig": facts.get("rig"),
             "recorder": facts["recorder"], "interrupted": facts["interrupted"]}
     if record and bag.is_dir():  # the run-time summary travels with the bag (replay compares against it)
         (bag / "summary.json").write_text(json.dumps(metrics.to_dict() | info, indent=2) + "\n")
@@ -266,6 +346,15 @@ def cmd_launch(args: Any) -> int:
         rc = info["recorder"]
         extra.append(("recorded", f"{sum(v['written'] for v in rc.values())} messages,"
                                   f" {sum(v['dropped'] for v in rc.values())} dropped"))
+    if info.get("rig"):
+        r = info["rig"]
+        extra.append(("rig (emulated board)", f"{r['ticks']} samples, {r['late_over_1ms']} ticks > 1 ms late,"
+                                              f" {r['commands_fresh']} fresh commands, board {r['mode']}"
+                                              + (f" ({r['reason']})" if r.get("reason") else "")
+                                              + (f", FAILED: {r['failed']}" if r.get("failed") else "")))
+        for f in r.get("faults", []):
+            extra.append((f"  fault {f['kind']}" + (f":{f['channel']}" if f["channel"] else ""),
+                          f"at {f['start']:g} s, acted on {f['hits']} samples"))
     if info["bag"]:
         extra.append(("bag", info["bag"]))
     metrics.print(extra=extra)

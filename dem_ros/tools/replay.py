@@ -102,13 +102,10 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     cfg = run.get("config")
     if not cfg:
         raise BagError(f"{bag}: no recorded configuration (run_info); cannot re-run the controller")
-    # only the controller's parameters matter here; a bag recorded by another version may name
-    # parameters this schema no longer has (they are listed in the result, not an error)
-    recorded = dict(cfg.get("controller") or {})
-    known = {p.name for p in SCHEMA.groups["controller"]}
-    ignored = sorted(k for k in recorded if k not in known)
-    cfg = apply_overrides(default_config(), {"controller": {k: v for k, v in recorded.items() if k in known}},
-                          "recorded config")
+    # a bag of an older version may carry parameters removed since (plant_sim.command_timeout): skip those
+    known = {g: {p.name for p in specs} for g, specs in SCHEMA.groups.items()}
+    recorded = {g: {n: x for n, x in v.items() if n in known[g]} for g, v in cfg.items() if g in SCHEMA.groups}
+    cfg = apply_overrides(default_config(), recorded, "recorded config")
     recorded_law = cfg["controller"]["type"]
     ccfg = dict(cfg["controller"])
     for text in sets or []:
@@ -165,7 +162,6 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     d = np.abs(new - old)
     return {
         "law": name, "recorded_law": recorded_law, "changes": sets or [], "samples": len(stamps),
-        "ignored_recorded_parameters": ignored,
         "max_abs_diff_v": float(d.max()), "rms_diff_v": float(np.sqrt(np.mean(d**2))),
         "reproduces_recording": bool(d.max() <= 1e-9 * max(1.0, float(np.abs(old).max()))),
         "t": ((np.array(stamps) - stamps[0]) * 1e-9).tolist(), "u_replayed": new.tolist(), "u_recorded": old.tolist(),

@@ -205,7 +205,7 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     loop_hist = []
     for _, log_ns, msg in r.messages([contract.DIAGNOSTICS.name]):
         for s in msg.status:
-            if s.name == contract.LOOP_STATUS:
+            if s.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
                 loop_hist.append((log_ns, {kv.key: kv.value for kv in s.values}))
     last = loop_hist[-1][1] if loop_hist else {}
     loop = LoopStats.from_status(last) if loop_hist else None

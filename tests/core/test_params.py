@@ -28,7 +28,7 @@ def _reject(group: str, **changes) -> str:
 # ---------------------------------------------------------------------------
 def test_defaults_validate_and_round_trip():
     cfg = default_config()
-    assert set(cfg) == {"plant_sim", "reference", "estimator", "controller"}
+    assert set(cfg) == {"plant_sim", "reference", "estimator", "controller", "hw_driver", "rig"}
     for group, values in cfg.items():
         assert SCHEMA.validate_group(group, values) == values
     assert apply_overrides(cfg, {}) == cfg

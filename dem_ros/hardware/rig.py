@@ -1,0 +1,567 @@
+r"""``dem-ros rig``: an emulator of the I/O board and the DEM rig behind the device link.
+
+Its own process, free-running at 1 kHz against absolute deadlines: what a real board
+does, with the core plant (:class:`dem_ros.core.plant.DemPlant`, the scenario's true
+parameters, disturbances and noise) in place of the rig.
+
+Every period n (t_n = n T on the board's clock)::
+
+    1. read every command frame received since the last tick (non-blocking)
+    2. sample: gaps and currents of the plant at t_n -> sensor models -> ADC counts
+    3. send SensorFrame(seq=n, board_time, counts, applied voltage over [t_n-1, t_n], bus, status, mode)
+    4. the Supervisor (dem_ros.core.safety, the board's limits, hold and landing law) turns the
+       command answering sample n - d (d = ``hw_driver.command_delay``; none: it holds, then
+       lands) into voltages -> actuator models -> the coils
+    5. integrate the plant over [t_n, t_n+1] with those voltages held (zero-order hold)
+
+so a command computed from sample k acts over [t_k+d, t_k+d+1), as in ``plant_sim``.
+A command frame's mode is a request: RUN, LAND (land now) or OFF (acknowledge a landing:
+the Supervisor's ``clear()`` once LANDED). The board answers a hello request with its :class:`Hello` and streams only
+after it (UDP: to the address of the newest hello).
+
+Sensor models (counts n from a gap d [m] or a current i [A]):
+    gap:     n = c^-1((1 + gain_error) d + offset_error + noise),  c: the driver's calibration
+             polynomial (``hw_driver.gap{j}_c{p}``: the sensor's data sheet), rounded, clipped
+             to [0, 2^adc_bits - 1] (clipped: GAPj_RANGE)
+    current: n = (i + noise) / gain + offset (``hw_driver.current{j}_*``), rounded and clipped
+Actuator models (per coil):
+    bus      V_bus = bus_voltage - bus_resistance (|i1| + |i2|)     (sag; a fault may lower it)
+    PWM      u = V_bus round(duty 2^(pwm_bits-1)) / 2^(pwm_bits-1),  duty = u_cmd / V_bus in [-1, 1]
+    limit    a coil above current_limit gets no positive voltage (the bridge's cycle-by-cycle limit)
+Mechanics: the plate rests on a support at ``support_gap`` (gaps never exceed it).
+
+Start (``start``): ``hover`` clamps the plate at the scenario's hover (x0, u0: what a
+running rig looks like) until the first RUN command releases it — the emulator's stand-in
+for plant_sim's pre-start hover; ``landed`` starts on the support with no current.
+
+Faults (``--fault``, times in seconds after the release; see :func:`parse_fault`)::
+
+    dropout:J@T[+D]   gap sensor J reads 0 counts (a dead sensor) for D s (default: to the end)
+    stuck:J@T[+D]     gap sensor J repeats its last reading
+    spike:J@T         one sample of gap sensor J at full scale
+    corrupt@T[+D][:P] a fraction P (default 1) of sent frames get a flipped byte (CRC fails)
+    linkloss@T+D      nothing sent or received for D s
+    sag@T[+D][:V]     bus voltage drops to V volts (default 60)
+    coil:J@T[+D]      coil driver J fails (open: no voltage; DRIVERj_FAULT)
+"""
+
+from __future__ import annotations
+
+import argparse
+import bisect
+import json
+import math
+import signal
+import sys
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .link import (
+    PROTOCOL_VERSION,
+    CommandFrame,
+    Hello,
+    LinkError,
+    Mode,
+    SensorFrame,
+    Status,
+    decode,
+    encode,
+    seq_diff,
+)
+
+__all__ = ["FAULT_KINDS", "Board", "Fault", "RigError", "main", "parse_fault", "run_rig"]
+
+CMD_RING = 16  # commands kept by sample number
+FAULT_KINDS = ("dropout", "stuck", "spike", "corrupt", "linkloss", "sag", "coil")
+
+
+class RigError(ValueError):
+    """Bad rig configuration or fault specification; the message says what and how to write it."""
+
+
+@dataclass
+class Fault:
+    """One injected fault: ``kind`` on ``channel`` (1 or 2; 0: not per channel) during [start, end) s."""
+
+    kind: str
+    channel: int
+    start: float
+    end: float
+    value: float = math.nan
+    hits: int = 0  # samples it acted on
+
+    def active(self, t: float) -> bool:
+        return self.start <= t < self.end
+
+
+def parse_fault(text: str) -> Fault:
+    """``KIND[:J]@T[+D][:VALUE]`` -> Fault; RigError with the accepted forms otherwise."""
+    usage = (f"fault {text!r}: expected KIND[:J]@T[+D][:VALUE], KIND one of {', '.join(FAULT_KINDS)} "
+             "(e.g. dropout:1@5+0.5, linkloss@10+0.05, sag@3:60, corrupt@2+1:0.2)")
+    try:
+        head, _, rest = text.partition("@")
+        kind, _, ch = head.partition(":")
+        when, _, value = rest.partition(":")
+        start_s, _, dur_s = when.partition("+")
+        start = float(start_s)
+        dur = float(dur_s) if dur_s else math.inf
+        val = float(value) if value else math.nan
+        channel = int(ch) if ch else 0
+    except ValueError:
+        raise RigError(usage) from None
+    if kind not in FAULT_KINDS or not rest or start < 0 or dur <= 0 or not math.isfinite(start):
+        raise RigError(usage)
+    per_channel = kind in ("dropout", "stuck", "spike", "coil")
+    if per_channel != (channel in (1, 2)):
+        raise RigError(usage + (": this fault needs :1 or :2" if per_channel else ": this fault takes no channel"))
+    if kind == "spike":
+        dur = 1e-9  # one sample
+    if kind == "linkloss" and not math.isfinite(dur):
+        raise RigError(usage + ": linkloss needs a duration (+D)")
+    if kind == "corrupt" and not (math.isnan(val) or 0 < val <= 1):
+        raise RigError(usage + ": the corrupted fraction is in (0, 1]")
+    if kind == "sag" and not (math.isnan(val) or val >= 0):
+        raise RigError(usage + ": the sagged bus voltage is >= 0 V")
+    return Fault(kind, channel, start, start + dur, val)
+
+
+@dataclass
+class BoardCounters:
+    ticks: int = 0
+    sent: int = 0
+    rx_frames: int = 0
+    rx_rejected: int = 0
+    rx_reasons: dict[str, int] = field(default_factory=dict)
+    commands_fresh: int = 0
+    commands_stale: int = 0
+    hellos: int = 0
+    overruns: int = 0
+    corrupted_tx: int = 0
+    link_lost_ticks: int = 0
+
+
+class Board:
+    """The board and the rig, one tick at a time (no clock, no socket: testable alone).
+
+    Args:
+        pc: the ``plant_sim`` group (true plant, scenario, and the board's safety specs).
+        rig: the ``rig`` group (sensor, actuator, link settings).
+        hw: the ``hw_driver`` group (the sensors' nominal calibration).
+        faults: injected faults.
+    """
+
+    def __init__(self, pc: Mapping[str, Any], rig: Mapping[str, Any], hw: Mapping[str, Any],
+                 faults: list[Fault] | None = None, preroll: float | None = None):
+        from ..core.plant import DemPlant
+        from ..core.safety import Supervisor
+
+        self.pc, self.rc = dict(pc), dict(rig)
+        self.dt = pc["dt"]
+        self.plant = DemPlant(pc, 0.0)
+        self.sup = Supervisor(pc, self.dt)
+        self.faults = list(faults or [])
+        self.rng = np.random.default_rng(rig["seed"])
+        self.full = (1 << rig["adc_bits"]) - 1
+        self._gap_table(hw)
+        self.i_gain = np.array([hw["current1_gain"], hw["current2_gain"]])
+        self.i_offset = np.array([hw["current1_offset"], hw["current2_offset"]])
+        self.pwm = float(1 << (rig["pwm_bits"] - 1))
+        self.n = 0
+        self.released_at: int | None = None
+        self.delay = hw["command_delay"]  # the command answering sample k is applied from tick k + delay
+        self.n_pre = round((hw["preroll"] if preroll is None else preroll) / self.dt)
+        self.cmds: list[CommandFrame | None] = [None] * CMD_RING
+        self.request, self.request_seq = Mode.OFF, -1
+        self.applied = np.zeros(2)
+        self.u_next = np.zeros(2)
+        if rig["start"] == "hover":
+            self.applied = self.plant.u0.copy()
+        else:
+            g = rig["support_gap"]
+            self.plant.x[:] = [g, 0.0, g, 0.0, 0.0, 0.0]
+        self.last_counts = [0, 0]
+        self.driver_fault = 0  # DRIVERj_FAULT bits seen while applying the last period's voltages
+        self.y_valid = np.array([self.plant.x[0], self.plant.x[2]])  # the board's last valid gaps [m]
+        self.streaming = False
+        self.c = BoardCounters()
+        self.failed: str | None = None  # the plant's failure (rail contact): the emulation stops moving
+
+    def _gap_table(self, hw: Mapping[str, Any]) -> None:
+        n = np.arange(self.full + 1, dtype=float)
+        self.gap_of_counts = []
+        for j in (1, 2):
+            c = [hw[f"gap{j}_c{p}"] for p in range(4)]
+            g = c[0] + n * (c[1] + n * (c[2] + n * c[3]))
+            if not np.all(np.diff(g) > 0):
+                raise RigError(f"hw_driver.gap{j}_c*: the calibration polynomial is not increasing over 0..{self.full} counts")
+            self.gap_of_counts.append(g)
+        self.gap_list = [g.tolist() for g in self.gap_of_counts]
+
+    # -- time ----------------------------------------------------------------------------------
+    def t_fault(self) -> float:
+        """Seconds since the release (faults are scheduled on it); -1 before."""
+        return -1.0 if self.released_at is None else (self.n - self.released_at) * self.dt
+
+    def _fault(self, kind: str, channel: int = 0) -> Fault | None:
+        t = self.t_fault()
+        for f in self.faults:
+            if f.kind == kind and f.channel == channel and f.active(t):
+                return f
+        return None
+
+    # -- link in -------------------------------------------------------------------------------
+    def receive(self, data: bytes) -> bytes | None:
+        """One received frame; returns the hello answer when it is a hello request."""
+        if self._fault("linkloss"):
+            self.c.link_lost_ticks += 0  # counted per tick in tick()
+            return None
+        try:
+            f = decode(data)
+        except LinkError as exc:
+            self.c.rx_rejected += 1
+            self.c.rx_reasons[exc.reason] = self.c.rx_reasons.get(exc.reason, 0) + 1
+            self._rx_error = True
+            return None
+        self.c.rx_frames += 1
+        if isinstance(f, Hello):
+            self.c.hellos += 1
+            self.streaming = True
+            return encode(Hello(PROTOCOL_VERSION, self.rc["board_id"], round(1 / self.dt), self.rc["adc_bits"],
+                                self.rc["adc_vref"], round(self.pc["hold_timeout"] * 1e3), self.delay))
+        if isinstance(f, CommandFrame):
+            if f.mode == Mode.RUN:
+                self.cmds[f.seq % CMD_RING] = f  # kept by the sample it answers
+            if self.request_seq < 0 or seq_diff(f.seq, self.request_seq) >= 0:
+                self.request, self.request_seq = Mode(f.mode), f.seq  # the newest frame's mode request
+        return None
+
+    # -- one period ------------------------------------------------------------------------------
+    def tick(self, overrun: bool = False) -> bytes | None:
+        """Sample, build the sensor frame, choose and apply the voltages, integrate one period."""
+        n = self.n
+        status = 0
+        if overrun:
+            status |= Status.OVERRUN
+            self.c.overruns += 1
+        if getattr(self, "_rx_error", False):
+            status |= Status.RX_ERROR
+            self._rx_error = False
+        x = self.plant.x
+        z = self.plant.measurement() if self.released_at is not None else x.copy()
+        gaps, currents = np.array([z[0], z[2]]), np.array([z[4], z[5]])
+        gc, st = self._gap_counts(gaps)
+        status |= st
+        cc = self._current_counts(currents)
+        bus = self._bus(x)
+        if bus < self.rc["bus_min"]:
+            status |= Status.BUS_UNDERVOLTAGE
+        status |= self.driver_fault
+        self.driver_fault = 0
+        # the command answering sample n - delay (fresh) decides the next period
+        want = (n - self.delay) % (1 << 32)
+        cmd = self.cmds[want % CMD_RING]
+        fresh = cmd is not None and cmd.seq == want and self.request == Mode.RUN
+        if fresh:
+            self.c.commands_fresh += 1
+        requested = self.request
+        if requested == Mode.OFF and self.sup.mode in (Mode.LANDED, Mode.FAULT):
+            self.sup.clear()  # the operator armed the PC: acknowledge the latched landing
+        if requested == Mode.RUN and not fresh and self.sup.mode in (Mode.OFF, Mode.LANDED):
+            requested = Mode.OFF
+        if self.sup.mode == Mode.RUN and not fresh:
+            status |= Status.COMMAND_LATE
+        meas_y = self._board_gaps(self._gaps_from_counts(gc), st)  # the board sees what its ADC sees
+        meas_i = self.i_gain * (np.asarray(cc, float) - self.i_offset)
+        u_cmd = np.array(cmd.u, float) if fresh else None
+        u = self.sup.step(int(n * self.dt * 1e9), meas_y, meas_i, u_cmd, requested)
+        mode = Mode(self.sup.mode)
+        if mode == Mode.RUN and self.released_at is None:
+            self.released_at = n
+        frame = SensorFrame(n % (1 << 32), round(n * self.dt * 1e6), gc, cc,
+                            (float(self.applied[0]), float(self.applied[1])), float(bus),
+                            int(status | self._sup_status(u_cmd)), mode)
+        held = self.released_at is None and self.rc["start"] == "hover"
+        self.applied = self._actuate(np.asarray(u, float), bus, currents) if not held else self.applied
+        if not held and self.failed is None:
+            self._advance()
+        self.n += 1
+        self.c.ticks += 1
+        if not self.streaming:
+            return None
+        if self._fault("linkloss"):
+            self.c.link_lost_ticks += 1
+            return None
+        data = encode(frame)
+        f = self._fault("corrupt")
+        if f is not None and self.rng.random() < (1.0 if math.isnan(f.value) else f.value):
+            f.hits += 1
+            self.c.corrupted_tx += 1
+            b = bytearray(data)
+            b[int(self.rng.integers(4, len(b)))] ^= 0x5A
+            data = bytes(b)
+        self.c.sent += 1
+        return data
+
+    def _sup_status(self, u_cmd) -> int:
+        s = 0
+        if self.sup.mode in (Mode.LAND, Mode.LANDED) and "watchdog" in getattr(self.sup, "reason", ""):
+            s |= Status.LINK_TIMEOUT
+        if u_cmd is not None and np.any(np.abs(u_cmd) > self.pc["u_max"]):
+            s |= Status.VOLTAGE_CLIPPED
+        return s
+
+    def _advance(self) -> None:
+        p = self.plant
+        k_run = self.n - (self.released_at if self.released_at is not None else self.n)
+        if k_run < self.n_pre or self.released_at is None:
+            p.hold(self.applied)  # pre-roll: true dynamics, no scenario disturbances yet
+        else:
+            p.advance(self.applied)
+        x = p.x
+        sup = self.rc["support_gap"]
+        for j in (0, 2):  # the support: the plate cannot move beyond it
+            if x[j] >= sup:
+                x[j] = sup
+                x[j + 1] = min(x[j + 1], 0.0)
+        if p.fault and "dropped" in p.fault:
+            p.fault = None  # resting on the support is not a failure
+        if p.fault:
+            self.failed = p.fault
+
+    # -- sensor and actuator models ---------------------------------------------------------------
+    def _gap_counts(self, gaps: np.ndarray) -> tuple[tuple[int, int], int]:
+        out, status = [], 0
+        for j in (0, 1):
+            f = self._fault("dropout", j + 1)
+            if f is not None:
+                f.hits += 1
+                out.append(0)
+                status |= Status.GAP0_RANGE << j
+                continue
+            f = self._fault("stuck", j + 1)
+            if f is not None:
+                f.hits += 1
+                out.append(self.last_counts[j])
+                continue
+            f = self._fault("spike", j + 1)
+            if f is not None:
+                f.hits += 1
+                out.append(self.full)
+                status |= Status.GAP0_RANGE << j
+                continue
+            d = (1 + self.rc["gap_gain_error"]) * gaps[j] + self.rc["gap_offset_error"]
+            if self.rc["gap_noise"] > 0:
+                d += self.rng.normal(0.0, self.rc["gap_noise"])
+            c = self._nearest_count(j, d)
+            if c in (0, self.full):
+                status |= Status.GAP0_RANGE << j
+            out.append(c)
+        self.last_counts = out
+        return (out[0], out[1]), status
+
+    def _board_gaps(self, y: np.ndarray, status: int) -> np.ndarray:
+        """What the board's firmware feeds its supervisor: a channel out of range (GAPj_RANGE: dead or
+        saturated) is replaced by the other channel when that one is valid (the plate is nearly level),
+        else by its last valid value; the supervisor never steers by a dead sensor."""
+        bad = [bool(status & Status.GAP0_RANGE), bool(status & Status.GAP1_RANGE)]
+        for j in (0, 1):
+            if bad[j]:
+                y[j] = y[1 - j] if not bad[1 - j] else self.y_valid[j]
+        for j in (0, 1):
+            if not bad[j]:
+                self.y_valid[j] = y[j]
+        return y
+
+    def _nearest_count(self, j: int, d: float) -> int:
+        """The count whose calibrated gap is nearest to d (binary search of the monotonic table)."""
+        g = self.gap_list[j]
+        k = bisect.bisect_left(g, d)
+        if k <= 0:
+            return 0
+        if k > self.full:
+            return self.full
+        return k if g[k] - d < d - g[k - 1] else k - 1
+
+    def _gaps_from_counts(self, counts) -> np.ndarray:
+        return np.array([self.gap_of_counts[0][counts[0]], self.gap_of_counts[1][counts[1]]])
+
+    def _current_counts(self, currents: np.ndarray) -> tuple[int, int]:
+        i = currents + (self.rng.normal(0.0, self.rc["current_noise"], 2) if self.rc["current_noise"] > 0 else 0.0)
+        n = np.clip(np.round(i / self.i_gain + self.i_offset), 0, self.full)
+        return int(n[0]), int(n[1])
+
+    def _bus(self, x: np.ndarray) -> float:
+        v = self.rc["bus_voltage"]
+        f = self._fault("sag")
+        if f is not None:
+            f.hits += 1
+            v = 60.0 if math.isnan(f.value) else f.value
+        return max(v - self.rc["bus_resistance"] * (abs(x[4]) + abs(x[5])), 0.0)
+
+    def _actuate(self, u: np.ndarray, bus: float, currents: np.ndarray) -> np.ndarray:
+        out = np.zeros(2)
+        for j in (0, 1):
+            f = self._fault("coil", j + 1)
+            if f is not None:
+                f.hits += 1
+                self.driver_fault |= Status.DRIVER0_FAULT << j  # reported with the next sample
+                continue  # an open bridge: no voltage
+            if bus <= 0:
+                continue
+            duty = min(max(u[j] / bus, -1.0), 1.0)
+            v = bus * round(duty * self.pwm) / self.pwm
+            if currents[j] > self.rc["current_limit"] and v > 0:
+                v = 0.0
+            out[j] = v
+        return out
+
+    def summary(self) -> dict[str, Any]:
+        c = self.c
+        x = self.plant.x
+        return {"ticks": c.ticks, "sent": c.sent, "rx_frames": c.rx_frames, "rx_rejected": c.rx_rejected,
+                "rx_reasons": dict(c.rx_reasons), "commands_fresh": c.commands_fresh, "hellos": c.hellos,
+                "overruns": c.overruns, "corrupted_tx": c.corrupted_tx, "link_lost_ticks": c.link_lost_ticks,
+                "mode": Mode(self.sup.mode).name, "reason": getattr(self.sup, "reason", ""),
+                "supervisor": dict(getattr(self.sup, "counters", {})),
+                "gaps_mm": [round(x[0] * 1e3, 4), round(x[2] * 1e3, 4)], "failed": self.failed or "",
+                "faults": [{"kind": f.kind, "channel": f.channel, "start": f.start, "hits": f.hits} for f in self.faults]}
+
+
+# -- the process ------------------------------------------------------------------------------------
+def _realtime() -> str:
+    """The board's loop under dem_ros.realtime's settings (SCHED_FIFO 10 above the graph's, mlockall,
+    1 us timer slack) where permitted: the board is the clock, it must not wait for the PC's processes."""
+    import dataclasses
+
+    from ..realtime import apply, config_from_env
+
+    cfg = config_from_env()
+    cfg = dataclasses.replace(cfg, priority=min(cfg.priority + 10, 99))
+    g = apply(cfg)
+    return f"SCHED_FIFO {g.fifo_priority}" if g.fifo_priority else "normal priority (" + "; ".join(g.missing) + ")"
+
+
+def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, duration: float = 0.0,
+            status_every: float = 1.0, stop: list[bool] | None = None, out=sys.stdout) -> dict[str, Any]:
+    """Open the board's end of the link and run the board at 1 kHz until ``duration`` (0: until stopped).
+
+    Prints ``RIG {json}`` lines: ``listening`` (with the URL the PC opens), a status every
+    ``status_every`` s, and the summary at the end. ``stop``: a flag list a signal handler sets.
+    """
+    from .channel import open_channel
+
+    warm = Board(cfg["plant_sim"], cfg["rig"], cfg["hw_driver"], [])  # compile every kernel before the clock starts
+    for _ in range(3):
+        warm.tick()
+    board = Board(cfg["plant_sim"], cfg["rig"], cfg["hw_driver"], faults)
+    ch = open_channel(cfg["rig"]["url"], "board")
+    peer = getattr(ch, "peer_url", cfg["rig"]["url"])
+    stop = stop if stop is not None else [False]
+    rt = _realtime()
+    import gc
+
+    gc.collect()
+    gc.freeze()
+    print("RIG " + json.dumps({"event": "listening", "url": peer, "scheduling": rt, "faults": len(faults)}), file=out, flush=True)
+    dt_ns = round(board.dt * 1e9)
+    t0 = time.monotonic_ns()
+    next_status = t0
+    late_over_1ms = 0
+    try:
+        while not stop[0]:
+            due = t0 + board.n * dt_ns
+            now = time.monotonic_ns()
+            if now < due:
+                time.sleep((due - now) * 1e-9)
+                now = time.monotonic_ns()
+            late = now - due
+            if late > dt_ns:
+                late_over_1ms += 1
+            while True:  # every frame received since the last tick
+                data = ch.recv(0.0)
+                if data is None:
+                    break
+                reply = board.receive(data)
+                if reply is not None:
+                    ch.send(reply)
+            frame = board.tick(overrun=late > dt_ns)
+            if frame is not None:
+                ch.send(frame)
+            if now >= next_status:
+                next_status += int(status_every * 1e9)
+                s = board.summary()
+                print("RIG " + json.dumps({"event": "status", "t_s": round(board.n * board.dt, 3), "mode": s["mode"],
+                                           "gaps_mm": s["gaps_mm"], "late_over_1ms": late_over_1ms,
+                                           "rx_frames": s["rx_frames"], "fresh": s["commands_fresh"]}), file=out, flush=True)
+            if duration and board.n * board.dt >= duration:
+                break
+    finally:
+        ch.close()
+    s = board.summary()
+    s["late_over_1ms"] = late_over_1ms
+    s["channel"] = dict(ch.stats)
+    print("RIG " + json.dumps({"event": "summary", **s}), file=out, flush=True)
+    return s
+
+
+def rig_config(scenario: str, params: str | None, sets: list[str]) -> dict[str, dict[str, Any]]:
+    """The scenario's configuration, a params file on top, then GROUP.NAME=VALUE assignments."""
+    from ..core.params import apply_overrides, load_params_file, parse_assignment
+    from ..core.scenarios import get_scenario
+
+    base = load_params_file(params) if params else None
+    cfg = get_scenario(scenario).config(base)
+    over: dict[str, dict[str, Any]] = {}
+    for text in sets:
+        g, n, v = parse_assignment(text, default_group="rig")
+        over.setdefault(g, {})[n] = v
+    return apply_overrides(cfg, over, "--set") if over else cfg
+
+
+def build_parser(p: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    p = p or argparse.ArgumentParser(prog="dem-ros rig", description="emulate the DEM rig and its I/O board behind the device link")
+    p.add_argument("--url", default=None, help="udp://HOST:PORT or pty:// (default: rig.url)")
+    p.add_argument("--scenario", default="S1", help="the true plant and its disturbances (default S1)")
+    p.add_argument("--params", default=None, help="ROS 2 params file (the launch's: plant_sim, rig, hw_driver groups)")
+    p.add_argument("--set", action="append", default=[], metavar="GROUP.NAME=VALUE", help="override, e.g. rig.gap_noise=1e-6")
+    p.add_argument("--fault", action="append", default=[], metavar="SPEC", help="inject a fault, e.g. dropout:1@5+0.5 (see --help-faults)")
+    p.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds of board time (0: until Ctrl-C)")
+    p.add_argument("--help-faults", action="store_true", help="describe the fault specifications")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    return cmd_rig(build_parser().parse_args(argv))
+
+
+def cmd_rig(args: argparse.Namespace) -> int:
+    from ..core.params import ConfigError
+    from .channel import ChannelError
+
+    if args.help_faults:
+        print(__doc__.split("Faults (")[1].split("\n", 1)[1])
+        return 0
+    try:
+        faults = [parse_fault(t) for t in args.fault]
+        cfg = rig_config(args.scenario, args.params, list(args.set) + ([f"rig.url={args.url}"] if args.url else []))
+        cfg["plant_sim"]["measure_velocity"] = False  # a rig has no gap-rate sensors
+        stop = [False]
+
+        def on_signal(signum, frame):
+            stop[0] = True
+
+        for s in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(s, on_signal)
+        summary = run_rig(cfg, faults, duration=args.duration, stop=stop)
+    except (RigError, ConfigError, ChannelError) as exc:
+        print(f"dem-ros rig: error: {exc}", file=sys.stderr)
+        return 2
+    return 1 if summary["failed"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

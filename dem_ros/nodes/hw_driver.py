@@ -1,0 +1,354 @@
+"""``hw_driver``: the DEM rig's I/O board behind the device link, in place of ``plant_sim``.
+
+Honours plant_sim's topic contract exactly (``/dem/measurement``, ``/dem/applied_voltage``
+out, ``/dem/command`` in, ``/diagnostics``; no truth topic: a rig has none), so the
+estimator and controller cannot tell. Everything but the I/O is
+:class:`dem_ros.hardware.driver.HwDriver`; this node only moves bytes and messages.
+
+The board is the clock. A reader thread waits on the link and, for every sensor frame,
+publishes ``/dem/applied_voltage`` then ``/dem/measurement`` (gaps [m], currents [A]; no
+rates) stamped with board time mapped to ROS time; ``/dem/command`` goes to the board
+as it arrives (one lock serialises the driver between the two threads).
+
+The experiment's t = 0 is ``preroll`` s after the driver became active (its first
+forwarded command): frames before it carry ``frame_id = dem/preroll``. After ``duration``
+s the node stops publishing, lands the plate (disarm: LAND) and exits.
+
+State and link statistics: ``/dem/hw/state`` (DiagnosticStatus, latched, 10 Hz and on
+every change) and ``/diagnostics`` (1 Hz). Requests: the services ``~/arm``, ``~/disarm``,
+``~/estop``, ``~/status`` (std_srvs/Trigger), the topic ``/dem/hw/request`` (std_msgs/String:
+``arm``, ``disarm``, ``estop [reason]``, ``clear``; what ``dem-ros hw`` sends) and
+``/dem/hw/estop`` (any message: e-stop, its data the reason); answers and state changes go
+to ``/dem/hw/state``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import select
+import sys
+import threading
+import time
+
+import numpy as np
+
+from .. import contract
+from ..hardware.channel import ChannelError, open_channel
+from ..hardware.driver import DriverState, HwDriver, Sample
+from ..hardware.link import HELLO_REQUEST, Mode, encode
+from ..realtime import config_from_env
+from ..transport import Node, TransportError, run_node
+from .common import LatencyStats, diag_array, joint_state, stamp_ns
+
+__all__ = ["HwDriverNode", "main"]
+
+RING = 256  # receive times kept by sample number (latency: sample received -> command sent)
+
+
+class HwDriverNode:
+    def __init__(self, node: Node):
+        self.node = node
+        self.cfg = node.declare_parameters("hw_driver", self.on_change)
+        c = self.cfg
+        self.drv = HwDriver(c)
+        self.lock = threading.Lock()
+        try:
+            self.ch = open_channel(c["url"], "pc")
+        except ChannelError as exc:
+            raise SystemExit(f"error: hw_driver: {exc}") from None
+        self.JS = node.msg("sensor_msgs/msg/JointState")
+        self.D = (node.msg("diagnostic_msgs/msg/DiagnosticArray"), node.msg("diagnostic_msgs/msg/DiagnosticStatus"),
+                  node.msg("diagnostic_msgs/msg/KeyValue"))
+        self.pub_meas = node.publisher(contract.MEASUREMENT)
+        self.pub_applied = node.publisher(contract.APPLIED)
+        self.pub_diag = node.publisher(contract.DIAGNOSTICS)
+        self.pub_state = node.publisher(contract.HW_STATE)
+        node.subscribe(contract.COMMAND, self.on_command)
+        node.subscribe(contract.HW_REQUEST, self.on_request)
+        node.subscribe(contract.HW_ESTOP, self.on_estop)
+        for verb in ("arm", "disarm", "estop", "status"):  # ~/arm ... (std_srvs/Trigger), as the request topic
+            node.service(verb, "std_srvs/srv/Trigger", lambda req, res, verb=verb: self.on_service(verb, res))
+        self.n_pre = round(c["preroll"] / c["dt"])
+        self.n_end = round(c["duration"] / c["dt"]) if c["duration"] > 0 else 0
+        self.epoch_seq: int | None = None  # first sample of the experiment (t = 0)
+        self.epoch_ns: int | None = None
+        self.finished = False
+        self.t_finish = 0.0  # when the run ended and the landing began (monotonic s)
+        self.failed = ""  # the first fault during the experiment
+        self.rx_ns = np.zeros(RING, dtype=np.int64)  # steady receive time of each sample, by seq
+        self.lat = LatencyStats()
+        self.t_boot = time.monotonic()
+        self.cpu0: float | None = None
+        self.last_state = (DriverState.INACTIVE, "", Mode.OFF)
+        self.answer = ""
+        if c["auto_arm"]:
+            self.drv.arm()
+        # the reader thread must get the interpreter within the sample period, not after the default 5 ms
+        sys.setswitchinterval(1e-4)
+        self.stop = threading.Event()
+        self.reader = threading.Thread(target=self._read_loop, name="hw_driver-link", daemon=True)
+        self.reader.start()
+        node.timer(0.1, self.tick)
+        node.timer(1.0, self.status)
+        node.logger.info(f"link {c['url']}; ready")
+
+    # -- parameters / requests -----------------------------------------------------------------
+    def on_change(self, values) -> str | None:
+        changed = [k for k in values if values[k] != self.cfg[k]]
+        fixed = {"url", "dt", "command_delay", "preroll", "duration", "clock_sync_frames", "gap_table"}
+        for key in changed:
+            if key in fixed or key.startswith(("gap1_", "gap2_", "current")) or key == "voltage_input":
+                return f"{key} cannot change while the link is open"
+        with self.lock:
+            self.cfg = dict(values)
+            self.drv.cfg.update(values)  # limits and timeouts act from the next sample
+        return None
+
+    def on_request(self, msg) -> None:
+        words = str(msg.data).strip().split(None, 1)
+        verb = words[0].lower() if words else ""
+        with self.lock:
+            if verb == "arm":
+                self.answer = self.drv.arm()
+            elif verb in ("disarm", "clear"):
+                self.answer = self.drv.disarm()
+            elif verb == "estop":
+                self.answer = self.drv.estop(words[1] if len(words) > 1 else "requested on /dem/hw/request")
+            elif verb == "status":
+                self.answer = "status"
+            else:
+                self.answer = f"unknown request {msg.data!r}: arm, disarm, clear, estop [reason], status"
+        self.node.logger.info(f"request {msg.data!r}: {self.answer}")
+        self.publish_state(force=True)
+
+    def on_service(self, verb: str, res):
+        with self.lock:
+            if verb == "arm":
+                self.answer = self.drv.arm()
+            elif verb == "disarm":
+                self.answer = self.drv.disarm()
+            elif verb == "estop":
+                self.answer = self.drv.estop("~/estop service")
+            state = self.drv.state
+        res.success = state != DriverState.FAULT or verb == "estop"
+        res.message = f"{state.name.lower()}: {self.answer if verb != 'status' else self.drv.reason or 'no fault'}"
+        self.node.logger.info(f"service {verb}: {res.message}")
+        self.publish_state(force=True)
+        return res
+
+    def on_estop(self, msg) -> None:
+        with self.lock:
+            self.answer = self.drv.estop(str(getattr(msg, "data", "")) or "e-stop topic")
+        self.node.logger.warn(self.answer)
+        self.publish_state(force=True)
+
+    # -- the link ---------------------------------------------------------------------------------
+    def _read_loop(self) -> None:
+        """Reader thread: every received frame goes through the driver; samples are published at once."""
+        rt = config_from_env()  # the link's thread is on the loop's path: the loop's priority (dem_ros.realtime)
+        if rt.enabled:
+            with contextlib.suppress(OSError):  # not permitted: enter_loop() reports it once for the process
+                os.sched_setscheduler(threading.get_native_id(), os.SCHED_FIFO, os.sched_param(rt.priority))
+        poller = select.poll()
+        poller.register(self.ch.fileno(), select.POLLIN)
+        now_ns = self.node.now_ns
+        while not self.stop.is_set():
+            ready = poller.poll(5)
+            with self.lock:
+                while ready:
+                    try:
+                        data = self.ch.recv(0.0)
+                    except ChannelError as exc:
+                        self.drv.fault(f"link: {exc}")
+                        break
+                    if data is None:
+                        break
+                    steady = time.monotonic_ns()
+                    sample, reply = self.drv.on_bytes(data, now_ns(), steady)
+                    if reply is not None:
+                        self.ch.send(reply)
+                    if sample is not None:
+                        self.rx_ns[sample.seq % RING] = steady
+                        try:
+                            self._publish(sample)
+                        except TransportError:  # the node is shutting down under us (SIGINT): stop reading
+                            self.stop.set()
+                            return
+                if not ready:
+                    self.drv.check(time.monotonic_ns())
+
+    def _publish(self, s: Sample) -> None:
+        if self.finished:
+            return
+        if self.epoch_seq is None:
+            frame = contract.FRAME_PREROLL
+        elif s.seq - self.epoch_seq >= 0:
+            frame = contract.FRAME
+            if s.seq == self.epoch_seq:
+                self.epoch_ns = s.stamp_ns
+                self.cpu0 = time.process_time()
+            if self.n_end and s.seq - self.epoch_seq >= self.n_end:
+                self.finished = True
+                self.t_finish = time.monotonic()
+                self.drv.disarm()  # the run is over: land
+                self.node.logger.info(f"finished {self.cfg['duration']:g} s: landing")
+                return
+        else:
+            frame = contract.FRAME_PREROLL
+        if self.drv.state == DriverState.FAULT and frame == contract.FRAME and not self.failed:
+            self.failed = self.drv.reason
+        JS = self.JS
+        self.pub_applied.publish(joint_state(JS, s.stamp_ns, effort=s.applied, frame=frame))
+        self.pub_meas.publish(joint_state(JS, s.stamp_ns, position=s.gap, effort=s.current, frame=frame))
+
+    def on_command(self, msg) -> None:
+        if len(msg.effort) < 2:
+            return
+        t = stamp_ns(msg)
+        with self.lock:
+            was = self.drv.state
+            data = self.drv.command(t, msg.effort[:2], time.monotonic_ns())
+            if data is None:
+                return
+            self.ch.send(data)
+            seq = self.drv.last_cmd_seq
+            self.lat.add(time.monotonic_ns() - int(self.rx_ns[seq % RING]))
+            if was == DriverState.ARMED and self.epoch_seq is None:
+                self.epoch_seq = seq + 1 + self.n_pre  # the board applies it from sample seq + 1
+                self.node.logger.info(f"active: levitating under the controller; t = 0 in {self.cfg['preroll']:g} s")
+
+    # -- timers -------------------------------------------------------------------------------------
+    def tick(self) -> None:
+        """10 Hz: hello until the board answers; state on /dem/hw/state; the end of the run."""
+        if self.drv.hello is None:
+            self.ch.send(encode(HELLO_REQUEST))
+        self.publish_state()
+        if self.finished and (self.drv.board_mode in (Mode.OFF, Mode.LANDED) or time.monotonic() - self.t_finish > 5.0):
+            self.finish()
+
+    def publish_state(self, force: bool = False) -> None:
+        d = self.drv
+        key = (d.state, d.reason, d.board_mode)
+        if key != self.last_state:
+            self.node.logger.info(f"state {d.state.name.lower()}, board {Mode(d.board_mode).name.lower()}"
+                                  + (f": {d.reason}" if d.reason else ""))
+            self.last_state = key
+        st = diag_array(*self.D, self.node.now_ns(), "hw_driver: state", self._level(), d.state.name.lower(),
+                        {**self.stats(), "answer": self.answer}).status[0]
+        self.pub_state.publish(st)
+
+    def _level(self) -> int:
+        if self.drv.state == DriverState.FAULT:
+            return 2
+        c = self.drv.counters
+        return 1 if (c["lost"] or c["corrupt"] or c["hold_samples"]) else 0
+
+    def stats(self) -> dict:
+        with self.lock:
+            st = self.drv.status()
+        k = 0 if self.drv.last_sample is None or self.epoch_seq is None else max(self.drv.last_sample.seq - self.epoch_seq, 0)
+        lat = self.lat.summary_us()
+        wall = k * self.cfg["dt"]
+        cpu = time.process_time() - self.cpu0 if self.cpu0 is not None else 0.0
+        epoch = {"epoch_ns": self.epoch_ns} if self.epoch_ns is not None else {}
+        return {"cycles": k, "t_sim_s": round(k * self.cfg["dt"], 3), "deadline_misses": st["lost"] + st["hold_samples"],
+                **epoch, "realtime_factor": 1.0, "lockstep": False,
+                "cpu_s": round(cpu, 3), "wall_s": round(wall, 3),
+                "latency_p50_us": round(lat["p50"], 1), "latency_p99_us": round(lat["p99"], 1),
+                "latency_max_us": round(lat["max"], 1), "failed": bool(self.failed), "fault": self.failed, **st}
+
+    def status(self) -> None:
+        s = self.stats()
+        g = self.drv.last_sample.gap if self.drv.last_sample is not None else (np.nan, np.nan)
+        if self.epoch_ns is not None and not self.finished:
+            print(f"t = {s['t_sim_s']:7.1f} s  gaps {g[0] * 1e3:6.3f} / {g[1] * 1e3:6.3f} mm  {s['state']}"
+                  f" (board {s['board_mode']})  lost {s['lost']} late {s['late']} corrupt {s['corrupt']} holds {s['hold_samples']}"
+                  f"  latency p50 {s['latency_p50_us']:.0f} us p99 {s['latency_p99_us']:.0f} us", flush=True)
+        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), contract.HW_LOOP_STATUS, self._level(),
+                                         s["state"] + (f": {s['reason']}" if s["reason"] else ""), s))
+
+    def finish(self) -> None:
+        if self.stop.is_set():
+            return
+        self.stop.set()
+        s = self.stats()
+        msg = f"finished {self.cfg['duration']:g} s; board {s['board_mode']}" + (f"; fault: {self.failed}" if self.failed else "")
+        self.node.logger.info(msg)
+        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), contract.HW_LOOP_STATUS, 2 if self.failed else 0,
+                                         "finished: " + msg, s))
+        self.publish_state(force=True)
+        self.node.timer(0.3, self.node.shutdown)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.reader.join(timeout=1.0)
+        self.ch.close()
+
+
+#: what the driver's answer to each request starts with (``HwDriver.arm/disarm/estop``)
+_ANSWERS = {"arm": ("armed", "already active"), "disarm": ("disarmed",), "estop": ("e-stop",)}
+
+
+def request(verb: str, reason: str = "", *, domain_id: int | None = None, timeout_s: float = 5.0) -> dict[str, str]:
+    """``dem-ros hw arm|disarm|estop|status``: send one request to the running hw_driver, return its state.
+
+    The request goes on ``/dem/hw/request`` (an e-stop on ``/dem/hw/estop``); the answer is the
+    driver's latched ``/dem/hw/state`` (its key/values plus ``state`` and ``level``). A request is
+    repeated until the state shows the answer (each is idempotent), for at most ``timeout_s``.
+
+    Raises:
+        TimeoutError: no hw_driver answered within ``timeout_s``.
+    """
+    import os
+
+    from ..transport import make_node
+
+    if verb not in ("arm", "disarm", "estop", "status"):
+        raise ValueError(f"unknown request {verb!r}: arm, disarm, estop, status")
+    if domain_id is not None:
+        os.environ["ROS_DOMAIN_ID"] = str(domain_id)
+    node = make_node("dem_ros_hw", transport="dds", args=[])
+    states: list = []
+    node.subscribe(contract.HW_STATE, states.append)
+    pub = node.publisher(contract.HW_ESTOP if verb == "estop" else contract.HW_REQUEST)
+    String = node.msg("std_msgs/msg/String")
+    deadline = time.monotonic() + timeout_s
+
+    def values(st) -> dict[str, str]:
+        out = {kv.key: kv.value for kv in st.values}
+        out["state"] = st.message
+        out["level"] = str(st.level[0] if isinstance(st.level, bytes) else st.level)
+        return out
+
+    try:
+        while time.monotonic() < deadline and not states:  # discovery: the latched state arrives
+            node.spin_once(0.05)
+        if not states:
+            raise TimeoutError(f"no hw_driver answered on {contract.HW_STATE.name} within {timeout_s:g} s")
+        if verb == "status":
+            return values(states[-1])
+        msg = String()
+        msg.data = reason if verb == "estop" else verb
+        if verb == "estop" and not reason:
+            msg.data = "dem-ros hw estop"
+        next_send = 0.0
+        while time.monotonic() < deadline:
+            if time.monotonic() >= next_send:
+                pub.publish(msg)
+                next_send = time.monotonic() + 0.3
+            node.spin_once(0.05)
+            v = values(states[-1])
+            if v.get("answer", "").startswith(_ANSWERS[verb]) or (verb == "estop" and v["state"] == "fault"):
+                return v
+        raise TimeoutError(f"hw_driver did not confirm '{verb}' within {timeout_s:g} s (state {values(states[-1])['state']})")
+    finally:
+        node.shutdown()
+
+
+def main(args=None) -> int:
+    return run_node("hw_driver", HwDriverNode, args=args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

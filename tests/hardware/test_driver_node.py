@@ -1,0 +1,97 @@
+"""The ``hw_driver`` node as a real process on real DDS (loopback), in front of ``dem-ros rig`` over UDP:
+plant_sim's topic contract, the lifecycle over ``dem-ros hw`` requests, the e-stop latched and reported.
+
+No controller runs: the driver stays inactive or armed and the emulated plate stays clamped at its
+hover, so nothing here depends on the machine keeping 1 kHz.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from dem_ros import contract
+from dem_ros.core.params import default_config
+from dem_ros.nodes.hw_driver import request
+from dem_ros.tools.launcher import write_params_file
+from dem_ros.transport import make_node
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture
+def graph(tmp_path, monkeypatch):
+    domain = 1 + (os.getpid() * 13) % 101
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    monkeypatch.setenv("DEM_ROS_RT", "0")
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        url = f"udp://127.0.0.1:{s.getsockname()[1]}"
+    cfg = default_config()
+    cfg["hw_driver"]["url"] = cfg["rig"]["url"] = url
+    cfg["hw_driver"]["link_timeout"] = 2.0  # an unloaded link thread on a loaded machine
+    params = write_params_file(cfg, tmp_path / "params.yaml")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONUNBUFFERED="1")
+    procs = []
+    for name, cmd in (("rig", ["-m", "dem_ros.hardware.rig", "--params", str(params)]),
+                      ("hw_driver", ["-m", "dem_ros.tools.node_main", "hw_driver", "--transport", "dds",
+                                     "--ros-args", "--params-file", str(params)])):
+        log = tmp_path / f"{name}.log"
+        with open(log, "w") as out:
+            procs.append((subprocess.Popen([sys.executable, *cmd], cwd=ROOT, env=env, stdout=out,
+                                           stderr=subprocess.STDOUT), log))
+    yield cfg, procs
+    for p, _ in procs:
+        if p.poll() is None:
+            p.terminate()
+    for p, _ in procs:
+        p.wait(timeout=20)
+
+
+def test_the_driver_honours_plant_sims_contract_and_its_lifecycle_answers_requests(graph):
+    cfg, procs = graph
+    node = make_node("hw_test", transport="dds", args=[])
+    meas, applied = [], []
+    node.subscribe(contract.MEASUREMENT, meas.append)
+    node.subscribe(contract.APPLIED, applied.append)
+    try:
+        end = time.monotonic() + 120
+        while len(meas) < 50 and time.monotonic() < end:
+            node.spin_once(0.1)
+            for p, log in procs:
+                assert p.poll() is None, log.read_text()
+        assert len(meas) >= 50, [log.read_text()[-2000:] for _, log in procs]
+        m = meas[-1]
+        gap0 = cfg["plant_sim"]["gap0"]
+        assert m.header.frame_id == contract.FRAME_PREROLL  # no t = 0 before the driver is active
+        assert list(m.name) == list(contract.MAGNETS)
+        assert m.position[0] == pytest.approx(gap0, abs=1e-6) and m.position[1] == pytest.approx(gap0, abs=1e-6)
+        assert len(m.velocity) == 0  # a rig measures no gap rates
+        assert m.effort[0] == pytest.approx(4.0, abs=0.1)  # the hover current at 8 mm
+        stamps = [x.header.stamp.sec * 10**9 + x.header.stamp.nanosec for x in meas]
+        assert all(b > a for a, b in itertools.pairwise(stamps))
+        assert any(a.effort[0] == pytest.approx(80.0, abs=0.5) for a in applied)  # the clamp's hover voltage
+    finally:
+        node.shutdown()
+    v = request("status", timeout_s=60)
+    assert v["state"] == "inactive" and v["board_mode"] == "off"
+    assert int(v["corrupt"]) == 0 and int(v["samples"]) > 0, v
+    v = request("arm", timeout_s=60)
+    assert v["state"] == "armed"
+    v = request("estop", "test e-stop", timeout_s=60)
+    assert v["state"] == "fault" and v["reason"] == "e-stop: test e-stop" and v["level"] == "2"
+    v = request("arm", timeout_s=60)  # arming clears the latched fault
+    assert v["state"] == "armed" and v["reason"] == ""
+    v = request("disarm", timeout_s=60)
+    assert v["state"] == "inactive"
+    rig_log = procs[0][1]
+    assert json.loads(rig_log.read_text().splitlines()[0][4:])["event"] == "listening"

@@ -1,15 +1,31 @@
 r"""State estimator: extended Kalman filter on the DEM plant model.
 
-State (8,): ``s = [d1, d1', d2, d2', i1, i2, beta1, beta2]`` (m, m/s, A, m/s^2):
-the plant state of :mod:`dem_ros.core.model` plus an acceleration bias per gap
-that absorbs what the nominal model gets wrong (an unknown added mass, load
-changes). The filter uses the *applied* voltages over the last sample.
+State (10,): ``s = [d1, d1', d2, d2', i1, i2, beta1, beta2, w1, w2]``
+(m, m/s, A, m/s^2, V): the plant state of :mod:`dem_ros.core.model` plus
+
+* an acceleration bias per gap, beta_j, that absorbs what the nominal model
+  gets wrong in the mechanics (an unknown added mass, load changes);
+* a voltage bias per coil, w_j, that absorbs what it gets wrong in the coil
+  circuit: the filter does not assume a known R. With the true R_j,
+  u_j - R_j i_j = u_j + w_j - R i_j for w_j = (R - R_j) i_j, so a resistance
+  error (tolerance, one coil hotter than the other, heating during the run)
+  and any voltage offset of the driver are one slowly varying voltage per
+  coil, observable through the measured current (one sample of w moves i_j
+  by delta_j w T / 2K, about 9 mA per volt at 8 mm, against 1 mA sensor noise).
+
+Why not take R_hat from the adaptive law (``/dem/controller/state``)? That
+closes a second loop estimator -> law -> estimator whose gain nobody designed
+(the law's R_hat is identified through the estimator's own currents), delays
+R_hat by a sample in the graph, and the law's single R cannot describe two
+coils. The bias states need no other node and are per coil. Measured effect
+(``adaptive``, S1, 100 s, delay 1): true R = 18 ohm, 28 um RMS with the old
+8-state filter, see README for the figures with this one.
 
 Model (continuous, nominal m, R, K of the ``estimator`` group)::
 
-    s' = f(s, u) + G n,   f = [plant dynamics with d_j'' += beta_j ; beta' = 0]
+    s' = f(s, u) + G n,   f = [plant dynamics under u + w, d_j'' += beta_j ; beta' = 0 ; w' = 0]
     n  = per-sample (held) disturbances: acceleration sigma_accel, voltage sigma_voltage,
-         bias change sigma_bias T; Q = G diag(sigma^2) G^T T^2
+         bias changes sigma_bias T and sigma_voltage_bias T; Q = G diag(sigma^2) G^T T^2
 
 Discrete step (period T)::
 
@@ -37,18 +53,21 @@ from .params import SCHEMA
 
 __all__ = ["KalmanEstimator", "PassThrough", "make_estimator"]
 
-NS = 8
+NS = 10
 
 
 @njit(cache=True)
 def _f(s: np.ndarray, u: np.ndarray, p: np.ndarray, ds: np.ndarray) -> None:
     dx = np.empty(6)
-    dynamics(s[:6], u, p, dx)
+    ue = np.empty(2)
+    ue[0] = u[0] + s[8]
+    ue[1] = u[1] + s[9]
+    dynamics(s[:6], ue, p, dx)
     ds[:6] = dx
     ds[1] += s[6]
     ds[3] += s[7]
-    ds[6] = 0.0
-    ds[7] = 0.0
+    for j in range(6, NS):
+        ds[j] = 0.0
 
 
 @njit(cache=True)
@@ -87,7 +106,7 @@ def jacobian(s: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
 def ekf_step(s, P, z, mask, u_prev, p, T, qc, rm, out) -> None:
     """One predict + update. ``z`` (6,) measured [d1, d1', d2, d2', i1, i2]; ``mask`` (6,) 1 = measured.
 
-    ``qc`` = (sigma_accel^2, sigma_voltage^2, sigma_bias^2), ``rm`` (6,) measurement variances.
+    ``qc`` = (sigma_accel^2, sigma_voltage^2, sigma_bias^2, sigma_voltage_bias^2), ``rm`` (6,) measurement variances.
     Writes the estimate [d1, d1', d2, d2', i1, i2] into ``out``.
     """
     A = jacobian(s, u_prev, p)
@@ -108,6 +127,8 @@ def ekf_step(s, P, z, mask, u_prev, p, T, qc, rm, out) -> None:
     Q[5, 5] = qc[1] * (de2 / (2.0 * p[IK])) ** 2 * T2
     Q[6, 6] = qc[2] * T2
     Q[7, 7] = qc[2] * T2
+    Q[8, 8] = qc[3] * T2
+    Q[9, 9] = qc[3] * T2
     P[:, :] = F @ P @ F.T + Q
     nm = 0
     for i in range(6):
@@ -143,7 +164,8 @@ class KalmanEstimator:
         c = self.cfg
         self.p = plant_vector(c)
         self.T = c["dt"]
-        self.qc = np.array([c["sigma_accel"] ** 2, c["sigma_voltage"] ** 2, c["sigma_bias"] ** 2])
+        self.qc = np.array([c["sigma_accel"] ** 2, c["sigma_voltage"] ** 2, c["sigma_bias"] ** 2,
+                            c["sigma_voltage_bias"] ** 2])
         self.rm = np.array([c["sigma_gap"], c["sigma_rate"], c["sigma_gap"], c["sigma_rate"],
                             c["sigma_current"], c["sigma_current"]]) ** 2
         self.mask = np.array([1.0, float(measure_velocity), 1.0, float(measure_velocity), 1.0, 1.0])
@@ -157,7 +179,8 @@ class KalmanEstimator:
         z0 = np.asarray(z0, float)
         self.s[:6] = np.where(self.mask > 0, z0, 0.0)
         self.s[6:] = 0.0
-        self.P = np.diag(np.concatenate([self.rm, [1.0, 1.0]]))
+        w0 = self.cfg["voltage_bias_prior"] ** 2
+        self.P = np.diag(np.concatenate([self.rm, [1.0, 1.0, w0, w0]]))
         self.P[1, 1] = self.P[3, 3] = max(self.rm[1], 1e-6)
         self.out[:] = self.s[:6]
         self.started = True

@@ -23,7 +23,12 @@ relative degree (3, 3) and (notes 1 a-b)::
     y''  = L_f^2 h = W2^T theta + g
     y''' = L_f^3 h + L_g L_f^2 h u = W3^T theta
 
-with theta = [AR/2, -AK, BR/2, -BK, -A/2, -B/2, C, D] (Eq. 44). The paper's
+with theta = [AR/2, -AK, BR/2, -BK, -A/2, -B/2, C, D] (Eq. 44) when both
+coils have the resistance R. Coils that differ, R1 = R + rho, R2 = R - rho,
+add y1''' += rho (A a1 - B a2), y2''' += rho (B a1 - A a2): two more entries
+theta_8 = A rho/2, theta_9 = B rho/2 with W3 rows [2 a1, -2 a2] and
+[-2 a2, 2 a1] (the 10-entry form; the 8-entry arrays of the paper's laws
+are accepted everywhere and mean rho = 0). The paper's
 tracking-error regressor (Eq. 45, corrected) is ``W_p = W3 + k1 W2`` so that
 ``e''' + k1 e'' + k2 e' + k3 e = W_p^T (theta - theta_hat)``.
 
@@ -167,7 +172,7 @@ def rk4(x: np.ndarray, u: np.ndarray, p: np.ndarray, T: float, n: int) -> None:
 
 @njit(cache=True)
 def theta_of(phi: np.ndarray, cA: float, cC: float, theta: np.ndarray) -> None:
-    """theta(phi) for phi = (1/m, R, K) (notes 6, A2 i); cA = Ll/I, cC = L^2/I."""
+    """theta(phi) for phi = (1/m, R, K[, rho]) (notes 6, A2 i); cA = Ll/I, cC = L^2/I; theta (8,) or (10,)."""
     mu, R, K = phi[0], phi[1], phi[2]
     Ap = mu + cA
     Bp = mu - cA
@@ -179,11 +184,15 @@ def theta_of(phi: np.ndarray, cA: float, cC: float, theta: np.ndarray) -> None:
     theta[5] = -Bp / 2
     theta[6] = mu + cC
     theta[7] = mu - cC
+    if theta.shape[0] > 8:
+        rho = phi[3] if phi.shape[0] > 3 else 0.0
+        theta[8] = Ap * rho / 2
+        theta[9] = Bp * rho / 2
 
 
 @njit(cache=True)
 def theta_jacobian(phi: np.ndarray, cA: float, J: np.ndarray) -> None:
-    """J = d theta / d phi, shape (8, 3)."""
+    """J = d theta / d phi, shape (8, 3) or (10, 4)."""
     mu, R, K = phi[0], phi[1], phi[2]
     Ap = mu + cA
     Bp = mu - cA
@@ -200,6 +209,12 @@ def theta_jacobian(phi: np.ndarray, cA: float, J: np.ndarray) -> None:
     J[2, 1] = Bp / 2
     J[1, 2] = -Ap
     J[3, 2] = -Bp
+    if J.shape[0] > 8:
+        rho = phi[3]
+        J[8, 0] = rho / 2
+        J[9, 0] = rho / 2
+        J[8, 3] = Ap / 2
+        J[9, 3] = Bp / 2
 
 
 @njit(cache=True)
@@ -219,7 +234,7 @@ def lie_terms(d1: float, d2: float, i1: float, i2: float, P: float, Q: float, ab
 
 @njit(cache=True)
 def regressors(ab: np.ndarray, u: np.ndarray, N1: float, N2: float, W3: np.ndarray, W2: np.ndarray) -> None:
-    """W3 (8x2): y''' = W3^T theta;  W2 (8x2): y'' - g = W2^T theta (notes 1)."""
+    """W3 (8x2 or 10x2): y''' = W3^T theta;  W2 (same shape): y'' - g = W2^T theta (notes 1)."""
     a1, a2, b1, b2, q1, q2 = ab[0], ab[1], ab[2], ab[3], ab[4], ab[5]
     W3[:, :] = 0.0
     W2[:, :] = 0.0
@@ -239,6 +254,12 @@ def regressors(ab: np.ndarray, u: np.ndarray, N1: float, N2: float, W3: np.ndarr
     W2[6, 1] = N2
     W2[7, 0] = N2
     W2[7, 1] = N1
+    if W3.shape[0] > 8:
+        W3[8, 0] = 2 * a1
+        W3[8, 1] = -2 * a2
+        W3[9, 0] = -2 * a2
+        W3[9, 1] = 2 * a1
+
 
 
 def hover_forces(cfg: Mapping, m: float | None = None) -> tuple[float, float]:

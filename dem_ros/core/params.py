@@ -340,6 +340,8 @@ SCHEMA = Schema(
             ParamSpec("sigma_accel", float, 0.5, "m/s^2", "process noise: per-sample (held) unmodelled acceleration, standard deviation", 1e-9, 1e3),
             ParamSpec("sigma_voltage", float, 1.0, "V", "process noise: per-sample (held) unmodelled input voltage, standard deviation", 1e-9, 1e4),
             ParamSpec("sigma_bias", float, 30.0, "m/s^3", "process noise: rate of the acceleration-bias random walk (sigma_bias T per sample)", 1e-9, 1e6),
+            ParamSpec("sigma_voltage_bias", float, 20.0, "V/s", "process noise: rate of the per-coil voltage-bias random walk (resistance error, heating, driver offset)", 1e-9, 1e6),
+            ParamSpec("voltage_bias_prior", float, 20.0, "V", "initial standard deviation of the per-coil voltage bias (R tolerance x hover current)", 1e-9, 1e4),
             ParamSpec("dt", float, 1e-3, "s", "sample period", 1e-5, 0.1, read_only=True),
         )
         + _geometry("model ")
@@ -375,6 +377,10 @@ SCHEMA = Schema(
             ParamSpec("q_m", float, 10.0, "s^-1", "random-walk rate of the scaled 1/m (tracks load changes)", 0.0, 1e9),
             ParamSpec("q_R", float, 0.0, "s^-1", "random-walk rate of the scaled R", 0.0, 1e9),
             ParamSpec("q_K", float, 0.0, "s^-1", "random-walk rate of the scaled K", 0.0, 1e9),
+            ParamSpec("P0_rho", float, 0.01, "", "initial covariance of the coil-resistance difference rho = (R1 - R2)/2 (scaled by R_init)", 0.0, 1e12),
+            ParamSpec("q_rho", float, 0.0, "s^-1", "random-walk rate of the scaled rho (coils heating at different rates)", 0.0, 1e9),
+            ParamSpec("rho_max", float, 10.0, "ohm", "bound of |rho|, half the largest resistance difference of the coils", 0.0, 1e4),
+
             ParamSpec("hover_init", bool, True, "", "initialise the estimates from the measured hover before start (notes 6 A2 iv)"),
             ParamSpec("hover_window", float, 0.2, "s", "hover initialisation: average this much of the pre-roll (the law holds the applied voltage meanwhile)", 0.0, 60.0),
             ParamSpec("w", float, 50.0, "", "leakage weight of Eq. 48 (adaptive_enhanced)", 0.0, 1e9),

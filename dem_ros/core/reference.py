@@ -20,7 +20,7 @@ from numba import njit
 
 from .lti import AllPoleFilter
 
-__all__ = ["ReferenceModel", "command", "reference_trajectory"]
+__all__ = ["ReferenceModel", "command", "hover_start", "reference_trajectory"]
 
 
 def command(cfg: Mapping, t: np.ndarray | float) -> np.ndarray:
@@ -57,17 +57,23 @@ def _ref_run(z: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, c: np.ndarray, b0: f
 
 
 class ReferenceModel:
-    """Two reference models M(s) started in steady state at ``cfg['initial']``."""
+    """Two reference models M(s) started in steady state at ``cfg['initial']`` (or where the plate hovers)."""
 
     def __init__(self, cfg: Mapping):
         self.cfg = dict(cfg)
         self.filter = AllPoleFilter([cfg["a0"], cfg["a1"], cfg["a2"]], cfg["b0"], cfg["dt"])
         self.reset()
 
-    def reset(self, initial: float | None = None) -> None:
+    def reset(self, initial: float | np.ndarray | None = None) -> None:
+        """Rest at ``initial`` (m; one value or one per magnet, default ``cfg['initial']``).
+
+        A rig starts from the hover it is in (e.g. :func:`hover_start` of the pre-roll): the model
+        rests there and glides to the commands through M(s), instead of stepping from 8 mm.
+        """
         y0 = self.cfg["initial"] if initial is None else initial
         self.z = np.zeros((3, 2))
-        self.z[0, :] = y0 * self.filter.dc_gain
+        self.z[0, :] = np.asarray(y0, float) * self.filter.dc_gain
+        self.r_rest = self.z[0].copy() / self.filter.dc_gain  # the command that holds this rest
         self.k = 0
 
     def step(self, r: np.ndarray) -> np.ndarray:
@@ -81,7 +87,7 @@ class ReferenceModel:
         """The reference at rest (state unchanged): what is held before the schedule starts."""
         out = np.empty(8)
         z = self.z.copy()
-        _ref_step(z, self.filter.Ad, self.filter.Bd, self.filter.c, self.filter.gain, np.full(2, self.cfg["initial"]), out)
+        _ref_step(z, self.filter.Ad, self.filter.Bd, self.filter.c, self.filter.gain, self.r_rest, out)
         return out
 
     def step_at(self, t: float) -> np.ndarray:
@@ -97,8 +103,21 @@ class ReferenceModel:
         return out
 
 
-def reference_trajectory(cfg: Mapping, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(r, yd): command (n, 2) and reference (n, 8) at t_k = k dt, k = 0..n-1."""
+def reference_trajectory(cfg: Mapping, n: int, start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(r, yd): command (n, 2) and reference (n, 8) at t_k = k dt, k = 0..n-1; the model rests at ``start`` (2,) first."""
     t = np.arange(n) * cfg["dt"]
     r = command(cfg, t)
-    return r, ReferenceModel(cfg).run(r)
+    model = ReferenceModel(cfg)
+    if start is not None:
+        model.reset(start)
+    return r, model.run(r)
+
+
+def hover_start(gaps: np.ndarray) -> np.ndarray:
+    """Where the reference starts: the median of the pre-roll's measured gaps (n, 2) -> (2,) (m).
+
+    The median: robust to outliers, and exact for a noiseless hover (a level hover at 8 mm starts the
+    model at exactly 8 mm, as the schedule's ``initial``).
+    """
+    return np.median(np.atleast_2d(np.asarray(gaps, float)), axis=0)
+

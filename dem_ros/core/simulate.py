@@ -21,12 +21,12 @@ from numba import njit, prange
 
 from .controllers import CEController, PIDController, make_controller
 from .controllers import kernels as CK
-from .estimator import KalmanEstimator, ekf_step, make_estimator
-from .model import IP, IQ, SM, apply_schedule, initial_state, plant_vector, rk4
-from .reference import reference_trajectory
+from .estimator import NS, KalmanEstimator, ekf_step, make_estimator
+from .model import IP, IQ, NPP, SM, apply_schedule, initial_state, plant_vector, rk4
+from .reference import hover_start, reference_trajectory
 from .scenarios import NOISE_UNIT, disturbances, plant_schedule, sensor_model
 
-__all__ = ["SimResult", "simulate", "simulate_batch"]
+__all__ = ["Preroll", "SimResult", "preroll", "simulate", "simulate_batch"]
 
 
 @njit(cache=True)
@@ -153,14 +153,14 @@ def _estimator_args(est, measure_velocity: bool):
     if isinstance(est, KalmanEstimator):
         return (True,) + est.kernel_args()
     mask = np.array([1.0, float(measure_velocity), 1.0, float(measure_velocity), 1.0, 1.0])
-    return (False, np.zeros(8), np.eye(8), mask, np.zeros(11), 1e-3, np.zeros(3), np.zeros(6))
+    return (False, np.zeros(NS), np.eye(NS), mask, np.zeros(NPP), 1e-3, np.zeros(4), np.zeros(6))
 
 
 def _controller_args(ctrl):
     if isinstance(ctrl, PIDController):
-        dummy = np.zeros(8)
-        return (True, 0, np.zeros(CK.NCP), dummy, dummy.copy(), dummy.copy(), dummy.copy(), np.zeros((8, 8)),
-                np.zeros((3, 18)), np.zeros((CK.NUH, 2)), np.eye(3), np.zeros(3), ctrl.cp, ctrl.integ)
+        dummy = np.zeros(CK.NTH)
+        return (True, 0, np.zeros(CK.NCP), dummy, dummy.copy(), dummy.copy(), dummy.copy(), np.zeros((CK.NTH, CK.NTH)),
+                np.zeros((3, CK.NZ)), np.zeros((CK.NUH, 2)), np.eye(3), np.zeros(3), ctrl.cp, ctrl.integ)
     assert isinstance(ctrl, CEController)
     mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd = ctrl.kernel_args()
     return (False, mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, np.zeros(CK.NPID), np.zeros(2))
@@ -177,13 +177,27 @@ def prepare(cfg: Mapping, duration: float, seed: int | None = None):
     return t, r, ref, dist.schedule[:, SM].copy(), dist.noise, dist.pert
 
 
+@dataclass(frozen=True)
+class Preroll:
+    """What the pre-roll leaves behind.
+
+    Attributes:
+        window_z (n, 6): the controller's hover window: the estimates it saw over the last ``hover_window`` s.
+        window_u (n, 2): the voltages applied meanwhile (V).
+        gaps (n_pre, 2): the measured gaps of the whole pre-roll (m), where the reference starts.
+    """
+
+    window_z: np.ndarray
+    window_u: np.ndarray
+    gaps: np.ndarray
+
+
 def preroll(pc: Mapping, est, x0: np.ndarray, u0: np.ndarray, sg: np.ndarray, sb: np.ndarray,
-            window: float, seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+            window: float, seed: int | None = None) -> Preroll:
     """The graph's pre-roll, offline: the plate rests at x0 under u0 for ``preroll`` s before t = 0.
 
     The estimator runs on the sensor readings z = G x0 + b + noise (noise from a separate stream,
-    so the run's own sequences are unchanged); returns the controller's hover window: the last
-    ``window`` s (at least one sample) of what it sees (estimates (n, 6)) and the applied voltages (n, 2).
+    so the run's own sequences are unchanged).
     """
     dt = pc["dt"]
     n_pre = max(round(pc["preroll"] / dt), 1)
@@ -191,10 +205,12 @@ def preroll(pc: Mapping, est, x0: np.ndarray, u0: np.ndarray, sg: np.ndarray, sb
     rng = np.random.default_rng([pc["seed"] if seed is None else seed, 1])
     a = pc["noise_scale"] * NOISE_UNIT
     Zw = np.empty((n_win, 6))
+    gaps = np.empty((n_pre, 2))
     for k in range(n_pre):
         z = sg * x0 + sb + (rng.uniform(-1.0, 1.0, 6) * a if pc["noise_scale"] > 0 else 0.0)
         if not pc["measure_velocity"]:
             z[[1, 3]] = 0.0
+        gaps[k] = z[0], z[2]
         if k == 0:
             est.reset(z)
             xh = est.out
@@ -202,7 +218,7 @@ def preroll(pc: Mapping, est, x0: np.ndarray, u0: np.ndarray, sg: np.ndarray, sb
             xh = est.step(z, u0)
         if k >= n_pre - n_win:
             Zw[k - (n_pre - n_win)] = xh
-    return Zw, np.repeat(u0[None], n_win, axis=0)
+    return Preroll(Zw, np.repeat(u0[None], n_win, axis=0), gaps)
 
 
 def simulate(
@@ -235,14 +251,14 @@ def simulate(
     dt = pc["dt"]
     n = round(duration / dt)
     t = np.arange(n) * dt
-    r, ref = reference_trajectory({**cfg["reference"], "dt": dt}, n)
     dist = disturbances(pc, n, seed)
     x0, u0 = initial_state(pc)
     sg, sb = sensor_model(pc)
     ctrl = make_controller(cfg["controller"], controller)
     est = make_estimator(cfg["estimator"], estimator, pc["measure_velocity"])
-    Zw, Uw = preroll(pc, est, x0, u0, sg, sb, cfg["controller"]["hover_window"], seed)
-    ctrl.reset(Zw, Uw)
+    pre = preroll(pc, est, x0, u0, sg, sb, cfg["controller"]["hover_window"], seed)
+    ctrl.reset(pre.window_z, pre.window_u)
+    r, ref = reference_trajectory({**cfg["reference"], "dt": dt}, n, hover_start(pre.gaps))
     x = x0.copy()
     pp = plant_vector(pc)
     X = np.zeros((n, 6))
@@ -287,7 +303,7 @@ def _batch(
         ppb = pp.copy()
         kf = _closed_loop(
             is_pid, mode, cp.copy(), theta[b], v[b], scale[b], v0[b], Pc[b], Z[b], uh[b], Ad, Bd, pid_cp, integ[b],
-            False, np.zeros(8), np.eye(8), mask, pp, dt, np.zeros(3), np.zeros(6),
+            False, np.zeros(NS), np.eye(NS), mask, pp, dt, np.zeros(4), np.zeros(6),
             x, ppb, L, l, scheds[b], sg, sb, noise, pert, ref, dt, nsub, gap_min, gap_max, delay, u0,
             X, U, D, True,
         )
@@ -303,13 +319,17 @@ def simulate_batch(cfg: Mapping, mass_offsets: np.ndarray, *, controller: str | 
     fail index (-1 = none).
     """
     pc = cfg["plant_sim"]
-    t, _, ref, _, _, _ = prepare(cfg, duration)
+    n = round(duration / pc["dt"])
+    t = np.arange(n) * pc["dt"]
     scheds = np.stack([plant_schedule({**pc, "mass_delta": float(dm)}, t) for dm in mass_offsets])
     x0, u0 = initial_state(pc)
     ctrl = make_controller(cfg["controller"], controller)
     sg, sb = sensor_model(pc)
-    ctrl.reset(*preroll(pc, make_estimator(cfg["estimator"], "none", pc["measure_velocity"]), x0, u0, sg, sb,
-                        cfg["controller"]["hover_window"]))
+    pre = preroll(pc, make_estimator(cfg["estimator"], "none", pc["measure_velocity"]), x0, u0, sg, sb,
+                  cfg["controller"]["hover_window"])
+    ctrl.reset(pre.window_z, pre.window_u)
+    _, ref = reference_trajectory({**cfg["reference"], "dt": pc["dt"]}, n, hover_start(pre.gaps))
+
     args = list(_controller_args(ctrl))
     B = len(mass_offsets)
     for i in (3, 4, 5, 6, 7, 8, 9, 13):  # per-run state arrays

@@ -38,6 +38,8 @@ import struct
 import zlib
 from dataclasses import dataclass
 
+from ..core.safety import Mode  # the board's modes: one definition, shared with the Supervisor
+
 __all__ = [
     "COMMAND_MODES",
     "COMMAND_SIZE",
@@ -64,23 +66,6 @@ __all__ = [
 
 PROTOCOL_VERSION = 1
 """The version byte of every sensor and command frame this codec speaks."""
-
-
-class Mode(enum.IntEnum):
-    """Mode of the board's safety supervisor (the link's mode byte, u8).
-
-    The same values as ``dem_ros.core.safety.Mode`` (PLAN.md, shared mechanism
-    1); defined here until that module lands, then the lead unifies them into
-    one definition. A sensor frame reports the board's mode; a command frame
-    requests one of :data:`COMMAND_MODES`.
-    """
-
-    OFF = 0  # no current in the coils (plate resting on its landing support)
-    RUN = 1  # applying the PC's commanded voltages (clipped to the driver's limit)
-    HOLD = 2  # holding the last commanded voltages (a command is late), bounded in time
-    LAND = 3  # the board's landing law lowers the plate at a bounded speed
-    LANDED = 4  # plate on its support, current removed
-    FAULT = 5  # a latched fault (reported in status); the board lands before removing current
 
 
 COMMAND_MODES = frozenset({Mode.OFF, Mode.RUN, Mode.HOLD, Mode.LAND})

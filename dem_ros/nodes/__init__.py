@@ -16,3 +16,7 @@ __all__ = ["NODES"]
 #: function ``main(args=None)``; ``container`` runs the loop's nodes in one process). The one list:
 #: the CLI, ``tools/node_main.py`` and ``setup.py`` read it.
 NODES = ("plant_sim", "hw_driver", "estimator", "controller", "reference", "recorder", "container")
+
+from ..core.numba_cache import configure as _configure_numba_cache  # noqa: E402
+
+_configure_numba_cache()  # a node process: the kernels' cache of this version of the core (shared with the CLI)

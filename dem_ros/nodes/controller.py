@@ -4,8 +4,12 @@ Triggered by ``/dem/state_estimate``: it looks up the reference of the same
 stamp (published one period ahead; kept by stamp, so the arrival order of the
 two topics does not matter), steps the law and publishes
 ``/dem/command`` (coil voltages) and ``/dem/controller/state`` with the
-measurement's stamp. The first sample initialises the law from the measured
-hover and the pre-start voltage (``/dem/applied_voltage``).
+measurement's stamp. Before the law starts, the node holds the applied voltage
+(``/dem/applied_voltage``) for ``hover_window`` seconds of pre-roll and
+collects the estimates and voltages of that window; the law initialises from
+it (:mod:`dem_ros.core.controllers.hover`, the same code as the offline
+simulator). A sample of the experiment (t >= 0) ends the window early. A law
+swapped during the run restarts from the current sample.
 
 Safety: a sample older than ``max_age`` or with non-finite values is not acted
 on (no command; the plant's watchdog takes over) and is counted; a law that
@@ -43,6 +47,8 @@ class ControllerNode:
         self.ref_next = 0
         self.xh = np.zeros(6)  # the estimate being acted on [d1, d1', d2, d2', i1, i2]
         self.u_applied: np.ndarray | None = None
+        self.window: list[tuple[np.ndarray, np.ndarray]] | None = []  # hover window (estimate, applied voltage)
+        self.window_n = max(round(self.cfg["hover_window"] / self.cfg["dt"]), 1)
         self.ref_lag = float("nan")
         self.counts = {"steps": 0, "stale": 0, "non_finite_input": 0, "non_finite_output": 0, "reference_mismatch": 0}
         warm_up()  # kernels resident before we subscribe (no stale first samples)
@@ -67,7 +73,8 @@ class ControllerNode:
                 return f"{key} cannot change during a run"
         if values["type"] != self.cfg["type"]:
             self.ctrl = make_controller(values)
-            self.started = False  # re-initialised from the next sample
+            self.started = False  # re-initialised from the next sample (no open-loop window mid-run)
+            self.window = None
         else:
             self.ctrl.set_params(values)
         self.cfg = dict(values)
@@ -122,12 +129,23 @@ class ControllerNode:
             ref = np.array([xh[0], xh[2], 0, 0, 0, 0, 0, 0], dtype=float)
             self.ref_lag = float("nan")
         else:
-            self.ref_lag = int(round((t - ref_stamp) / (self.cfg["dt"] * 1e9)))
+            self.ref_lag = round((t - ref_stamp) / (self.cfg["dt"] * 1e9))
         if self.ref_lag != 0:
             self.counts["reference_mismatch"] += 1
         if not self.started:
             u0 = self.u_applied.copy() if self.u_applied is not None else np.zeros(2)
-            self.ctrl.reset(xh.copy(), u0)
+            if self.window is not None and self.u_applied is not None:
+                self.window.append((xh.copy(), u0))
+                if len(self.window) < self.window_n and msg.header.frame_id == contract.FRAME_PREROLL:
+                    h = self.js.header(t)
+                    self.pub_cmd.publish(self.js.make(h, self.names, effort=u0))  # hold the hover meanwhile
+                    return self._state(t, age, fault, h)
+                Zw = np.array([z for z, _ in self.window])
+                Uw = np.array([u for _, u in self.window])
+                self.window = None
+            else:  # swapped mid-run, or no applied voltage seen yet: this sample alone
+                Zw, Uw = xh.copy(), u0
+            self.ctrl.reset(Zw, Uw)
             self.started = True
         u = self.ctrl.step(xh, ref)
         self.counts["steps"] += 1

@@ -1,7 +1,10 @@
 """``reference``: the reference model M(s) (Eq. 46) driven by the command schedule.
 
 The schedule's t = 0 is the stamp of the first measurement of the experiment
-(``frame_id == "dem"``); before it (pre-roll) the model rests at the initial command. On measurement k it
+(``frame_id == "dem"``); before it (pre-roll) the model rests where the plate
+hovers (:func:`dem_ros.core.reference.hover_start` of the pre-roll's measured
+gaps so far; the offline simulator starts from the same) and at t = 0 it
+starts from there. On measurement k it
 publishes the reference for sample k+1 (stamped t_k + T), one period ahead, so
 the controller has it when measurement k+1 arrives; on the first measurement it
 also publishes sample 0. Lost measurements are caught up sample by sample, so
@@ -15,7 +18,7 @@ import sys
 import numpy as np
 
 from .. import contract
-from ..core.reference import ReferenceModel, command
+from ..core.reference import ReferenceModel, command, hover_start
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
 from .common import JointStates, stamp_ns
@@ -31,6 +34,7 @@ class ReferenceNode:
         self.dt_ns = round(self.cfg["dt"] * 1e9)
         self.epoch: int | None = None
         self.pre_seen = False
+        self.pre_gaps: list[tuple[float, float]] = []  # measured gaps of the pre-roll
         self.next_k = 0
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
@@ -62,7 +66,9 @@ class ReferenceNode:
     def on_measurement(self, msg) -> None:
         t = stamp_ns(msg)
         if self.epoch is None and msg.header.frame_id == contract.FRAME_PREROLL:
-            # levitating before t = 0: the model rests at the initial command
+            # levitating before t = 0: the model rests where the plate hovers
+            self.pre_gaps.append((float(msg.position[0]), float(msg.position[1])))
+            self.model.reset(hover_start(np.array(self.pre_gaps)))
             y = self.model.step_hold()
             r = command(self.cfg, -1.0)
             vec = y.tolist() + np.asarray(r, float).tolist()
@@ -73,6 +79,8 @@ class ReferenceNode:
             return
         if self.epoch is None:
             self.epoch = t
+            if self.pre_gaps:
+                self.model.reset(hover_start(np.array(self.pre_gaps)))
             if self.pre_seen:
                 self.next_k = 1  # sample 0 went out with the last pre-roll sample (the model at rest)
         k = round((t - self.epoch) / self.dt_ns)

@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import pytest
 
-from dem_ros.core.scenarios import load_scenarios
-from dem_ros.core.simulate import simulate
+from dem_ros.core.numba_cache import configure
+
+configure()  # before any kernel is compiled: the cache of this version of the core's sources
+
+from dem_ros.core.scenarios import load_scenarios  # noqa: E402
+from dem_ros.core.simulate import simulate  # noqa: E402
 
 
 @pytest.fixture(scope="session")

@@ -34,7 +34,8 @@ def theta_of_phys(m: float, R: float, Kc: float) -> np.ndarray:
     return th
 
 
-THETA_TRUE = theta_of_phys(PC["m"], PC["R"], PC["K"])
+THETA_TRUE = np.r_[theta_of_phys(PC["m"], PC["R"], PC["K"]), 0.0, 0.0]  # equal coils: rho = 0
+NTH = K.NTH
 
 
 def run_loop(ctrl, n: int, ref_cfg: dict | None = None, pc: dict | None = None, before=None, after=None):
@@ -134,8 +135,8 @@ def _augmented_error_run(dt: float, delay: int = 0, T: float = 1.5):
     rhs = np.empty((n, 2))
 
     def before(k, x, c):
-        xi = c.Z[0, :16].reshape(8, 2)  # F(s) W_p, channel 2r + j = W_p[r, j]
-        zeta = c.Z[0, 16:]  # F(s) (W_p^T theta_hat)
+        xi = c.Z[0, : 2 * NTH].reshape(NTH, 2)  # F(s) W_p, channel 2r + j = W_p[r, j]
+        zeta = c.Z[0, 2 * NTH :]  # F(s) (W_p^T theta_hat)
         e = x[[0, 2]] - yd[k, :2]
         ec[k] = xi.T @ th_hat - zeta - e  # notes 6 sign convention
         rhs[k] = xi.T @ (th_hat - THETA_TRUE)
@@ -181,8 +182,8 @@ def test_kernel_augmented_error_uses_the_notes_sign():
     seen = []
 
     def before(k, x, c):
-        xi = c.Z[0, :16].reshape(8, 2)
-        seen.append(xi.T @ c.theta - c.Z[0, 16:] - (x[[0, 2]] - yd[k, :2]))
+        xi = c.Z[0, : 2 * NTH].reshape(NTH, 2)
+        seen.append(xi.T @ c.theta - c.Z[0, 2 * NTH :] - (x[[0, 2]] - yd[k, :2]))
 
     def after(k, x, c, u):
         np.testing.assert_allclose(c.diag[[K.D_EC1, K.D_EC2]], seen[k], rtol=1e-9, atol=1e-15)
@@ -212,7 +213,8 @@ def test_A2_hover_initialisation(name, gap, u_factor):
     assert K_hat * i0**2 / gap**2 == pytest.approx(PC["N1"] + m_hat * PC["g"] / 2, rel=1e-9)
     assert 5.0 <= m_hat <= 50.0 and m_hat != CC["m_init"]
     # theta_hat is theta(phi_hat)
-    np.testing.assert_allclose(ctrl.theta, theta_of_phys(m_hat, R_hat, K_hat), rtol=1e-12)
+    np.testing.assert_allclose(ctrl.theta[:8], theta_of_phys(m_hat, R_hat, K_hat), rtol=1e-12)
+    np.testing.assert_allclose(ctrl.theta[8:], 0.0, atol=1e-12)  # both coils at the same u0/i0: rho_hat = 0
     # so the CE law holds the hover exactly at the first step (ref = hover, all derivatives 0)
     ref = np.array([gap, gap, 0, 0, 0, 0, 0, 0])
     u = ctrl.step(x0.copy(), ref)
@@ -225,10 +227,11 @@ def test_A1_hover_initialisation():
     ctrl = make_controller(CC, "paper_fixed")
     ctrl.reset(x0, u0)
     W3, W2 = hover_regressors(ctrl.cp, x0, u0)
-    np.testing.assert_allclose((W3 + K1 * W2).T @ ctrl.theta, -K1 * PC["g"], rtol=1e-9)
-    Xh = (W3 + K1 * W2) * ctrl.scale[:, None]
-    np.testing.assert_allclose(ctrl.P @ Xh, 0.0, atol=1e-6 * np.abs(Xh).max())
-    eig = np.linalg.eigvalsh(ctrl.P)
+    np.testing.assert_allclose((W3 + K1 * W2).T @ ctrl.theta[:8], -K1 * PC["g"], rtol=1e-9)
+    assert np.all(ctrl.theta[8:] == 0.0) and np.all(ctrl.P[8:] == 0.0)  # A1 keeps the paper's 8 thetas
+    Xh = (W3 + K1 * W2) * ctrl.scale[:8, None]
+    np.testing.assert_allclose(ctrl.P[:8, :8] @ Xh, 0.0, atol=1e-6 * np.abs(Xh).max())
+    eig = np.linalg.eigvalsh(ctrl.P[:8, :8])
     assert np.sum(eig > 1e4) == 7 and abs(eig[0]) < 1e-3  # one hover direction (symmetric hover: equal columns)
 
 
@@ -261,7 +264,7 @@ def _project(v45):
     ctrl, P, xi, ec = _a1_state()
     v = ctrl.v.copy()
     v[4], v[5] = v45
-    theta = np.empty(8)
+    theta = np.zeros(NTH)
     K._update_paper_fixed(ctrl.cp, theta, v, ctrl.scale, P, xi, ec)
     np.testing.assert_allclose(theta, ctrl.scale * v)
     return v
@@ -417,3 +420,22 @@ def test_set_params_rediscretises_the_error_filter():
     with pytest.raises(ConfigError):
         ctrl.set_params({**CC, "k1": 1.0})
     assert ctrl.cp[K.CP_K1] == 60.0  # a rejected change leaves the controller as it was
+
+
+def test_enhanced_dead_zone_gates_the_whole_least_squares_step():
+    """Inside the dead zone neither the estimate nor the covariance moves (only the random walk adds q Ts);
+    outside it both do. (Shrinking P inside the dead zone killed adaptation for good: S2 failed at 40.8 s.)"""
+    rng = np.random.default_rng(7)
+    xi = rng.normal(size=(K.NTH, 2)) * 1e-3
+    ec = np.array([2e-6, -1e-6])
+    for e0, adapting in ((1.0, False), (0.0, True)):
+        ctrl = make_controller({**CC, "deadzone": "error", "e0": e0, "w": 0.0}, "adaptive_enhanced")
+        v, P = ctrl.v.copy(), ctrl.P.copy()
+        flag = K._update_adaptive(ctrl.cp, ctrl.theta, v, ctrl.scale, ctrl.v0, P, xi, ec, True, K.DZ_ERROR)
+        q = np.diag([CC["q_m"], CC["q_R"], CC["q_K"], CC["q_rho"]]) * CC["dt"]
+        assert flag == float(adapting)
+        if adapting:
+            assert not np.array_equal(v, ctrl.v) and np.trace(P[:4, :4]) < np.trace(ctrl.P[:4, :4] + q)
+        else:
+            np.testing.assert_array_equal(v, ctrl.v)
+            np.testing.assert_allclose(P[:4, :4], ctrl.P[:4, :4] + q, rtol=1e-15)

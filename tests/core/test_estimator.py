@@ -29,19 +29,23 @@ def replay(X: np.ndarray, U: np.ndarray, ecfg: dict, measure_velocity: bool, noi
 
 
 def test_jacobian_matches_sympy_model():
-    """A = d f/d s of the 8-state model (plant + acceleration bias) vs the analytic sympy Jacobian."""
+    """A = d f/d s of the 10-state model (plant + acceleration and voltage biases) vs the analytic sympy Jacobian."""
     sym = plant()
     p = plant_vector(EC)
     rng = np.random.default_rng(51)
     for _ in range(15):
         s = np.array([rng.uniform(4e-3, 12e-3), rng.uniform(-0.02, 0.02), rng.uniform(4e-3, 12e-3),
                       rng.uniform(-0.02, 0.02), rng.uniform(2, 5), rng.uniform(2, 5),
-                      rng.uniform(-3, 3), rng.uniform(-3, 3)])
+                      rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(-5, 5), rng.uniform(-5, 5)])
         u = rng.uniform(20, 120, 2)
         A = jacobian(s, u, p)
-        Aref = np.zeros((8, 8))
-        Aref[:6, :6] = np.asarray(sym.jac_fn(*s[:6], *u, *values(EC)), float)
+        Aref = np.zeros((10, 10))
+        Aref[:6, :6] = np.asarray(sym.jac_fn(*s[:6], *(u + s[8:]), *values(EC)), float)
         Aref[1, 6] = Aref[3, 7] = 1.0  # d1'' += beta1, d2'' += beta2; beta' = 0
+        P_, Q_ = p[0], p[1]
+        de = (P_ * s[0] + Q_ * s[2], Q_ * s[0] + P_ * s[2])
+        Aref[4, 8] = de[0] / (2 * EC["K"])  # i_j' = (delta_j / 2K)(u_j + w_j - R i_j) + ...; w' = 0
+        Aref[5, 9] = de[1] / (2 * EC["K"])
         col = np.abs(Aref).max(axis=0) + 1e-300
         np.testing.assert_allclose(A / col, Aref / col, rtol=0, atol=1e-6)
 
@@ -96,7 +100,8 @@ def test_bias_state_absorbs_unknown_mass(s2_adaptive):
     assert err.max() < 0.03 * peak
     expected_bias = EC["g"] * (res.mass[n - 1] / EC["m"] - 1.0)
     assert expected_bias == pytest.approx(1.98, abs=0.01)
-    np.testing.assert_allclose(est.s[6:], expected_bias, rtol=2e-3)
+    np.testing.assert_allclose(est.s[6:8], expected_bias, rtol=2e-3)
+    np.testing.assert_allclose(est.s[8:], 0.0, atol=0.05)  # the coils are as modelled: no voltage bias
 
 
 def test_noise_is_reduced(s1_adaptive_15s, scenarios):
@@ -155,3 +160,22 @@ def test_ekf_step_kernel_matches_class():
         u = np.array([80.0, 80.0]) + rng.normal(0, 1, 2)
         ekf_step(s, P, z, mask, u, p, T, qc, rm, out)
         np.testing.assert_array_equal(est.step(z, u), out)
+
+
+def test_consistent_under_a_resistance_error():
+    """True coils 18 and 23 ohm, filter model 20 ohm: the per-coil voltage bias converges to (R - R_j) i_j
+    and the current estimates stay unbiased; without it (bias frozen at 0) the filter's currents are biased."""
+    from dem_ros.core.params import apply_overrides
+    from dem_ros.core.simulate import simulate
+
+    cfg = apply_overrides(default_config(), {"plant_sim": {"R1": 18.0, "R2": 23.0}})
+    res = simulate(cfg, controller="adaptive", estimator="none", duration=3.0)
+    assert not res.failed
+    out, est = replay(res.x, res.u, EC, measure_velocity=True)
+    k = len(res.x) - 1
+    w_true = (20.0 - np.array([18.0, 23.0])) * res.x[k, 4:]
+    np.testing.assert_allclose(est.s[8:], w_true, rtol=0.01)
+    np.testing.assert_allclose(out[-500:, 4:], res.x[-500:, 4:], atol=2e-5)  # A
+    frozen = {**EC, "voltage_bias_prior": 1e-9, "sigma_voltage_bias": 1e-9}
+    out0, _ = replay(res.x, res.u, frozen, measure_velocity=True)
+    assert np.abs(out0[-500:, 4:] - res.x[-500:, 4:]).max() > 10 * np.abs(out[-500:, 4:] - res.x[-500:, 4:]).max()

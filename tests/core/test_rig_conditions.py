@@ -151,5 +151,5 @@ def test_sensor_offset_is_seen_by_the_hover_fit_as_a_pitch_mismatch():
     assert abs(fits[0.0].pitch) < 1e-9
     assert abs(fits[1e-4].pitch) > 0.1  # m/s^2: 2.5 % of the force per magnet, through the pitch lever
     for fit in fits.values():
-        assert fit.determined == 2
-        assert fit.phi[1] == pytest.approx(20.0, rel=1e-9)
+        assert fit.determined == 3  # R, rho and the heave combination of (1/m, K)
+        assert fit.phi[1] == pytest.approx(20.0, rel=1e-9) and abs(fit.phi[3]) < 1e-9

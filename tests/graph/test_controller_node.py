@@ -60,3 +60,25 @@ def test_a_sample_older_than_max_age_is_not_acted_on():
     assert states[t0 + T]["fault"] == 1.0 and states[t0 + T]["age_s"] > max_age
     bus.advance(1.0)  # the once-a-second diagnostics report it
     assert diags and diags[-1].status[0].level != 0
+
+
+def test_hover_window_holds_the_applied_voltage_then_initialises_from_it():
+    """Pre-roll samples: the node holds the applied voltage for hover_window, then the law starts from that
+    window (the same hover fit as the offline simulator)."""
+    bus, ctl, cmds, _, _ = _graph("-p", "hover_window:=0.01")
+    n = ctl.window_n
+    assert n == 10
+    JS = bus.msg("sensor_msgs/msg/JointState")
+    t0 = bus.now_ns
+    for k in range(n + 5):
+        t = t0 + k * T
+        bus.now_ns = t
+        bus.publish(contract.APPLIED, joint_state(JS, t, effort=(80.0, 80.0), frame=contract.FRAME_PREROLL))
+        bus.publish(contract.REFERENCE, named_vector(JS, t, contract.REFERENCE_NAMES, REF, frame=contract.FRAME_PREROLL))
+        bus.publish(contract.ESTIMATE, joint_state(JS, t, position=(0.008, 0.008), velocity=(0.0, 0.0),
+                                                   effort=(4.0, 4.0), frame=contract.FRAME_PREROLL))
+        bus.spin_once()
+    assert [cmds[t0 + k * T] for k in range(n - 1)] == [[80.0, 80.0]] * (n - 1)  # held while collecting
+    assert ctl.started and ctl.ctrl.hover_fit.samples == n and ctl.ctrl.hover_fit.determined == 3
+    assert ctl.ctrl.diag[1] == 20.0  # R_hat = u/i of the window
+    assert all(abs(v - 80.0) < 1e-6 for k in range(n, n + 5) for v in cmds[t0 + k * T])  # the law holds the hover

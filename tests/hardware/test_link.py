@@ -131,9 +131,10 @@ def test_mode_values_match_plan() -> None:
 
 
 def test_mode_is_the_safety_supervisors() -> None:
-    """Until link.Mode is dem_ros.core.safety.Mode itself, the two agree value for value."""
-    safety = pytest.importorskip("dem_ros.core.safety", reason="dem_ros.core.safety is not on this branch yet")
-    assert {m.name: int(m) for m in safety.Mode} == {m.name: int(m) for m in Mode}
+    """The link's mode byte is the board Supervisor's Mode: one definition."""
+    from dem_ros.core import safety
+
+    assert Mode is safety.Mode
 
 
 def test_status_bits_are_distinct_and_16() -> None:

@@ -28,17 +28,17 @@ import numpy as np
 from ..lti import AllPoleFilter
 from ..model import lie_terms, regressors, theta_of
 from ..params import SCHEMA, ConfigError
-from . import kernels as K
+from . import kernels
 from .hover import HoverFit, solve_hover, window_means
 
 __all__ = ["CONTROLLERS", "CEController", "Controller", "PIDController", "make_controller"]
 
 CONTROLLERS = {
-    "adaptive": K.MODE_ADAPTIVE,
-    "adaptive_enhanced": K.MODE_ENHANCED,
-    "paper": K.MODE_PAPER,
-    "paper_fixed": K.MODE_PAPER_FIX,
-    "nonlinear_decoupling": K.MODE_FIXED,
+    "adaptive": kernels.MODE_ADAPTIVE,
+    "adaptive_enhanced": kernels.MODE_ENHANCED,
+    "paper": kernels.MODE_PAPER,
+    "paper_fixed": kernels.MODE_PAPER_FIX,
+    "nonlinear_decoupling": kernels.MODE_FIXED,
     "decentralized_pid": -1,
 }
 
@@ -60,43 +60,46 @@ class Controller:
 
 
 def _cp_vector(cfg: Mapping) -> np.ndarray:
-    cp = np.zeros(K.NCP)
+    cp = np.zeros(kernels.NCP)
     L, l, I = cfg["L"], cfg["l"], cfg["I"]
-    cp[K.CP_K1], cp[K.CP_K2], cp[K.CP_K3] = cfg["k1"], cfg["k2"], cfg["k3"]
-    cp[K.CP_P] = (L + l) / (2 * L)
-    cp[K.CP_Q] = (L - l) / (2 * L)
-    cp[K.CP_CA] = L * l / I
-    cp[K.CP_CC] = L * L / I
-    cp[K.CP_N1], cp[K.CP_N2], cp[K.CP_G] = cfg["N1"], cfg["N2"], cfg["g"]
-    cp[K.CP_FLOOR] = cfg["gap_floor"]
-    cp[K.CP_TS] = cfg["dt"]
-    cp[K.CP_W] = cfg["w"]
-    cp[K.CP_R0] = cfg["R0"]
-    cp[K.CP_DZ] = {"pdot": K.DZ_PDOT, "error": K.DZ_ERROR, "off": K.DZ_OFF}[cfg["deadzone"]]
-    cp[K.CP_E0] = cfg["e0"]
-    cp[K.CP_MU_MIN] = 1.0 / cfg["m_max"]
-    cp[K.CP_MU_MAX] = 1.0 / cfg["m_min"]
-    cp[K.CP_R_MIN], cp[K.CP_R_MAX] = cfg["R_min"], cfg["R_max"]
-    cp[K.CP_K_MIN], cp[K.CP_K_MAX] = cfg["K_min"], cfg["K_max"]
-    cp[K.CP_QM], cp[K.CP_QR], cp[K.CP_QK] = cfg["q_m"], cfg["q_R"], cfg["q_K"]
-    cp[K.CP_ULIM] = cfg["voltage_limit"]
-    cp[K.CP_DELAY] = cfg["command_delay"]
+    cp[kernels.CP_K1], cp[kernels.CP_K2], cp[kernels.CP_K3] = cfg["k1"], cfg["k2"], cfg["k3"]
+    cp[kernels.CP_P] = (L + l) / (2 * L)
+    cp[kernels.CP_Q] = (L - l) / (2 * L)
+    cp[kernels.CP_CA] = L * l / I
+    cp[kernels.CP_CC] = L * L / I
+    cp[kernels.CP_N1], cp[kernels.CP_N2], cp[kernels.CP_G] = cfg["N1"], cfg["N2"], cfg["g"]
+    cp[kernels.CP_FLOOR] = cfg["gap_floor"]
+    cp[kernels.CP_TS] = cfg["dt"]
+    cp[kernels.CP_W] = cfg["w"]
+    cp[kernels.CP_R0] = cfg["R0"]
+    cp[kernels.CP_DZ] = {"pdot": kernels.DZ_PDOT, "error": kernels.DZ_ERROR, "off": kernels.DZ_OFF}[cfg["deadzone"]]
+    cp[kernels.CP_E0] = cfg["e0"]
+    cp[kernels.CP_MU_MIN] = 1.0 / cfg["m_max"]
+    cp[kernels.CP_MU_MAX] = 1.0 / cfg["m_min"]
+    cp[kernels.CP_R_MIN], cp[kernels.CP_R_MAX] = cfg["R_min"], cfg["R_max"]
+    cp[kernels.CP_K_MIN], cp[kernels.CP_K_MAX] = cfg["K_min"], cfg["K_max"]
+    cp[kernels.CP_QM], cp[kernels.CP_QR], cp[kernels.CP_QK] = cfg["q_m"], cfg["q_R"], cfg["q_K"]
+    cp[kernels.CP_ULIM] = cfg["voltage_limit"]
+    cp[kernels.CP_DELAY] = cfg["command_delay"]
+    cp[kernels.CP_QRHO] = cfg["q_rho"]
+    cp[kernels.CP_RHO_MAX] = cfg["rho_max"]
     return cp
 
 
 def _theta(phi: np.ndarray, cp: np.ndarray) -> np.ndarray:
-    th = np.empty(8)
-    theta_of(np.asarray(phi, float), cp[K.CP_CA], cp[K.CP_CC], th)
+    """theta (NTH,) of phi = (1/m, R, K[, rho])."""
+    th = np.empty(kernels.NTH)
+    theta_of(np.asarray(phi, float), cp[kernels.CP_CA], cp[kernels.CP_CC], th)
     return th
 
 
 def hover_regressors(cp: np.ndarray, meas0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(W3, W2) at the pre-start hover (x0, u0)."""
     ab = np.empty(6)
-    lie_terms(max(meas0[0], cp[K.CP_FLOOR]), max(meas0[2], cp[K.CP_FLOOR]), meas0[4], meas0[5], cp[K.CP_P], cp[K.CP_Q], ab)
+    lie_terms(max(meas0[0], cp[kernels.CP_FLOOR]), max(meas0[2], cp[kernels.CP_FLOOR]), meas0[4], meas0[5], cp[kernels.CP_P], cp[kernels.CP_Q], ab)
     W3 = np.empty((8, 2))
     W2 = np.empty((8, 2))
-    regressors(ab, np.asarray(u0, float), cp[K.CP_N1], cp[K.CP_N2], W3, W2)
+    regressors(ab, np.asarray(u0, float), cp[kernels.CP_N1], cp[kernels.CP_N2], W3, W2)
     return W3, W2
 
 
@@ -111,7 +114,7 @@ class CEController(Controller):
         self.cfg = SCHEMA.validate_group("controller", dict(cfg))
         self.cp = _cp_vector(self.cfg)
         self._filter()
-        self.diag = np.full(K.NDIAG, np.nan)
+        self.diag = np.full(kernels.NDIAG, np.nan)
         self.u = np.zeros(2)
         self.hover_fit: HoverFit | None = None
         self.reset(None, None)
@@ -130,79 +133,82 @@ class CEController(Controller):
             window = (np.atleast_2d(np.asarray(meas0, float)), np.atleast_2d(np.asarray(u0, float)))
             meas0, u0 = window_means(*window)
         self.hover_fit = None
-        self.Z = np.zeros((3, 18))
-        self.uh = np.zeros((K.NUH, 2))
+        self.Z = np.zeros((3, kernels.NZ))
+        self.uh = np.zeros((kernels.NUH, 2))
         if u0 is not None:
             self.uh[:] = np.asarray(u0, float)  # before t = 0 the coils held u0
-        self.P = np.zeros((8, 8))
-        self.v = np.zeros(8)
-        self.v0 = np.zeros(8)
-        self.scale = np.ones(8)
-        if self.mode == K.MODE_FIXED:
+        self.P = np.zeros((kernels.NTH, kernels.NTH))
+        self.v = np.zeros(kernels.NTH)
+        self.v0 = np.zeros(kernels.NTH)
+        self.scale = np.ones(kernels.NTH)
+        if self.mode == kernels.MODE_FIXED:
             self.theta = _theta([1 / c["m_nominal"], c["R_nominal"], c["K_nominal"]], cp)
         else:
             phi0 = np.array([1 / c["m_init"], c["R_init"], c["K_init"]])
             th0 = _theta(phi0, cp)
-            if self.mode == K.MODE_PAPER:
+            if self.mode == kernels.MODE_PAPER:
                 self.theta = th0.copy()
                 self.v[:] = th0
-                self.P[:] = np.eye(8)
-            elif self.mode == K.MODE_PAPER_FIX:
-                A0 = phi0[0] + cp[K.CP_CA]
-                C0 = phi0[0] + cp[K.CP_CC]
-                self.scale[:] = [A0 * phi0[1] / 2, A0 * phi0[2], A0 * phi0[1] / 2, A0 * phi0[2], A0 / 2, A0 / 2, C0, C0]
-                self.v[:] = th0 / self.scale
-                self.P[:] = 1e4 * np.eye(8)
+                self.P[:8, :8] = np.eye(8)
+            elif self.mode == kernels.MODE_PAPER_FIX:
+                A0 = phi0[0] + cp[kernels.CP_CA]
+                C0 = phi0[0] + cp[kernels.CP_CC]
+                self.scale[:8] = [A0 * phi0[1] / 2, A0 * phi0[2], A0 * phi0[1] / 2, A0 * phi0[2], A0 / 2, A0 / 2, C0, C0]
+                self.v[:] = th0 / self.scale  # entries 8, 9 (rho) stay 0: A1 keeps the paper's 8 thetas
+                self.P[:8, :8] = 1e4 * np.eye(8)
                 if meas0 is not None and c["hover_init"]:
                     self._hover_init_a1(meas0, u0)
                 self.theta = self.scale * self.v
             else:
-                self.scale[:3] = phi0
-                self.v[:3] = 1.0
-                self.P[:3, :3] = np.diag([c["P0_m"], c["P0_R"], c["P0_K"]])
+                n = kernels.NPHI
+                self.scale[:n] = [phi0[0], phi0[1], phi0[2], phi0[1]]  # rho in units of R_init
+                self.v[:n] = [1.0, 1.0, 1.0, 0.0]
+                self.P[:n, :n] = np.diag([c["P0_m"], c["P0_R"], c["P0_K"], c["P0_rho"]])
                 if window is not None and c["hover_init"]:
                     self._hover_init_a2(*window)
-                phi = self.scale[:3] * self.v[:3]
-                self.theta = _theta(phi, cp)
+                self.theta = _theta(self.scale[:n] * self.v[:n], cp)
             self.v0[:] = self.v
         self.u = np.zeros(2) if u0 is None else np.asarray(u0, float).copy()
-        self.diag = np.full(K.NDIAG, np.nan)
+        self.diag = np.full(kernels.NDIAG, np.nan)
         self._fill_estimates()
 
     def _fill_estimates(self) -> None:
-        if self.mode in (K.MODE_ADAPTIVE, K.MODE_ENHANCED):
+        if self.mode in (kernels.MODE_ADAPTIVE, kernels.MODE_ENHANCED):
             phi = self.scale[:3] * self.v[:3]
             self.diag[:3] = [1 / phi[0], phi[1], phi[2]]
         else:
-            K.physical_estimates(self.theta, self.diag)
+            kernels.physical_estimates(self.theta, self.diag)
 
     def _hover_init_a2(self, Zw: np.ndarray, Uw: np.ndarray) -> None:
         """Notes 6 A2 (iv) from a window of pre-roll samples: :func:`.hover.solve_hover`."""
         cp = self.cp
-        geo = {"P": cp[K.CP_P], "Q": cp[K.CP_Q], "cA": cp[K.CP_CA], "cC": cp[K.CP_CC], "N1": cp[K.CP_N1],
-               "N2": cp[K.CP_N2], "g": cp[K.CP_G], "floor": cp[K.CP_FLOOR]}
-        lo = np.array([cp[K.CP_MU_MIN], cp[K.CP_R_MIN], cp[K.CP_K_MIN]])
-        hi = np.array([cp[K.CP_MU_MAX], cp[K.CP_R_MAX], cp[K.CP_K_MAX]])
-        scale = self.scale[:3].copy()
-        fit = solve_hover(scale * self.v[:3], scale, self.P[:3, :3], Zw, Uw, geo, lo, hi)
-        self.v[:3] = fit.phi / scale
+        geo = {"P": cp[kernels.CP_P], "Q": cp[kernels.CP_Q], "cA": cp[kernels.CP_CA], "cC": cp[kernels.CP_CC], "N1": cp[kernels.CP_N1],
+               "N2": cp[kernels.CP_N2], "g": cp[kernels.CP_G], "floor": cp[kernels.CP_FLOOR]}
+        lo = np.array([cp[kernels.CP_MU_MIN], cp[kernels.CP_R_MIN], cp[kernels.CP_K_MIN], -cp[kernels.CP_RHO_MAX]])
+        hi = np.array([cp[kernels.CP_MU_MAX], cp[kernels.CP_R_MAX], cp[kernels.CP_K_MAX], cp[kernels.CP_RHO_MAX]])
+        n = kernels.NPHI
+        scale = self.scale[:n].copy()
+        fit = solve_hover(scale * self.v[:n], scale, self.P[:n, :n], Zw, Uw, geo, lo, hi)
+        self.v[:n] = fit.phi / scale
         self.hover_fit = fit
 
     def _hover_init_a1(self, meas0: np.ndarray, u0: np.ndarray) -> None:
         """Notes 6 A1: minimum-norm correction so that W_p^T theta = -k1 g; then P = 1e5 (I - proj)."""
         cp = self.cp
         W3, W2 = hover_regressors(cp, meas0, u0)
-        k1 = cp[K.CP_K1]
-        Xh = (W3 + k1 * W2) * self.scale[:, None]
-        P0 = self.P
-        target = -k1 * cp[K.CP_G] * np.ones(2)
-        self.v += P0 @ Xh @ np.linalg.pinv(Xh.T @ P0 @ Xh, rcond=1e-10) @ (target - Xh.T @ self.v)
+        k1 = cp[kernels.CP_K1]
+        Xh = (W3 + k1 * W2) * self.scale[:8, None]
+        P0 = self.P[:8, :8]
+        v = self.v[:8]
+        target = -k1 * cp[kernels.CP_G] * np.ones(2)
+        v += P0 @ Xh @ np.linalg.pinv(Xh.T @ P0 @ Xh, rcond=1e-10) @ (target - Xh.T @ v)
         proj = Xh @ np.linalg.pinv(Xh.T @ Xh, rcond=1e-10) @ Xh.T
-        self.P[:] = 1e5 * (np.eye(8) - proj)
+        self.P[:8, :8] = 1e5 * (np.eye(8) - proj)
+
 
     # -- loop -------------------------------------------------------------
     def step(self, meas: np.ndarray, ref: np.ndarray) -> np.ndarray:
-        K.ce_step(self.mode, self.cp, self.theta, self.v, self.scale, self.v0, self.P, self.Z, self.uh,
+        kernels.ce_step(self.mode, self.cp, self.theta, self.v, self.scale, self.v0, self.P, self.Z, self.uh,
                   self.F.Ad, self.F.Bd, meas, ref, self.u, self.diag)
         return self.u
 
@@ -218,7 +224,7 @@ class CEController(Controller):
         self.cp[:] = _cp_vector(new)
         if gains_changed:
             self._filter()
-        if self.mode == K.MODE_FIXED:
+        if self.mode == kernels.MODE_FIXED:
             self.theta[:] = _theta([1 / new["m_nominal"], new["R_nominal"], new["K_nominal"]], self.cp)
 
     def kernel_args(self) -> tuple:
@@ -231,11 +237,11 @@ class PIDController(Controller):
     def __init__(self, cfg: Mapping):
         self.name = "decentralized_pid"
         self.cfg = SCHEMA.validate_group("controller", dict(cfg))
-        self.cp = np.zeros(K.NPID)
+        self.cp = np.zeros(kernels.NPID)
         self._fill()
         self.integ = np.zeros(2)
         self.u = np.zeros(2)
-        self.diag = np.full(K.NDIAG, np.nan)
+        self.diag = np.full(kernels.NDIAG, np.nan)
 
     def _fill(self) -> None:
         c = self.cfg
@@ -248,7 +254,7 @@ class PIDController(Controller):
         self.u = np.zeros(2) if u0 is None else np.asarray(u0, float).copy()
 
     def step(self, meas: np.ndarray, ref: np.ndarray) -> np.ndarray:
-        K.pid_step(self.cp, self.integ, meas, ref, self.u, self.diag)
+        kernels.pid_step(self.cp, self.integ, meas, ref, self.u, self.diag)
         return self.u
 
     def set_params(self, cfg: Mapping) -> None:

@@ -8,18 +8,17 @@ white noise) gives d_j, i_j, u_j; the scatter of the per-sample equations gives
 how well each equation is known.
 
 **The hover equations** of the law's model (notes 1 and 6 A2 iv) at rest
-(d' = d'' = i' = 0), in phi = (mu, R, K), mu = 1/m, with delta_j of Eq. 6 and
-q_j = i_j^2 / delta_j^2::
+(d' = d'' = i' = 0), in phi = (mu, R, K, rho), mu = 1/m, coil resistances
+R_1,2 = R +- rho, with delta_j of Eq. 6 and q_j = i_j^2 / delta_j^2::
 
-    c_j = R i_j - u_j                                             = 0   (coil j, j = 1, 2)
+    c_j = (R +- rho) i_j - u_j                                    = 0   (coil j, j = 1, 2)
     f_1 = -(mu + c_A) K q_1 - (mu - c_A) K q_2 + (mu + c_C) N_1 + (mu - c_C) N_2 + g = 0
     f_2 = -(mu - c_A) K q_1 - (mu + c_A) K q_2 + (mu - c_C) N_1 + (mu + c_C) N_2 + g = 0
 
 (c_A = L l / I, c_C = L^2 / I; c_j = 0 is W3^T theta = 0 and f_j = 0 is
 W2^T theta + g = 0 of the old single-sample initialisation). What they determine:
 
-* the coil equations fix R (least squares over both coils; a rig whose coils
-  differ gets the value between them);
+* the coil equations fix R and rho (each coil its own resistance);
 * f_1 + f_2 = 2 mu (N_1 + N_2 - K (q_1 + q_2)) + 2 g = 0 (heave) fixes one
   combination of (mu, K): K (q_1 + q_2) = N_1 + N_2 + m g. Mass and force
   coefficient are *not* separately determined at rest;
@@ -43,7 +42,7 @@ finite) and expressed in units of the prior standard deviation (P0^{1/2}):
 
 A direction is *determined* when the window pins it to better than 1/s_det of
 its prior standard deviation (s_det = 10); the others keep their prior value
-(at rest: R and the heave combination of (mu, K) are determined, so 2 of 3;
+(at rest: R, rho and the heave combination of (mu, K) are determined, so 3 of 4;
 fewer when, e.g., the currents are zero).
 The step is the minimum-P0^{-1}-norm one (as notes 6 A2 iv), bounded to the
 law's box after every iteration. P stays P0: the law keeps adapting from there.
@@ -66,8 +65,8 @@ class HoverFit:
     """Result of :func:`solve_hover`.
 
     Attributes:
-        phi (3,): (1/m, R, K) after the solve (1/kg, ohm, N m^2/A^2).
-        determined: number of directions of (1/m, R, K) the window determined (2 at any rest of the model).
+        phi (4,): (1/m, R, K, rho) after the solve (1/kg, ohm, N m^2/A^2, ohm).
+        determined: number of directions of phi the window determined (3 at any rest of the model).
         singular_values (3,): s of the whitened, prior-scaled Jacobian (last iteration).
         residual (3,): [c1, c2 (V), f1 + f2 (m/s^2)] at the window means after the solve.
         pitch: f1 - f2 (m/s^2) at the window means (not solved; non-zero: sensor offset or off-centre load).
@@ -90,11 +89,11 @@ def window_means(Z: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def hover_residuals(phi: np.ndarray, Z: np.ndarray, U: np.ndarray, geo: dict) -> tuple[np.ndarray, np.ndarray]:
-    """(r, J): the hover equations per row of Z (n, 6), U (n, 2) -> r (n, 4) = [c1, c2, f1, f2]; J = dr/dphi (n, 4, 3).
+    """(r, J): the hover equations per row of Z (n, 6), U (n, 2) -> r (n, 4) = [c1, c2, f1, f2]; J = dr/dphi (n, 4, 4).
 
     ``geo``: P, Q, cA, cC, N1, N2, g, floor (gap floor of the law, m).
     """
-    mu, R, K = phi
+    mu, R, K, rho = phi
     d1 = np.maximum(Z[:, 0], geo["floor"])
     d2 = np.maximum(Z[:, 2], geo["floor"])
     de1 = geo["P"] * d1 + geo["Q"] * d2
@@ -104,13 +103,14 @@ def hover_residuals(phi: np.ndarray, Z: np.ndarray, U: np.ndarray, geo: dict) ->
     cA, cC, N1, N2, g = geo["cA"], geo["cC"], geo["N1"], geo["N2"], geo["g"]
     n = Z.shape[0]
     r = np.empty((n, 4))
-    r[:, 0] = R * i1 - U[:, 0]
-    r[:, 1] = R * i2 - U[:, 1]
+    r[:, 0] = (R + rho) * i1 - U[:, 0]
+    r[:, 1] = (R - rho) * i2 - U[:, 1]
     r[:, 2] = -(mu + cA) * K * q1 - (mu - cA) * K * q2 + (mu + cC) * N1 + (mu - cC) * N2 + g
     r[:, 3] = -(mu - cA) * K * q1 - (mu + cA) * K * q2 + (mu - cC) * N1 + (mu + cC) * N2 + g
-    J = np.zeros((n, 4, 3))
-    J[:, 0, 1] = i1
+    J = np.zeros((n, 4, 4))
+    J[:, 0, 1] = J[:, 0, 3] = i1
     J[:, 1, 1] = i2
+    J[:, 1, 3] = -i2
     J[:, 2, 0] = J[:, 3, 0] = -K * (q1 + q2) + N1 + N2
     J[:, 2, 2] = -(mu + cA) * q1 - (mu - cA) * q2
     J[:, 3, 2] = -(mu - cA) * q1 - (mu + cA) * q2
@@ -130,8 +130,8 @@ def solve_hover(
 ) -> HoverFit:
     """Solve the hover equations of the module docstring from the window (Z (n, 6), U (n, 2)).
 
-    ``phi0`` (3,): prior (1/m, R, K); ``scale`` (3,): phi = scale * v; ``P0`` (3, 3): prior covariance
-    of v; ``lo``, ``hi`` (3,): the law's bounds on phi.
+    ``phi0`` (4,): prior (1/m, R, K, rho); ``scale`` (4,): phi = scale * v; ``P0`` (4, 4): prior covariance
+    of v; ``lo``, ``hi`` (4,): the law's bounds on phi.
     """
     Z = np.atleast_2d(np.asarray(Z, float))
     U = np.atleast_2d(np.asarray(U, float))
@@ -139,7 +139,8 @@ def solve_hover(
     zm, um = window_means(Z, U)
     sq = np.sqrt(np.clip(np.diag(P0), 0.0, None))
     v = np.asarray(phi0, float) / scale
-    s = np.zeros(3)
+    s = np.zeros(len(v))
+
     k = 0
     for _ in range(iterations):
         phi = scale * v

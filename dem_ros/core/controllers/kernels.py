@@ -20,7 +20,7 @@ Per sample k (notes 6, "common loop")::
     u         = M_hat^{-1} (v_e - (L_f^3 h)_e)                                (Eq. 22)
     u_a       = the voltage applied over this sample: u_{k-delay} (and clipped)
     W_p       = W3(x, u_a) + k1 W2(x)
-    F(s) bank <- advance with W_p (16 channels) and v_e + k1 W2^T theta_hat (2 channels)
+    F(s) bank <- advance with W_p (2 NTH channels) and v_e + k1 W2^T theta_hat (2 channels)
 
 The last input equals W_p^T theta_hat when u_a is the law's own unclipped output
 (W3(u)^T theta_hat = v_e). In general the error equation is
@@ -31,13 +31,14 @@ and the bracket is known, so filtering v_e + k1 W2^T theta_hat keeps
 e_c = xi^T (theta_hat - theta) exact under a command delay and under clipping.
 
 State arrays (all float64, owned by the caller):
-    theta (8,)    theta_hat used by the law (unscaled, Eq. 44 order)
-    v (8,)        estimate in estimation coordinates (A0: theta; A1: theta/scale;
-                  A2: phi/phi0 in the first 3 entries)
-    scale (8,)    the scaling (A0: ones; A1: theta magnitudes; A2: phi0)
-    v0 (8,)       leakage target (A2e)
-    P (8, 8)      covariance (A2 uses the leading 3x3)
-    Z (3, 18)     F(s) filter bank: 16 channels of W_p, 2 of v_e + k1 W2^T theta_hat
+    theta (NTH,)  theta_hat used by the law (unscaled, Eq. 44 order, then A rho/2, B rho/2:
+                  per-coil resistance R1,2 = R +- rho, see :mod:`dem_ros.core.model`)
+    v (NTH,)      estimate in estimation coordinates (A0: theta; A1: theta/scale;
+                  A2: phi/phi0 in the first 4 entries, phi = (1/m, R, K, rho), rho scaled by R0)
+    scale (NTH,)  the scaling (A0: ones; A1: theta magnitudes; A2: phi0)
+    v0 (NTH,)     leakage target (A2e)
+    P (NTH, NTH)  covariance (A0, A1 use the leading 8x8 and keep rho = 0; A2 the leading 4x4)
+    Z (3, NZ)     F(s) filter bank: 2 NTH channels of W_p, 2 of v_e + k1 W2^T theta_hat
     uh (NUH, 2)   last commands, newest first: the voltage applied now is uh[delay]
     cp (NCP,)     configuration vector, layout CP_* below
     diag (NDIAG,) out: m_hat, R_hat, K_hat, ec1, ec2, e1, e2, adapting, fault
@@ -79,8 +80,12 @@ MODE_FIXED, MODE_PAPER, MODE_PAPER_FIX, MODE_ADAPTIVE, MODE_ENHANCED = 0, 1, 2, 
     CP_MU_MIN, CP_MU_MAX, CP_R_MIN, CP_R_MAX, CP_K_MIN, CP_K_MAX,
     CP_QM, CP_QR, CP_QK, CP_ULIM, CP_DELAY,
 ) = range(27)
-NCP = 27
+CP_QRHO, CP_RHO_MAX = 27, 28
+NCP = 29
 NUH = 9  # longest command delay (samples) + 1
+NTH = 10  # theta entries (8 of Eq. 44 + 2 for the coil-resistance difference)
+NZ = 2 * NTH + 2  # F(s) channels
+NPHI = 4  # A2: phi = (1/m, R, K, rho)
 DZ_PDOT, DZ_ERROR, DZ_OFF = 0, 1, 2
 
 (D_M, D_R, D_K, D_EC1, D_EC2, D_E1, D_E2, D_ADAPT, D_FAULT) = range(9)
@@ -148,12 +153,17 @@ def _rls_cov_step(P: np.ndarray, G: np.ndarray, X: np.ndarray, n: int, dP: np.nd
 def _update_paper(cp, theta, v, P, xi, ec) -> None:
     """A0: Eq. 36 as printed, Euler-integrated: theta' = -P xi e_c / n, P' = +P xi xi^T P / n."""
     Ts = cp[CP_TS]
-    PX = P @ xi  # (8, 2)
-    S = xi.T @ PX
+    Pp = np.ascontiguousarray(P[:8, :8])
+    xp = np.ascontiguousarray(xi[:8])
+    PX = Pp @ xp  # (8, 2)
+    S = xp.T @ PX
     nrm = 1.0 + _sym2_norm(S[0, 0], S[0, 1], S[1, 1])
     for i in range(8):
         v[i] -= Ts * (PX[i, 0] * ec[0] + PX[i, 1] * ec[1]) / nrm
-    P += Ts * (PX @ PX.T) / nrm  # the printed sign (erratum 13)
+    dP = Ts * (PX @ PX.T) / nrm  # the printed sign (erratum 13)
+    for i in range(8):
+        for j in range(8):
+            P[i, j] += dP[i, j]
     for i in range(8):
         theta[i] = v[i]
 
@@ -193,24 +203,28 @@ def _update_paper_fixed(cp, theta, v, scale, P, xi, ec) -> None:
 
 @njit(cache=True)
 def _update_adaptive(cp, theta, v, scale, v0, P, xi, ec, enhanced, dz_mode) -> float:
-    """A2 / A2e: Gauss-Newton RLS on scaled phi = (1/m, R, K); returns 1.0 if adapting."""
+    """A2 / A2e: Gauss-Newton RLS on scaled phi = (1/m, R, K, rho); returns 1.0 if adapting.
+
+    A2e's dead zone gates the whole least-squares step (estimate and covariance decrease):
+    outside adaptation P only grows by the random walk, so adaptation can resume.
+    """
     Ts = cp[CP_TS]
-    phi = np.empty(3)
-    for i in range(3):
+    phi = np.empty(NPHI)
+    for i in range(NPHI):
         phi[i] = scale[i] * v[i]
-    J = np.empty((8, 3))
+    J = np.empty((NTH, NPHI))
     theta_jacobian(phi, cp[CP_CA], J)
-    X = np.zeros((3, 2))  # X = diag(phi0) J^T xi
-    for i in range(3):
+    X = np.zeros((NPHI, 2))  # X = diag(phi0) J^T xi
+    for i in range(NPHI):
         for c in range(2):
             s = 0.0
-            for r in range(8):
+            for r in range(NTH):
                 s += J[r, i] * xi[r, c]
             X[i, c] = scale[i] * s
-    G = np.empty((3, 2))
-    _rls_gain(P, X, 3, G)
-    dP = np.empty((3, 3))
-    _rls_cov_step(P, G, X, 3, dP)
+    G = np.empty((NPHI, 2))
+    _rls_gain(P, X, NPHI, G)
+    dP = np.empty((NPHI, NPHI))
+    _rls_cov_step(P, G, X, NPHI, dP)
     adapt = True
     if enhanced:
         if dz_mode == DZ_PDOT:
@@ -218,24 +232,26 @@ def _update_adaptive(cp, theta, v, scale, v0, P, xi, ec, enhanced, dz_mode) -> f
         elif dz_mode == DZ_ERROR:
             adapt = np.sqrt(ec[0] ** 2 + ec[1] ** 2) > cp[CP_E0]
     if adapt:
-        for i in range(3):
+        for i in range(NPHI):
             v[i] -= G[i, 0] * ec[0] + G[i, 1] * ec[1]
     if enhanced and cp[CP_W] > 0.0:
         # corrected Eq. 48b leakage towards v0: v' = -w |e_c| P (v - v0) / (1 + w^2 |P|)
-        Pn = np.max(np.abs(np.linalg.eigvalsh(P[:3, :3])))
+        Pa = np.ascontiguousarray(P[:NPHI, :NPHI])
+        Pn = np.max(np.abs(np.linalg.eigvalsh(Pa)))
         gain = Ts * cp[CP_W] * np.sqrt(ec[0] ** 2 + ec[1] ** 2) / (1.0 + cp[CP_W] ** 2 * Pn)
-        dv = v[:3] - v0[:3]
-        lk = P[:3, :3] @ dv
-        for i in range(3):
+        dv = np.ascontiguousarray(v[:NPHI] - v0[:NPHI])
+        lk = Pa @ dv
+        for i in range(NPHI):
             v[i] -= gain * lk[i]
-    q = (cp[CP_QM], cp[CP_QR], cp[CP_QK])
-    for i in range(3):
-        for j in range(3):
-            P[i, j] -= 0.5 * (dP[i, j] + dP[j, i])
+    q = (cp[CP_QM], cp[CP_QR], cp[CP_QK], cp[CP_QRHO])
+    for i in range(NPHI):
+        if adapt:
+            for j in range(NPHI):
+                P[i, j] -= 0.5 * (dP[i, j] + dP[j, i])
         P[i, i] += q[i] * Ts
-    lo = (cp[CP_MU_MIN], cp[CP_R_MIN], cp[CP_K_MIN])
-    hi = (cp[CP_MU_MAX], cp[CP_R_MAX], cp[CP_K_MAX])
-    for i in range(3):
+    lo = (cp[CP_MU_MIN], cp[CP_R_MIN], cp[CP_K_MIN], -cp[CP_RHO_MAX])
+    hi = (cp[CP_MU_MAX], cp[CP_R_MAX], cp[CP_K_MAX], cp[CP_RHO_MAX])
+    for i in range(NPHI):
         ph = scale[i] * v[i]
         if ph < lo[i]:
             ph = lo[i]
@@ -261,8 +277,8 @@ def _ydd_hat(theta, ab, N1, N2, g):
 def _ce_law(theta, ab, ve1, ve2, u) -> None:
     """u = M_hat^{-1} (v_e - (L_f^3 h)_e) (Eq. 22 corrected); NaN when M_hat is singular."""
     a1, a2, b1, b2 = ab[0], ab[1], ab[2], ab[3]
-    L3_1 = 2 * theta[0] * a1 + 2 * theta[2] * a2
-    L3_2 = 2 * theta[2] * a1 + 2 * theta[0] * a2
+    L3_1 = 2 * (theta[0] + theta[8]) * a1 + 2 * (theta[2] - theta[9]) * a2
+    L3_2 = 2 * (theta[2] + theta[9]) * a1 + 2 * (theta[0] - theta[8]) * a2
     m00 = 2 * theta[4] * b1
     m01 = 2 * theta[5] * b2
     m10 = 2 * theta[5] * b1
@@ -282,13 +298,15 @@ def _ce_law(theta, ab, ve1, ve2, u) -> None:
 def _predict(mode, cp, theta, v, scale, uh, delay, x) -> bool:
     """Advance ``x`` by ``delay`` samples under uh[delay-1], ..., uh[0] with the estimated model."""
     est = np.empty(3)
-    if mode == MODE_PAPER or mode == MODE_PAPER_FIX:
+    if mode == MODE_PAPER or mode == MODE_PAPER_FIX:  # noqa: SIM109 (numba)
+
         # eight free thetas need not describe any physical (m, R, K): no model to predict with
         return False
-    if mode == MODE_ADAPTIVE or mode == MODE_ENHANCED:
+    if mode == MODE_ADAPTIVE or mode == MODE_ENHANCED:  # noqa: SIM109 (numba)
         mu = scale[0] * v[0]
         R = scale[1] * v[1]
         Kc = scale[2] * v[2]
+        rho = scale[3] * v[3]
     else:
         physical_estimates(theta, est)
         if not (est[0] > 0.0 and est[1] > 0.0 and est[2] > 0.0):
@@ -296,6 +314,7 @@ def _predict(mode, cp, theta, v, scale, uh, delay, x) -> bool:
         mu = 1.0 / est[0]
         R = est[1]
         Kc = est[2]
+        rho = 0.0
     p = np.empty(NPP)
     p[IP] = cp[CP_P]
     p[IQ] = cp[CP_Q]
@@ -304,8 +323,8 @@ def _predict(mode, cp, theta, v, scale, uh, delay, x) -> bool:
     p[IC] = mu + cp[CP_CC]
     p[ID] = mu - cp[CP_CC]
     p[IK] = Kc
-    p[IR1] = R
-    p[IR2] = R
+    p[IR1] = R + rho
+    p[IR2] = R - rho
     p[IN1] = cp[CP_N1]
     p[IN2] = cp[CP_N2]
     p[IG] = cp[CP_G]
@@ -338,8 +357,8 @@ def ce_step(mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, meas, ref, u, diag)
     d2 = max(meas[2], cp[CP_FLOOR])
     i1 = meas[4]
     i2 = meas[5]
-    xi = np.empty((8, 2))
-    for r in range(8):
+    xi = np.empty((NTH, 2))
+    for r in range(NTH):
         xi[r, 0] = Z[0, 2 * r]
         xi[r, 1] = Z[0, 2 * r + 1]
     e = np.empty(2)
@@ -349,8 +368,8 @@ def ce_step(mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, meas, ref, u, diag)
     adapting = 0.0
     if mode != MODE_FIXED:
         for j in range(2):
-            s = -Z[0, 16 + j] - e[j]
-            for r in range(8):
+            s = -Z[0, 2 * NTH + j] - e[j]
+            for r in range(NTH):
                 s += xi[r, j] * theta[r]
             ec[j] = s
         if mode == MODE_PAPER:
@@ -421,24 +440,24 @@ def ce_step(mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, meas, ref, u, diag)
     uh[0, 0] = u[0]
     uh[0, 1] = u[1]
     # regressor with the applied u, then advance F(s) on W_p and v_e + k1 W2^T theta_hat
-    W3 = np.empty((8, 2))
-    W2 = np.empty((8, 2))
+    W3 = np.empty((NTH, 2))
+    W2 = np.empty((NTH, 2))
     regressors(ab, ua, N1, N2, W3, W2)
-    w = np.empty(18)
-    for r in range(8):
+    w = np.empty(NZ)
+    for r in range(NTH):
         w[2 * r] = W3[r, 0] + k1 * W2[r, 0]
         w[2 * r + 1] = W3[r, 1] + k1 * W2[r, 1]
-    w[16] = ve1
-    w[17] = ve2
+    w[2 * NTH] = ve1
+    w[2 * NTH + 1] = ve2
     for j in range(2):
         s = 0.0
-        for r in range(8):
+        for r in range(NTH):
             s += k1 * W2[r, j] * theta[r]
-        w[16 + j] += s
+        w[2 * NTH + j] += s
     filter_step(Z, Ad, Bd, w)
     # diagnostics
     est = np.empty(3)
-    if mode == MODE_ADAPTIVE or mode == MODE_ENHANCED:
+    if mode == MODE_ADAPTIVE or mode == MODE_ENHANCED:  # noqa: SIM109 (numba)
         est[0] = 1.0 / (scale[0] * v[0])
         est[1] = scale[1] * v[1]
         est[2] = scale[2] * v[2]

@@ -53,6 +53,7 @@ setup(
         # the chunk compressions of rosbag2 MCAP files (written and read by dem_ros.bag)
         "zstandard>=0.21",
         "lz4>=4",
+        "dask[distributed]>=2024.1",
         "pyserial>=3.4",  # the device link over serial lines (dem_ros/hardware/channel.py)
     ],
     # mcap: an independent MCAP reader/writer the bag tests check our files against;

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import mmap
 import struct
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -66,6 +67,11 @@ class ChunkInfo:
     compressed_size: int
     uncompressed_size: int
     counts: dict[int, int] = field(default_factory=dict)  # channel id -> messages (scan only)
+    index: int = 0  # position in the file's chunk list (0-based, file order)
+
+    def describe(self) -> str:
+        """How a report names this chunk: number, byte offset and log-time range."""
+        return f"chunk {self.index} at offset {self.offset} (log time {self.start_ns}..{self.end_ns} ns)"
 
 
 @dataclass(frozen=True)
@@ -193,6 +199,9 @@ class McapFile:
         self.has_summary = False
         self.truncation: Truncation | None = None
         self.loose_messages: list[int] = []
+        #: chunk offset -> why it cannot be read (found by a scan or :meth:`verify_chunks`)
+        self.bad_chunks: dict[int, str] = {}
+        self._reported: set[int] = set()
         self.profile = self.library = ""
         try:
             self._read_header()
@@ -261,6 +270,8 @@ class McapFile:
         if not chunk_index and self.statistics and self.statistics["message_count"]:
             return False  # unchunked file: messages must be found by scanning
         self.chunks = sorted(chunk_index, key=lambda ch: ch.offset)
+        for i, ch in enumerate(self.chunks):
+            ch.index = i
         for off, _ln in meta_index:
             op, s, e = self._record(off)
             if op == OP_METADATA:
@@ -317,15 +328,16 @@ class McapFile:
                 c = _Buf(b, _CHUNK_HEAD.size)
                 comp = c.string()
                 clen = c.u64()
-                info = ChunkInfo(pos, e - pos, start, end, comp, clen, usize)
+                info = ChunkInfo(pos, e - pos, start, end, comp, clen, usize, index=len(self.chunks))
                 try:
-                    data = decompress(comp, b[c.p:c.p + clen], usize)
-                except BagError:
-                    raise
-                except Exception as exc:  # corrupt compressed payload
-                    stop = Truncation(pos, self.size, f"chunk at offset {pos} does not decompress ({exc})")
-                    break
-                for op2, s2, e2 in _records(data):
+                    data = self._payload(info, b)
+                    records = list(_records(data))
+                except BagError as exc:  # a damaged chunk: later ones may be fine; reads of this one fail
+                    self.bad_chunks[info.offset] = str(exc)
+                    self.chunks.append(info)
+                    pos = e
+                    continue
+                for op2, s2, e2 in records:
                     if op2 == OP_MESSAGE:
                         cid = _U16.unpack_from(data, s2)[0]
                         info.counts[cid] = info.counts.get(cid, 0) + 1
@@ -346,19 +358,58 @@ class McapFile:
 
     # -- reading ---------------------------------------------------------
     def chunk_data(self, ch: ChunkInfo) -> bytes | memoryview:
+        """The chunk's records, decompressed and checked against the chunk's CRC-32 and size.
+
+        Raises:
+            BagError: naming the chunk, when it does not decompress or its CRC or size do not match.
+        """
         op, s, e = self._record(ch.offset)
-        if op != OP_CHUNK:
+        if op != OP_CHUNK or e > self.size:
             raise BagError(f"{self.path}: no chunk record at offset {ch.offset} (index is wrong)")
-        b = self.buf[s:e]
-        c = _Buf(b, _CHUNK_HEAD.size)
-        comp = c.string()
-        clen = c.u64()
+        return self._payload(ch, self.buf[s:e])
+
+    def _payload(self, ch: ChunkInfo, b: memoryview) -> bytes | memoryview:
         try:
-            return decompress(comp, b[c.p:c.p + clen], ch.uncompressed_size)
+            _start, _end, usize, crc = _CHUNK_HEAD.unpack_from(b, 0)
+            c = _Buf(b, _CHUNK_HEAD.size)
+            comp = c.string()
+            clen = c.u64()
+            packed = b[c.p:c.p + clen]
+            if c.p + clen > len(b):
+                raise ValueError("compressed data run past the chunk record")
+        except (struct.error, ValueError, UnicodeDecodeError) as exc:
+            raise BagError(f"{self.path}: {ch.describe()}: malformed chunk header ({exc})") from None
+        try:
+            data = decompress(comp, packed, usize)
         except BagError:
             raise
-        except Exception as exc:
-            raise BagError(f"{self.path}: chunk at offset {ch.offset} does not decompress ({exc})") from None
+        except Exception as exc:  # corrupt compressed payload
+            raise BagError(f"{self.path}: {ch.describe()} does not decompress ({exc})") from None
+        if len(data) != usize:
+            raise BagError(f"{self.path}: {ch.describe()}: {len(data)} bytes after decompression, "
+                           f"the header says {usize}: the chunk is corrupt")
+        if crc != 0:  # 0: the writer did not compute one (mcap spec)
+            got = zlib.crc32(data)
+            if got != crc:
+                raise BagError(f"{self.path}: {ch.describe()}: CRC-32 {got:#010x} of the data does not match "
+                               f"the stored {crc:#010x}: the chunk is corrupt")
+        return data
+
+    def verify_chunks(self) -> list[str]:
+        """Decompress and CRC-check every chunk; the problems, one line each (empty: all good).
+
+        Chunks reported here are skipped by :meth:`iter_raw` afterwards (the
+        caller has been told); without this call a read of a bad chunk raises.
+        """
+        for ch in self.chunks:
+            if ch.offset in self.bad_chunks:
+                continue
+            try:
+                self.chunk_data(ch)
+            except BagError as exc:
+                self.bad_chunks[ch.offset] = str(exc)
+        self._reported = set(self.bad_chunks)
+        return [self.bad_chunks[ch.offset] for ch in self.chunks if ch.offset in self.bad_chunks]
 
     def file_size_unread(self) -> int:
         """Bytes after the truncation point (0 for a complete file)."""
@@ -380,6 +431,10 @@ class McapFile:
         for ch in self.chunks:
             if channel_ids is not None and ch.counts and not (channel_ids & ch.counts.keys()):
                 continue
+            if ch.offset in self._reported:
+                continue  # reported by verify_chunks(); the rest of the file is still read
+            if ch.offset in self.bad_chunks:
+                raise BagError(self.bad_chunks[ch.offset])
             data = memoryview(self.chunk_data(ch))
             for op, s, e in _records(data):
                 if op == OP_MESSAGE:

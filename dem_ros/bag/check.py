@@ -127,10 +127,18 @@ def check(path: Path | str) -> CheckReport:
         rep.files = [str(f.relative_to(path)) if path.is_dir() else f.name for f in r.files]
         md = r.metadata_yaml
         if md is not None:
-            status = (md.get("custom_data") or {}).get("dem_ros.status")
-            rep.metadata_yaml = "provisional (writer did not close)" if status == "recording" else "complete"
+            cd0 = md.get("custom_data") or {}
+            status = cd0.get("dem_ros.status")
+            rep.metadata_yaml = {"recording": "provisional (writer did not close)",
+                                 "failed": "final, recording FAILED"}.get(status, "complete")
             if status == "recording":
                 rep.problems.append("metadata.yaml is provisional: the writer was killed before close()")
+            elif status == "failed":
+                rep.problems.append(f"recording stopped early: {cd0.get('dem_ros.failure', 'reason not recorded')}")
+        if path.is_dir() and any(path.glob(".*.reserve")):
+            rep.warnings.append("a space-reserve file is left in the bag directory (the writer did not close); "
+                                "it holds no data and may be deleted")
+        rep.problems.extend(r.verify_chunks())  # bad chunks named; the rest of the bag is still read
         topics = r.topics
         rep.chunks = len(r.chunks)
         rep.compression = sorted({c.compression or "none" for c in r.chunks})
@@ -203,7 +211,7 @@ def _gaps(r: BagReader, tr: TopicReport, rep: CheckReport) -> None:
     d = np.diff(stamps)
     contract = _CONTRACT.get(tr.name)
     if contract is not None and contract.rate_hz:
-        period = int(round(1e9 / contract.rate_hz))
+        period = round(1e9 / contract.rate_hz)
     else:
         pos = d[d > 0]
         if not len(pos):

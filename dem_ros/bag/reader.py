@@ -28,7 +28,7 @@ from . import _rosfmt
 from ._mcap import McapFile, Truncation
 from .errors import BagError
 
-__all__ = ["JOINT_STATE", "BagReader", "TopicInfo"]
+__all__ = ["JOINT_STATE", "BagReader", "TopicInfo", "read_metadata_yaml"]
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 
@@ -80,11 +80,7 @@ class BagReader:
     def _files_of_dir(self) -> list[Path]:
         meta = self.path / "metadata.yaml"
         if meta.exists():
-            try:
-                doc = yaml.safe_load(meta.read_text(encoding="utf-8"))
-                self.metadata_yaml = doc["rosbag2_bagfile_information"]
-            except (yaml.YAMLError, KeyError, TypeError) as exc:
-                raise BagError(f"{meta} is not rosbag2 metadata: {exc}") from None
+            self.metadata_yaml = read_metadata_yaml(meta)
             sid = self.metadata_yaml.get("storage_identifier")
             if sid != "mcap":
                 raise BagError(f"{self.path} uses storage {sid!r}; only 'mcap' bags are supported")
@@ -136,6 +132,14 @@ class BagReader:
             counts[cid] = counts.get(cid, 0) + 1
         return counts
 
+    def verify_chunks(self) -> list[str]:
+        """Decompress and CRC-check every chunk of every file; one line per bad chunk (empty: all good).
+
+        Afterwards the reported chunks are skipped when messages are read;
+        before, reading a bad chunk raises :class:`BagError` naming it.
+        """
+        return [p for m in self._mcaps for p in m.verify_chunks()]
+
     @property
     def chunks(self) -> list[Any]:
         return [c for m in self._mcaps for c in m.chunks]
@@ -162,9 +166,8 @@ class BagReader:
         """Yield ``(topic, log_time_ns, msg)`` decoded with rosbags' typestore."""
         types = {name: t.type for name, t in self.topics.items()}
         for name, t in self.topics.items():
-            if t.message_encoding != "cdr":
-                if topics is None or name in set(topics):
-                    raise BagError(f"topic {name!r} has encoding {t.message_encoding!r}, not 'cdr'")
+            if t.message_encoding != "cdr" and (topics is None or name in set(topics)):
+                raise BagError(f"topic {name!r} has encoding {t.message_encoding!r}, not 'cdr'")
         store = self._typestore()
         for topic, lt, _pt, data in self.raw_messages(topics):
             try:
@@ -283,6 +286,60 @@ class BagReader:
 
 
 # --------------------------------------------------------------------------
+def _bad(path: Path, what: str) -> BagError:
+    return BagError(f"{path} is not rosbag2 metadata: {what}")
+
+
+def read_metadata_yaml(path: Path) -> dict[str, Any]:
+    """``rosbag2_bagfile_information`` of a metadata.yaml, with the fields dem_ros uses type-checked.
+
+    Raises:
+        BagError: one line naming the file and what is wrong (unreadable, not
+            UTF-8, not YAML, a field of the wrong type).
+    """
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise BagError(f"cannot read {path}: {exc.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise _bad(path, f"not UTF-8 text (byte {exc.start}: {raw[exc.start]:#04x}); a binary file?") from None
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise _bad(path, "not valid YAML (" + " ".join(str(exc).split()) + ")") from None
+    except (ValueError, TypeError, RecursionError) as exc:
+        raise _bad(path, f"not valid YAML ({type(exc).__name__}: {exc})") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("rosbag2_bagfile_information"), dict):
+        raise _bad(path, "no 'rosbag2_bagfile_information' mapping at the top")
+    info = doc["rosbag2_bagfile_information"]
+    checks: list[tuple[str, Any, tuple[type, ...]]] = [
+        ("storage_identifier", info.get("storage_identifier"), (str,)),
+        ("relative_file_paths", info.get("relative_file_paths", []), (list,)),
+        ("topics_with_message_count", info.get("topics_with_message_count", []), (list, type(None))),
+        ("custom_data", info.get("custom_data", {}), (dict, type(None))),
+    ]
+    for name, value, types in checks:
+        if not isinstance(value, types):
+            raise _bad(path, f"{name} is a {type(value).__name__}, expected "
+                             + " or ".join("null" if t is type(None) else t.__name__ for t in types))
+    for i, p in enumerate(info.get("relative_file_paths", [])):
+        if not isinstance(p, str) or not p or Path(p).is_absolute() or ".." in Path(p).parts:
+            raise _bad(path, f"relative_file_paths[{i}] = {p!r} is not a file name inside the bag")
+    for k, v in (info.get("custom_data") or {}).items():
+        if not isinstance(k, str) or not isinstance(v, str):
+            raise _bad(path, f"custom_data entry {k!r}: {v!r} is not a string pair")
+    for i, t in enumerate(info.get("topics_with_message_count") or []):
+        tm = t.get("topic_metadata") if isinstance(t, dict) else None
+        if not isinstance(tm, dict) or not isinstance(tm.get("name"), str) \
+                or isinstance(t.get("message_count"), bool) or not isinstance(t.get("message_count"), int):
+            raise _bad(path, f"topics_with_message_count[{i}] needs topic_metadata.name (string) "
+                             "and message_count (integer)")
+    return info
+
+
+# --------------------------------------------------------------------------
 # JointState CDR layout (XCDR1, little endian; offsets relative to byte 4,
 # after the encapsulation header): int32 sec, uint32 nanosec, string frame_id,
 # sequence<string> name, then three sequence<float64> (count aligned to 4,
@@ -348,12 +405,12 @@ def _joint_state_arrays(datas: list[bytes], log: np.ndarray, topic: str) -> dict
             sec = rows[:, 4:8].copy().view("<i4")[:, 0].astype(np.int64)
             nsec = rows[:, 8:12].copy().view("<u4")[:, 0].astype(np.int64)
             out["stamp_ns"] = sec * 1_000_000_000 + nsec
-            for fname, (off, cnt) in zip(fields, arrays):
+            for fname, (off, cnt) in zip(fields, arrays, strict=True):
                 out[fname] = rows[:, off:off + 8 * cnt].copy().view("<f8").reshape(n, cnt)
             return out
     # Slow path: per-message parse (layouts differ between messages).
     stamps = np.empty(n, np.int64)
-    cols = {f: np.full((n, cnt), np.nan) for f, (_o, cnt) in zip(fields, arrays)}
+    cols = {f: np.full((n, cnt), np.nan) for f, (_o, cnt) in zip(fields, arrays, strict=True)}
     for i, d in enumerate(datas):
         try:
             nm, arr = _layout(d)
@@ -363,7 +420,7 @@ def _joint_state_arrays(datas: list[bytes], log: np.ndarray, topic: str) -> dict
             raise BagError(f"{topic}: joint names change at message {i}: {names} -> {nm}")
         sec, nsec = struct.unpack_from("<iI", d, 4)
         stamps[i] = sec * 1_000_000_000 + nsec
-        for fname, (off, cnt) in zip(fields, arr):
+        for fname, (off, cnt) in zip(fields, arr, strict=True):
             w = min(cnt, cols[fname].shape[1])
             cols[fname][i, :w] = np.frombuffer(d, "<f8", count=w, offset=off)
     out["stamp_ns"] = stamps

@@ -70,6 +70,13 @@ class Recorder:
             1 kHz loop sharing this process (composition) the writer then does
             its Python work right after the loop's last message of a cycle,
             while the loop sleeps, instead of contending with it for the GIL.
+        on_error: called once, on the writer thread, with the one-line reason
+            when writing fails (disk full, I/O error): the node reports it at
+            once. Recording stops; :meth:`close` still finalises the bag.
+
+    A write failure never raises out of the recorder: it is :attr:`failure`,
+    the messages that did not reach the file are counted as dropped, and the
+    bag's metadata says ``dem_ros.status: failed`` with the reason.
     """
 
     def __init__(
@@ -83,6 +90,7 @@ class Recorder:
         chunk_size: int = DEFAULT_CHUNK_SIZE,
         poll_s: float = 0.005,
         kick_on: str | None = None,
+        on_error: Callable[[str], None] | None = None,
     ) -> None:
         if queue_size < 1:
             raise BagError(f"queue_size must be >= 1, got {queue_size}")
@@ -96,11 +104,16 @@ class Recorder:
         self.queue_size = queue_size
         self.poll_s = poll_s
         self.kick_on = kick_on
+        self.on_error = on_error
+        #: why recording stopped early (one line), or None
+        self.failure: str | None = None
         self._wake = threading.Event()
         self._counters = {t.name: TopicCounters() for t in self.topics}
         self._queue: deque[tuple[str, int, bytes]] = deque()
         self.max_queue_depth = 0
         self.error: BaseException | None = None
+        self.serialize_errors = 0
+        self.last_serialize_error = ""
         self._closing = False
         self._stop = threading.Event()
         self._close_lock = threading.Lock()
@@ -147,19 +160,44 @@ class Recorder:
                 self._wake.wait(self.poll_s)
                 self._wake.clear()
                 continue
-            topic = ""
             try:
                 for _ in range(depth):
                     topic, t, data = q.popleft()
                     if type(data) is _Deferred:
-                        data = data.serialize(data.msg)
+                        try:
+                            data = data.serialize(data.msg)
+                        except Exception as exc:  # one unencodable message: drop it, keep recording
+                            counters[topic].dropped += 1
+                            self.serialize_errors += 1
+                            self.last_serialize_error = f"{topic}: {exc!r}"
+                            continue
                     w.write(topic, t, data)
                     counters[topic].written += 1
-            except BaseException as exc:  # disk full, etc.: stop writing, count the rest as dropped
-                self.error = exc
-                counters[topic].dropped += 1
-                self._drain_as_dropped()
+            except BagError as exc:  # disk full, I/O error: the writer has stopped; account and report
+                self._stopped(str(exc))
                 return
+            except BaseException as exc:  # a bug: same, never a silent end of recording
+                self._stopped(f"{self.path}: bag writer thread failed: {exc!r}")
+                return
+
+    def _stopped(self, reason: str) -> None:
+        """Recording stopped: what is not in the file counts as dropped; tell ``on_error`` once."""
+        self.error = RuntimeError(reason)  # on_message drops from now on
+        self.failure = reason
+        self._drain_as_dropped()
+        self._recount()
+        if self.on_error is not None:
+            try:
+                self.on_error(reason)
+            except Exception as exc:  # the report must not kill the thread that keeps the counters right
+                print(f"dem_ros.bag: on_error callback failed: {exc!r}", file=sys.stderr)
+
+    def _recount(self) -> None:
+        """After a failure: written = what is in the file, dropped = the rest of what was received."""
+        in_file = self._writer.counts
+        for name, c in self._counters.items():
+            c.written = in_file.get(name, 0)
+            c.dropped = c.received - c.written
 
     def _drain_as_dropped(self) -> None:
         q = self._queue
@@ -183,8 +221,8 @@ class Recorder:
     def close(self) -> dict[str, TopicCounters]:
         """Drain the queue, finalize the bag, return the final counters. Idempotent.
 
-        Raises:
-            BagError: the writer thread failed (the bag is still finalized).
+        Never raises for a write failure: see :attr:`failure` (the bag is
+        finalised as far as the disk allows; counters are kept).
         """
         if not self._close_lock.acquire(blocking=False):
             return self.counters()  # re-entered (signal during close) or concurrent close
@@ -194,13 +232,19 @@ class Recorder:
                 self._stop.set()
                 self._thread.join()
                 self._drain_as_dropped()  # raced in after a writer failure
+                if self.failure is not None:
+                    self._recount()
                 counts = {k: asdict(v) for k, v in self._counters.items()}
                 self._writer.set_custom_data("dem_ros.recorder_counters", json.dumps(counts, sort_keys=True))
-                self._writer.close()
+                try:
+                    self._writer.close()
+                except BagError as exc:  # failed while finalising: reported like a failure while recording
+                    if self.failure is None:
+                        self.failure = str(exc)
+                        if self.on_error is not None:
+                            self.on_error(self.failure)
         finally:
             self._close_lock.release()
-        if self.error is not None:
-            raise BagError(f"bag writer for {self.path} failed: {self.error!r}") from self.error
         return self.counters()
 
     def __enter__(self) -> Recorder:

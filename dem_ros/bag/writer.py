@@ -17,6 +17,13 @@ Crash safety:
     * The run metadata goes into an MCAP Metadata record ``dem_ros`` at the
       start of the file, so it survives a kill too.
 
+Full disk (or any write error): the writer keeps a file allocated
+(``.NAME_0.mcap.reserve``) as large as what finalising the bag needs; a
+failed write is cut back to the last complete record, the chunk in progress
+is counted as lost (:attr:`BagWriter.lost`), writing stops (:attr:`BagWriter.failure`),
+and :meth:`BagWriter.close` frees the reserve and writes the summary and the
+final metadata.yaml (``dem_ros.status: failed``, ``dem_ros.failure``).
+
 Run metadata: ``metadata.yaml`` ``custom_data`` (string map, present since
 metadata version 6) carries ``dem_ros.run_info`` (JSON of the metadata dict)
 and ``dem_ros.version``; the same map is in the ``rosbag2`` Metadata record
@@ -25,6 +32,8 @@ and ``dem_ros.version``; the same map is in the ``rosbag2`` Metadata record
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import os
 import struct
@@ -45,6 +54,8 @@ __all__ = ["COMPRESSIONS", "BagWriter"]
 COMPRESSIONS = ("zstd", "lz4", "none")
 #: rosbag2_storage_mcap's default chunk size (mcap C++ McapWriterOptions: 768 KiB).
 DEFAULT_CHUNK_SIZE = 768 * 1024
+#: granularity of the space reserved for finalising a bag on a full disk (see BagWriter._ensure_reserve)
+RESERVE_STEP = 32 * 1024
 
 
 class _DirectStream:
@@ -68,6 +79,13 @@ class _DirectStream:
     def tell(self) -> int:
         return self.pos
 
+    def cut_partial(self) -> None:
+        """Drop what a failed ``write`` left after the last complete one (frees the space it took)."""
+        if self.fd >= 0:
+            with contextlib.suppress(OSError):  # if even this fails, the reader stops at the partial record
+                os.ftruncate(self.fd, self.pos)
+            os.lseek(self.fd, self.pos, os.SEEK_SET)  # ftruncate leaves the offset after the partial write
+
     def flush(self) -> None:
         pass
 
@@ -75,6 +93,8 @@ class _DirectStream:
         if self.fd >= 0:
             try:
                 os.fsync(self.fd)
+            except OSError:
+                pass  # nothing more can be done for the data; close anyway
             finally:
                 os.close(self.fd)
                 self.fd = -1
@@ -136,27 +156,29 @@ class _McapWriter:
         self._index: dict[int, list[int]] = {}
         self._c_min = 2**64 - 1
         self._c_max = 0
+        self._c_counts: dict[int, int] = {}  # channel id -> messages in the open chunk
         stream.write(MAGIC + _rec(0x01, _s("ros2") + _s(library)))
 
     def add_schema(self, name: str, encoding: str, data: bytes) -> int:
         sid = len(self.schemas) + 1
         rec = _rec(0x03, _U16.pack(sid) + _s(name) + _s(encoding) + _U32.pack(len(data)) + data)
-        self.schemas.append(rec)
         self.s.write(rec)
+        self.schemas.append(rec)
         return sid
 
     def add_channel(self, topic: str, encoding: str, schema_id: int, metadata: dict[str, str]) -> int:
         cid = len(self.channels) + 1
         rec = _rec(0x04, _U16.pack(cid) + _U16.pack(schema_id) + _s(topic) + _s(encoding) + _map(metadata))
+        self.s.write(rec)
         self.channels.append(rec)
         self.channel_counts[cid] = 0
-        self.s.write(rec)
         return cid
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         rec = _rec(0x0C, _s(name) + _map(data))
-        self.metadata_indexes.append(_rec(0x0D, _U64.pack(self.s.tell()) + _U64.pack(len(rec)) + _s(name)))
+        index = _rec(0x0D, _U64.pack(self.s.tell()) + _U64.pack(len(rec)) + _s(name))
         self.s.write(rec)
+        self.metadata_indexes.append(index)
 
     def add_message(self, cid: int, log_time: int, data: bytes, publish_time: int) -> bool:
         """Append to the current chunk; True if that completed and wrote a chunk."""
@@ -172,8 +194,7 @@ class _McapWriter:
             self._c_min = log_time
         if log_time > self._c_max:
             self._c_max = log_time
-        self.channel_counts[cid] += 1
-        self.n_messages += 1
+        self._c_counts[cid] = self._c_counts.get(cid, 0) + 1
         if len(buf) >= self.chunk_size:
             self.finish_chunk()
             return True
@@ -198,15 +219,32 @@ class _McapWriter:
             out.append(rec)
         idx_len = pos - chunk_off - len(chunk)
         off_map = b"".join(offsets)
+        self.s.write(b"".join(out))
+        # only now (the chunk is in the file) does it count: indexes, statistics
         self.chunk_indexes.append(_rec(0x08, struct.pack("<QQQQ", start, end, chunk_off, len(chunk))
                                        + _U32.pack(len(off_map)) + off_map + _U64.pack(idx_len)
                                        + _s(self.compression) + _U64.pack(len(comp)) + _U64.pack(len(raw))))
-        self.s.write(b"".join(out))
+        for cid, n in self._c_counts.items():
+            self.channel_counts[cid] += n
+            self.n_messages += n
         self.t_min = min(self.t_min, start)
         self.t_max = max(self.t_max, end)
+        self.discard_chunk()
+
+    def discard_chunk(self) -> dict[int, int]:
+        """Forget the open chunk (after a failed write); its message counts per channel id."""
+        lost = self._c_counts
         self._buf = bytearray()
         self._index = {}
+        self._c_counts = {}
         self._c_min, self._c_max = 2**64 - 1, 0
+        return lost
+
+    def closing_size(self) -> int:
+        """Bytes :meth:`finish` writes after the data (DataEnd, summary, offsets, footer), open chunk excluded."""
+        n = sum(map(len, self.schemas)) + sum(map(len, self.channels))
+        n += sum(map(len, self.chunk_indexes)) + sum(map(len, self.metadata_indexes))
+        return n + 13 + (9 + 50 + 10 * len(self.channel_counts)) + 5 * 26 + 37 + 8
 
     def finish(self) -> None:
         self.finish_chunk()
@@ -276,6 +314,12 @@ class BagWriter:
             self.run_metadata = json.loads(json.dumps(metadata)) if metadata is not None else None
         except (TypeError, ValueError) as exc:
             raise BagError(f"run metadata is not JSON-serializable: {exc}") from None
+        try:
+            self._open(metadata_refresh_s, flush_interval_s, compression, chunk_size)
+        except OSError as exc:
+            raise BagError(f"cannot create bag {self.path}: {exc.strerror or exc}") from None
+
+    def _open(self, metadata_refresh_s: float, flush_interval_s: float, compression: str, chunk_size: int) -> None:
         self.path.mkdir(parents=True, exist_ok=True)
         self.mcap_name = f"{self.path.name}_0.mcap"
         self.compression = compression
@@ -286,19 +330,56 @@ class BagWriter:
         if self.run_metadata is not None:
             self.custom_data["dem_ros.run_info"] = json.dumps(self.run_metadata, sort_keys=True)
 
+        self._reserve_path = self.path / f".{self.mcap_name}.reserve"
+        self._reserve_size = 0
+        self._meta_size = 4096  # size of the last metadata.yaml text, for the reserve
         self._stream = _DirectStream(self.path / self.mcap_name)
         self._mcap = _McapWriter(self._stream, compression, chunk_size, f"dem_ros-{__version__}")
         self._mcap.add_metadata("dem_ros", dict(self.custom_data))
         self._topics: dict[str, dict[str, Any]] = {}
         self._channel: dict[str, int] = {}
+        #: why writing stopped (an I/O error), or None
+        self.failure: str | None = None
+        #: per topic, messages accepted by write() that never reached the file (the chunk lost to a failure)
+        self.lost: dict[str, int] = {}
         self._schema: dict[str, int] = {}
-        self._start = 2**63 - 1
-        self._end = 0
-        self._count = 0
         self._chunk_open_since: float | None = None
         self._last_refresh = time.monotonic()
         self._closed = False
         self._write_metadata_yaml()
+        self._ensure_reserve()
+
+    # -- space reserve ---------------------------------------------------
+    def _ensure_reserve(self) -> None:
+        """Keep a file allocated that is large enough to finalise the bag (summary, final metadata.yaml).
+
+        When the disk fills, writing fails while this space is still ours;
+        :meth:`close` deletes the reserve first, so the bag is finalised with
+        its counters even on a full disk. Grows in steps of ``RESERVE_STEP``.
+        """
+        need = self._mcap.closing_size() + 3 * self._meta_size + RESERVE_STEP // 4
+        if need <= self._reserve_size:
+            return
+        size = -(-need // RESERVE_STEP) * RESERVE_STEP
+        fd = os.open(self._reserve_path, os.O_WRONLY | os.O_CREAT, 0o644)
+        try:
+            try:
+                os.posix_fallocate(fd, 0, size)
+            except OSError as exc:
+                if exc.errno not in (errno.EOPNOTSUPP, errno.EINVAL, errno.ENOSYS):
+                    raise
+                os.lseek(fd, self._reserve_size, os.SEEK_SET)  # no fallocate here: write zeros
+                zeros = bytes(size - self._reserve_size)
+                view = memoryview(zeros)
+                while view:
+                    view = view[os.write(fd, view):]
+        finally:
+            os.close(fd)
+        self._reserve_size = size
+
+    def _release_reserve(self) -> None:
+        self._reserve_path.unlink(missing_ok=True)
+        self._reserve_size = 0
 
     # -- topics ----------------------------------------------------------
     def add_topic(self, name: str, type_name: str, qos: QoS) -> None:
@@ -308,11 +389,18 @@ class BagWriter:
             if self._topics[name]["type"] != type_name:
                 raise BagError(f"topic {name!r} already added with type {self._topics[name]['type']!r}")
             return
+        try:
+            self._add_topic(name, type_name, qos)
+        except OSError as exc:
+            raise self._fail(exc) from None
+
+    def _add_topic(self, name: str, type_name: str, qos: QoS) -> None:
         text = _rosfmt.msgdef(type_name)
         rihs = _rosfmt.type_hash(type_name)
         if type_name not in self._schema:
             self._schema[type_name] = self._mcap.add_schema(type_name, "ros2msg", text.encode())
         qos_string = _rosfmt.qos_to_v8_string(qos)
+        self._ensure_reserve()
         self._channel[name] = self._mcap.add_channel(
             name, "cdr", self._schema[type_name],
             {"offered_qos_profiles": qos_string, "topic_type_hash": rihs},
@@ -342,73 +430,128 @@ class BagWriter:
         except KeyError:
             self._check_open()
             raise BagError(f"topic {topic!r} was not added to {self.path}") from None
-        if self._closed:
+        if self._closed or self.failure is not None:
             self._check_open()
+            raise BagError(f"{self.path}: recording stopped: {self.failure}")
         t = int(log_time_ns)
-        chunk_written = self._mcap.add_message(cid, t, cdr_bytes, t if publish_time_ns is None else int(publish_time_ns))
-        self._topics[topic]["count"] += 1
-        self._count += 1
-        if t < self._start:
-            self._start = t
-        if t > self._end:
-            self._end = t
-        now = time.monotonic()
-        if chunk_written:
-            self._chunk_open_since = None
-            self._after_chunk(now)
-        elif self._chunk_open_since is None:
-            self._chunk_open_since = now
-        elif now - self._chunk_open_since > self.flush_interval_s:
-            self.flush()
+        try:
+            chunk_written = self._mcap.add_message(cid, t, cdr_bytes,
+                                                   t if publish_time_ns is None else int(publish_time_ns))
+            now = time.monotonic()
+            if chunk_written:
+                self._chunk_open_since = None
+                self._after_chunk(now)
+            elif self._chunk_open_since is None:
+                self._chunk_open_since = now
+            elif now - self._chunk_open_since > self.flush_interval_s:
+                self._flush()
+        except OSError as exc:
+            raise self._fail(exc) from None
 
     def flush(self) -> None:
         """Write the chunk in progress now (smaller chunks compress less well)."""
         self._check_open()
+        try:
+            self._flush()
+        except OSError as exc:
+            raise self._fail(exc) from None
+
+    def _flush(self) -> None:
         self._mcap.finish_chunk()
         self._chunk_open_since = None
         self._after_chunk(time.monotonic())
 
+    def _fail(self, exc: OSError) -> BagError:
+        """Stop writing after an I/O error (disk full, ...): forget the chunk in progress, cut the partial write.
+
+        The file stays readable up to its last complete record; :attr:`lost`
+        counts per topic the messages of the chunk that never reached it.
+        """
+        lost = self._mcap.discard_chunk()
+        self._stream.cut_partial()
+        topic_of = {cid: name for name, cid in self._channel.items()}
+        for cid, n in lost.items():
+            self.lost[topic_of[cid]] = self.lost.get(topic_of[cid], 0) + n
+        if self.failure is None:
+            self.failure = (f"write failed ({exc.strerror or exc}) after {self._mcap.n_messages} messages; "
+                            f"{sum(lost.values())} in the unwritten chunk lost")
+        return BagError(f"{self.path}: {self.failure}")
+
     def _after_chunk(self, now: float) -> None:
+        self._ensure_reserve()
         if now - self._last_refresh >= self.metadata_refresh_s:
             self._last_refresh = now
             self._write_metadata_yaml()
 
     @property
     def counts(self) -> dict[str, int]:
-        """Messages written per topic."""
-        return {k: int(v["count"]) for k, v in self._topics.items()}
+        """Messages in the file per topic (chunks written; the chunk in progress is not counted)."""
+        return {k: self._mcap.channel_counts[self._channel[k]] for k in self._topics}
 
     # -- closing ---------------------------------------------------------
     def _info(self) -> dict[str, Any]:
+        m = self._mcap  # what is in the file: chunks written, not the one in progress
+        topics = [dict(v, count=m.channel_counts[self._channel[k]]) for k, v in self._topics.items()]
         return _rosfmt.metadata_dict(
-            relative_file=self.mcap_name, topics=list(self._topics.values()),
-            start_ns=self._start, end_ns=self._end, custom_data=self.custom_data,
+            relative_file=self.mcap_name, topics=topics,
+            start_ns=m.t_min if m.n_messages else 0, end_ns=m.t_max if m.n_messages else 0,
+            custom_data=self.custom_data,
         )
 
     def _write_metadata_yaml(self) -> None:
         text = _rosfmt.dump_metadata_yaml(self._info())
+        self._meta_size = len(text.encode())
         tmp = self.path / "metadata.yaml.tmp"
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, self.path / "metadata.yaml")
+        try:
+            tmp.write_text(text, encoding="utf-8")
+            os.replace(tmp, self.path / "metadata.yaml")
+        except OSError:
+            tmp.unlink(missing_ok=True)  # the previous metadata.yaml stays
+            raise
 
     def close(self) -> None:
-        """Finish the MCAP (last chunk, summary, statistics) and write metadata.yaml.
+        """Finish the MCAP (last chunk, summary, statistics) and write metadata.yaml. Idempotent.
 
-        Idempotent.
+        After a write failure (:attr:`failure`), close still finalises what is
+        in the file: summary and metadata.yaml (``dem_ros.status: failed``,
+        ``dem_ros.failure``) where the disk takes them, else the file is left
+        readable up to its last complete chunk.
+
+        Raises:
+            BagError: the failure happened here, in close (a failure of
+                :meth:`write` was raised there).
         """
         if self._closed:
             return
         self._closed = True
-        self.custom_data["dem_ros.status"] = "complete"
-        self.custom_data["dem_ros.mcap_compression"] = self.compression
+        failed_before = self.failure is not None
+        cd = self.custom_data
+        cd["dem_ros.mcap_compression"] = self.compression
+        self._release_reserve()  # the space set aside for this
         try:
+            self._mcap.finish_chunk()  # counted in the metadata below
+            self._mark_status()
             self._mcap.add_metadata(
                 "rosbag2", {"serialized_metadata": _rosfmt.dump_metadata_yaml(self._info(), wrap=False)}
             )
             self._mcap.finish()
+        except OSError as exc:
+            self._fail(exc)
+            self._mark_status()
         finally:
             self._stream.close()
-        self._write_metadata_yaml()
+        try:
+            self._write_metadata_yaml()
+        except OSError as exc:
+            if self.failure is None:
+                self.failure = f"metadata.yaml not written ({exc.strerror or exc})"
+        if self.failure is not None and not failed_before:
+            raise BagError(f"{self.path}: {self.failure}")
+
+    def _mark_status(self) -> None:
+        self.custom_data["dem_ros.status"] = "failed" if self.failure is not None else "complete"
+        if self.failure is not None:
+            self.custom_data["dem_ros.failure"] = self.failure
 
     @property
     def closed(self) -> bool:

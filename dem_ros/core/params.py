@@ -21,6 +21,7 @@ and what is allowed.
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from collections.abc import Callable, Mapping
@@ -214,6 +215,30 @@ def _check_bounds(v: Mapping[str, Any]) -> str | None:
             return f"{sym}_min = {lo:g} must be below {sym}_max = {hi:g}"
         if not lo <= init <= hi:
             return f"{sym}_init = {init:g} lies outside [{sym}_min, {sym}_max] = [{lo:g}, {hi:g}]"
+    return None
+
+
+def _check_controller_safety(v: Mapping[str, Any]) -> str | None:
+    """Settings that would drop the plate however the rest is tuned.
+
+    ``voltage_limit``: holding the nominal module at a gap delta takes, on the
+    more loaded magnet, F_j = (W + (L/l)|N1 - N2|)/2 with W = m g + N1 + N2
+    (force and moment balance about O), i_j = delta sqrt(F_j/K) (F = K i^2/delta^2)
+    and u_j = R i_j. Below that voltage at ``gap_floor`` - the smallest gap the
+    law acts on - no gap can be held.
+
+    ``max_age``: 0 turns the check off; a positive value shorter than one
+    control period ``dt`` rejects measurements that arrive on time.
+    """
+    w = v["m_nominal"] * v["g"] + v["N1"] + v["N2"]
+    f = 0.5 * (w + v["L"] / v["l"] * abs(v["N1"] - v["N2"]))
+    u_min = v["R_nominal"] * v["gap_floor"] * math.sqrt(f / v["K_nominal"])
+    if v["voltage_limit"] < u_min:
+        return (f"voltage_limit = {v['voltage_limit']:g} V cannot hold the module at any gap: the hover voltage "
+                f"of the nominal model is {u_min:.3g} V already at gap_floor = {v['gap_floor']:g} m")
+    if 0.0 < v["max_age"] < v["dt"]:
+        return (f"max_age = {v['max_age']:g} s is shorter than one control period (dt = {v['dt']:g} s): every "
+                "measurement would be too old; use 0 (no check) or at least dt")
     return None
 
 
@@ -447,7 +472,7 @@ SCHEMA = Schema(
         "plant_sim": (_check_plant, _check_safety),
         "reference": (_check_reference,),
         "estimator": (_check_geometry,),
-        "controller": (_check_geometry, _check_hurwitz, _check_bounds),
+        "controller": (_check_geometry, _check_hurwitz, _check_bounds, _check_controller_safety),
         "hw_driver": (_check_safety,),
     },
 )
@@ -459,18 +484,54 @@ def default_config() -> dict[str, dict[str, Any]]:
 
 
 def read_yaml(path: str | Path) -> Any:
-    """Parse a YAML file; ConfigError naming the file when it cannot be read or parsed."""
+    """Parse a YAML file; ConfigError naming the file when it cannot be read or parsed.
+
+    Also refused: text that is not UTF-8 (a binary file) and a key repeated in
+    one mapping (YAML would silently keep the last one).
+    """
     path = Path(path)
     import yaml
 
     try:
-        text = path.read_text()
+        raw = path.read_bytes()
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
     try:
-        return yaml.safe_load(text)
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not UTF-8 text (byte {exc.start}: {raw[exc.start]:#04x}); a binary file?") from None
+    try:
+        return yaml.load(text, Loader=_unique_key_loader())  # a SafeLoader subclass
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+        raise ConfigError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+    except (ValueError, TypeError, RecursionError) as exc:  # e.g. a malformed !!timestamp, unhashable key
+        raise ConfigError(f"{path}: not valid YAML ({type(exc).__name__}: {exc})") from None
+
+
+@functools.cache
+def _unique_key_loader() -> type:
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        """SafeLoader that refuses a key repeated in one mapping (the second would win silently)."""
+
+        def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+            if isinstance(node, yaml.MappingNode):
+                seen: dict[Any, Any] = {}
+                for key_node, _ in node.value:
+                    key = self.construct_object(key_node, deep=True)
+                    try:
+                        first = seen.setdefault(key, key_node)
+                    except TypeError:
+                        continue  # unhashable: the base class reports it
+                    if first is not key_node:
+                        raise yaml.constructor.ConstructorError(
+                            "while constructing a mapping", node.start_mark,
+                            f"found duplicate key {key!r} (first at line {first.start_mark.line + 1})",
+                            key_node.start_mark)
+            return super().construct_mapping(node, deep=deep)
+
+    return Loader
 
 
 def _flatten(prefix: str, tree: Mapping[str, Any]) -> dict[str, Any]:
@@ -501,6 +562,9 @@ def params_from_tree(tree: Any, source: str) -> dict[str, dict[str, Any]]:
     for node_key, body in tree.items():
         if not isinstance(body, Mapping) or "ros__parameters" not in body:
             raise ConfigError(f"{source}: entry {node_key!r} has no 'ros__parameters' mapping")
+        extra = [k for k in body if k != "ros__parameters"]
+        if extra:
+            raise ConfigError(f"{source}: {node_key}: unknown key {extra[0]!r} beside 'ros__parameters'")
         params = body["ros__parameters"]
         if not isinstance(params, Mapping):
             raise ConfigError(f"{source}: {node_key}.ros__parameters must be a mapping")
@@ -511,7 +575,14 @@ def params_from_tree(tree: Any, source: str) -> dict[str, dict[str, Any]]:
             continue
         if name not in SCHEMA.groups:
             raise ConfigError(f"{source}: unknown node {node_key!r}; known: {', '.join(SCHEMA.groups)}")
+        for k in flat:
+            if k not in {p.name for p in SCHEMA.groups[name]}:
+                raise ConfigError(f"{source}: {node_key}: unknown parameter {k!r}; {name} declares: "
+                                  + ", ".join(p.name for p in SCHEMA.groups[name]))
         out.setdefault(name, {}).update(flat)
+    for k in wildcard:  # a wildcard name no node declares is a typo, not "for some other node"
+        if not any(k == p.name for specs in SCHEMA.groups.values() for p in specs):
+            raise ConfigError(f"{source}: /**: unknown parameter {k!r}; no node declares it")
     for group in SCHEMA.groups:
         known = {p.name for p in SCHEMA.groups[group]}
         for k, v in wildcard.items():

@@ -23,6 +23,7 @@ from .. import __version__, contract
 from ..bag import Recorder
 from ..realtime import ENV as RT_ENV
 from ..transport import Node, run_node, serialize
+from .common import diag_array
 
 __all__ = ["RecorderNode", "main", "parse_recorder_args"]
 
@@ -43,8 +44,14 @@ class RecorderNode:
         # a deeper reader history than the contract's: a recorder stalled for a while (a busy host)
         # must not lose a burst of samples that its history would otherwise overwrite
         deep = [replace(t, qos=replace(t.qos, depth=max(t.qos.depth, RECORDER_DEPTH))) for t in topics]
+        # a write failure (disk full) stops recording: logged at once from the writer thread,
+        # published on /diagnostics (ERROR) by a timer on the node's own thread within 0.1 s, then every 1 s
+        self._failure: str | None = None
+        self._failure_sent_ns = 0
+        self._pub_diag = node.publisher(contract.DIAGNOSTICS)
+        node.timer(0.1, self._report_failure)
         # the controller's state is the last message of a loop cycle: write while the loop sleeps
-        self.rec = Recorder(bag, topics, meta, kick_on=contract.CONTROLLER_STATE.name)
+        self.rec = Recorder(bag, topics, meta, kick_on=contract.CONTROLLER_STATE.name, on_error=self._on_error)
         now = node.now_ns
         if node.intra_process:
             # sharing the process with the loop: take the message objects (no copy) and let the
@@ -63,12 +70,32 @@ class RecorderNode:
         node.logger.info(f"recording {len(topics)} topics to {bag}")
         node.logger.info("ready")
 
+    def _on_error(self, reason: str) -> None:  # writer thread: log only, publishing is the node thread's
+        self._failure = reason
+        self.node.logger.error(f"recording stopped: {reason}")
+
+    def _report_failure(self) -> None:
+        if self._failure is None:
+            return
+        now = self.node.now_ns()
+        if self._failure_sent_ns and now - self._failure_sent_ns < 1_000_000_000:
+            return
+        self._failure_sent_ns = now
+        n = self.node.msg
+        counts = self.rec.counters()
+        values = {"written": sum(c.written for c in counts.values()), "dropped": sum(c.dropped for c in counts.values())}
+        self._pub_diag.publish(diag_array(n("diagnostic_msgs/msg/DiagnosticArray"), n("diagnostic_msgs/msg/DiagnosticStatus"),
+                                          n("diagnostic_msgs/msg/KeyValue"), now, "recorder", 2,
+                                          f"recording stopped: {self._failure}", values))
+
     def close(self) -> dict:
         """Finalise the bag; per-topic counters, also printed as a ``RECORDER {json}`` line."""
         counters = self.rec.close()
         summary = {name: {"received": c.received, "written": c.written, "dropped": c.dropped}
                    for name, c in counters.items()}
         print("RECORDER " + json.dumps(summary), flush=True)
+        if self.rec.failure is not None:
+            print(f"RECORDER_FAILED {self.rec.failure}", flush=True)
         return summary
 
 

@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -22,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from .. import contract
+from .common import write_json
 from .runmetrics import RunMetrics, load_run
 
 __all__ = ["analyse", "cmd_bag", "cmd_replay", "what_if"]
@@ -209,7 +209,7 @@ def cmd_replay(args) -> int:
         print(f"  {res['samples']} samples; max |u_replayed - u_recorded| = {res['max_abs_diff_v']:.3e} V,"
               f" RMS {res['rms_diff_v']:.3e} V: {verdict}")
         if args.json:
-            Path(args.json).write_text(json.dumps({k: v for k, v in res.items() if k not in ("t", "u_replayed", "u_recorded")}, indent=2) + "\n")
+            write_json(args.json, {k: v for k, v in res.items() if k not in ("t", "u_replayed", "u_recorded")})
         if args.plot:
             from .plots import figure, save
 
@@ -228,7 +228,7 @@ def cmd_replay(args) -> int:
     print(f"replay of {bag}:")
     m.print()
     if args.json:
-        Path(args.json).write_text(json.dumps(m.to_dict(), indent=2) + "\n")
+        write_json(args.json, m.to_dict())
         print(f"  metrics written to {args.json}")
     if args.plot:
         files = plot_replay(series, Path(args.plot), f"{m.scenario} / {m.controller}")
@@ -243,6 +243,32 @@ def cmd_bag(args) -> int:
         from ..bag import main_check
 
         return main_check([args.bag])
-    rep = check(Path(args.bag))
-    print(rep.format())
+    print(_bag_info(check(Path(args.bag))))
     return 0
+
+
+def _bag_info(rep: Any) -> str:
+    """``dem-ros bag info``: what is in the bag, as ``ros2 bag info`` shows it, plus the run it recorded.
+
+    ``dem-ros bag check`` is the integrity report (summary, chunks, gaps, rates, problems);
+    this is the short inventory.
+    """
+    path = Path(rep.path)
+    files = [path / f for f in rep.files] if path.is_dir() else [path]
+    size = sum(f.stat().st_size for f in files if f.exists())
+    lines = [f"Files:             {', '.join(rep.files) or '-'}", f"Bag size:          {size / 1e6:.1f} MB",
+             "Storage id:        mcap"]
+    if rep.start_ns is not None and rep.end_ns is not None:
+        lines.append(f"Duration:          {(rep.end_ns - rep.start_ns) / 1e9:.3f} s")
+    lines.append(f"Messages:          {rep.message_count}")
+    run = rep.run_metadata or {}
+    if run:
+        what = ", ".join(f"{k} {run[k]}" for k in ("scenario", "controller", "estimator", "transport", "duration_s")
+                         if k in run)
+        lines.append(f"Run:               {what}")
+    w = max([len(t.name) for t in rep.topics] + [5])
+    lines.append("Topic information:")
+    lines += [f"  {t.name:<{w}}  {t.type:<38} {t.count:>9} msgs" for t in rep.topics]
+    if not rep.ok:
+        lines.append(f"({len(rep.problems)} problem(s): see dem-ros bag check)")
+    return "\n".join(lines)

@@ -191,6 +191,8 @@ class RclpyNode:
         self._params = ParameterStore(group, values, on_change)
         # registered after declaring: rclpy runs on-set callbacks on declaration too
         self._node.add_on_set_parameters_callback(self._on_set)
+        if hasattr(self._node, "add_pre_set_parameters_callback"):  # rclpy >= Iron (Jazzy): before the type check
+            self._node.add_pre_set_parameters_callback(self._integers_as_doubles)
         return dict(values)
 
     @property
@@ -203,6 +205,23 @@ class RclpyNode:
 
         result = self._node.set_parameters_atomically([Parameter(k, value=v) for k, v in changes.items()])
         return None if result.successful else str(result.reason)
+
+    def _integers_as_doubles(self, params: list[Any]) -> list[Any]:
+        """``ros2 param set /controller w 60`` sends an INTEGER: a double parameter takes it as 60.0.
+
+        rclpy would reject it ("expected DOUBLE got INTEGER") before our on-set callback runs;
+        the DDS transport accepts it the same way (the schema coerces int -> float).
+        """
+        from rclpy.parameter import Parameter
+
+        store = self._params
+        out = []
+        for p in params:
+            spec = store.specs.get(p.name) if store is not None else None
+            if spec is not None and spec.type is float and p.type_ == Parameter.Type.INTEGER:
+                p = Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+            out.append(p)
+        return out
 
     def _on_set(self, params: list[Any]) -> SetParametersResult:
         store = self._params

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, float64, int32, int64, sequence, uint8, uint32, uint64
+from cyclonedds.idl.types import array, bounded_str, float64, int32, int64, sequence, uint8, uint32, uint64
 
 __all__ = [
     "MESSAGES",
@@ -34,6 +34,29 @@ __all__ = [
 ]
 
 
+def _deserialize(cls: type, data: bytes, has_header: bool = True, use_version_2: bool | None = None) -> Any:
+    from .fastcdr import CdrError, decode  # fastcdr imports this module
+
+    if use_version_2:
+        raise CdrError(f"{cls.__name__}: XCDR2 is not used by ROS 2 endpoints")
+    return decode(cls, data, has_header=has_header)
+
+
+def _strict(cls: type) -> type:
+    """Class decorator: ``cls.deserialize(data)`` is :func:`.fastcdr.decode` - a message or a ``CdrError``.
+
+    cyclonedds-python's own deserializer raises whatever the bytes provoke
+    (``struct.error``, ``IndexError``, ``UnicodeDecodeError``, ...), accepts
+    some invalid input (bool bytes other than 0/1) and loops for minutes on
+    some (a sequence count of ~4e9 structs); every decode of received bytes -
+    the nodes' readers, the service servers and clients, typed cyclonedds
+    readers - goes through this method. (A decorator, not a base class:
+    cyclonedds' type-object builder walks the bases of a topic type.)
+    """
+    cls.deserialize = classmethod(_deserialize)  # type: ignore[attr-defined]
+    return cls
+
+
 def dds_type_name(ros_type: str) -> str:
     """``sensor_msgs/msg/JointState`` -> ``sensor_msgs::msg::dds_::JointState_``."""
     pkg, kind, name = ros_type.split("/")
@@ -41,30 +64,28 @@ def dds_type_name(ros_type: str) -> str:
 
 
 # --------------------------------------------------------------------------- std / builtin
+@_strict
 @dataclass
 class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
     sec: int32 = 0
     nanosec: uint32 = 0
 
 
+@_strict
 @dataclass
-
-
 class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
     stamp: Time = field(default_factory=Time)
     frame_id: str = ""
 
 
+@_strict
 @dataclass
-
-
 class String(IdlStruct, typename="std_msgs::msg::dds_::String_"):
     data: str = ""
 
 
+@_strict
 @dataclass
-
-
 class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
     header: Header = field(default_factory=Header)
     name: sequence[str] = field(default_factory=list)
@@ -74,15 +95,15 @@ class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
 
 
 # --------------------------------------------------------------------------- diagnostics
+@_strict
 @dataclass
 class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
     key: str = ""
     value: str = ""
 
 
+@_strict
 @dataclass
-
-
 class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
     level: uint8 = 0
     name: str = ""
@@ -97,15 +118,15 @@ DiagnosticStatus.ERROR = 2  # type: ignore[attr-defined]
 DiagnosticStatus.STALE = 3  # type: ignore[attr-defined]
 
 
+@_strict
 @dataclass
-
-
 class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
     header: Header = field(default_factory=Header)
     status: sequence[DiagnosticStatus] = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------- rcl_interfaces
+@_strict
 @dataclass
 class ParameterValue(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterValue_"):
     type: uint8 = 0
@@ -120,17 +141,15 @@ class ParameterValue(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterVa
     string_array_value: sequence[str] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-
-
 class Parameter(IdlStruct, typename="rcl_interfaces::msg::dds_::Parameter_"):
     name: str = ""
     value: ParameterValue = field(default_factory=ParameterValue)
 
 
+@_strict
 @dataclass
-
-
 class ParameterEvent(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterEvent_"):
     stamp: Time = field(default_factory=Time)
     node: str = ""
@@ -139,27 +158,24 @@ class ParameterEvent(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterEv
     deleted_parameters: sequence[Parameter] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-
-
 class FloatingPointRange(IdlStruct, typename="rcl_interfaces::msg::dds_::FloatingPointRange_"):
     from_value: float64 = 0.0
     to_value: float64 = 0.0
     step: float64 = 0.0
 
 
+@_strict
 @dataclass
-
-
 class IntegerRange(IdlStruct, typename="rcl_interfaces::msg::dds_::IntegerRange_"):
     from_value: int64 = 0
     to_value: int64 = 0
     step: uint64 = 0
 
 
+@_strict
 @dataclass
-
-
 class ParameterDescriptor(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterDescriptor_"):
     name: str = ""
     type: uint8 = 0
@@ -171,25 +187,22 @@ class ParameterDescriptor(IdlStruct, typename="rcl_interfaces::msg::dds_::Parame
     integer_range: sequence[IntegerRange, 1] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-
-
 class SetParametersResult(IdlStruct, typename="rcl_interfaces::msg::dds_::SetParametersResult_"):
     successful: bool = False
     reason: str = ""
 
 
+@_strict
 @dataclass
-
-
 class ListParametersResult(IdlStruct, typename="rcl_interfaces::msg::dds_::ListParametersResult_"):
     names: sequence[str] = field(default_factory=list)
     prefixes: sequence[str] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-
-
 class Log(IdlStruct, typename="rcl_interfaces::msg::dds_::Log_"):
     stamp: Time = field(default_factory=Time)
     level: uint8 = 0
@@ -202,6 +215,7 @@ class Log(IdlStruct, typename="rcl_interfaces::msg::dds_::Log_"):
 
 # --------------------------------------------------------------------------- parameter services
 # Every request/reply starts with rmw_cyclonedds' header (guid, seq).
+@_strict
 @dataclass
 class GetParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameters_Request_"):
     guid: uint64 = 0
@@ -209,36 +223,32 @@ class GetParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::GetP
     names: sequence[str] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-
-
 class GetParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameters_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
     values: sequence[ParameterValue] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-
-
 class SetParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParameters_Request_"):
     guid: uint64 = 0
     seq: int64 = 0
     parameters: sequence[Parameter] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-
-
 class SetParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParameters_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
     results: sequence[SetParametersResult] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-
-
 class SetParametersAtomically_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Request_"
 ):
     guid: uint64 = 0
@@ -246,9 +256,8 @@ class SetParametersAtomically_Request(IdlStruct, typename="rcl_interfaces::srv::
     parameters: sequence[Parameter] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-
-
 class SetParametersAtomically_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Response_"
 ):
     guid: uint64 = 0
@@ -256,9 +265,8 @@ class SetParametersAtomically_Response(IdlStruct, typename="rcl_interfaces::srv:
     result: SetParametersResult = field(default_factory=SetParametersResult)
 
 
+@_strict
 @dataclass
-
-
 class ListParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::ListParameters_Request_"):
     guid: uint64 = 0
     seq: int64 = 0
@@ -266,45 +274,40 @@ class ListParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::Lis
     depth: uint64 = 0
 
 
+@_strict
 @dataclass
-
-
 class ListParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::ListParameters_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
     result: ListParametersResult = field(default_factory=ListParametersResult)
 
 
+@_strict
 @dataclass
-
-
 class DescribeParameters_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::DescribeParameters_Request_"):
     guid: uint64 = 0
     seq: int64 = 0
     names: sequence[str] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-
-
 class DescribeParameters_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::DescribeParameters_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
     descriptors: sequence[ParameterDescriptor] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-
-
 class GetParameterTypes_Request(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameterTypes_Request_"):
     guid: uint64 = 0
     seq: int64 = 0
     names: sequence[str] = field(default_factory=list)
 
 
+@_strict
 @dataclass
-
-
 class GetParameterTypes_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameterTypes_Response_"):
     guid: uint64 = 0
     seq: int64 = 0
@@ -315,20 +318,21 @@ class GetParameterTypes_Response(IdlStruct, typename="rcl_interfaces::srv::dds_:
 # The Gid is 24 bytes on Humble and 16 from Iron on, under the same type name:
 # build one set per size, pick with gid_types(size).
 def _make_gid_types(size: int) -> dict[str, type[Any]]:
+    @_strict
     @dataclass
     class Gid(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
         data: array[uint8, size] = field(default_factory=lambda: [0] * size)  # type: ignore[valid-type]
 
+    @_strict
     @dataclass
-
     class NodeEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
-        node_namespace: str = ""
-        node_name: str = ""
+        node_namespace: bounded_str[256] = ""  # string<=256 in rmw_dds_common
+        node_name: bounded_str[256] = ""
         reader_gid_seq: sequence[Gid] = field(default_factory=list)
         writer_gid_seq: sequence[Gid] = field(default_factory=list)
 
+    @_strict
     @dataclass
-
     class ParticipantEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"):
         gid: Gid = field(default_factory=Gid)
         node_entities_info_seq: sequence[NodeEntitiesInfo] = field(default_factory=list)

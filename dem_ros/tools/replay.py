@@ -122,7 +122,7 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     st = _arrays(r, contract.CONTROLLER_STATE.name)
     if est is None or ref is None or cmd is None:
         raise BagError(f"{bag}: needs /dem/state_estimate, /dem/reference and /dem/command for a what-if replay")
-    dt_ns = int(round(ccfg["dt"] * 1e9))
+    dt_ns = round(ccfg["dt"] * 1e9)
     ref_by = {int(s): i for i, s in enumerate(ref["stamp_ns"])}
     cmd_by = {int(s): i for i, s in enumerate(cmd["stamp_ns"])}
     lag_by = {}
@@ -130,7 +130,7 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
         names = list(st["name"])
         if "ref_lag" in names:
             col = names.index("ref_lag")
-            lag_by = {int(s): v for s, v in zip(st["stamp_ns"], st["position"][:, col])}
+            lag_by = {int(s): v for s, v in zip(st["stamp_ns"], st["position"][:, col], strict=True)}
     ctrl = make_controller(ccfg, name)
     started = False
     u_new, u_old, stamps = [], [], []
@@ -158,14 +158,13 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
         stamps.append(t)
     if not stamps:
         raise BagError(f"{bag}: no sample on which the controller acted")
-    u_new = np.array(u_new)
-    u_old = np.array(u_old)
-    d = np.abs(u_new - u_old)
+    new, old = np.array(u_new), np.array(u_old)
+    d = np.abs(new - old)
     return {
         "law": name, "recorded_law": recorded_law, "changes": sets or [], "samples": len(stamps),
         "max_abs_diff_v": float(d.max()), "rms_diff_v": float(np.sqrt(np.mean(d**2))),
-        "reproduces_recording": bool(d.max() <= 1e-9 * max(1.0, float(np.abs(u_old).max()))),
-        "t": ((np.array(stamps) - stamps[0]) * 1e-9).tolist(), "u_replayed": u_new.tolist(), "u_recorded": u_old.tolist(),
+        "reproduces_recording": bool(d.max() <= 1e-9 * max(1.0, float(np.abs(old).max()))),
+        "t": ((np.array(stamps) - stamps[0]) * 1e-9).tolist(), "u_replayed": new.tolist(), "u_recorded": old.tolist(),
     }
 
 
@@ -190,7 +189,7 @@ def publish(bag: Path, rate: float = 1.0) -> dict:
             now = time.monotonic_ns()
             if due > now:
                 time.sleep((due - now) * 1e-9)
-            pubs[topic].publish_raw(data)
+            pubs[topic].publish_raw(bytes(data))
             sent += 1
     finally:
         node.shutdown()

@@ -119,7 +119,7 @@ class RclpyNode:
 
     @property
     def fully_qualified_name(self) -> str:
-        return self._node.get_fully_qualified_name()
+        return str(self._node.get_fully_qualified_name())
 
     @property
     def ros_node(self) -> Any:
@@ -139,7 +139,7 @@ class RclpyNode:
     def publisher(self, topic: Topic) -> RclpyPublisher:
         return RclpyPublisher(self._node.create_publisher(get_message(topic.type), topic.name, to_qos_profile(topic.qos)))
 
-    def subscribe(self, topic: Topic, callback: Callable[[Any], None]) -> None:
+    def subscribe(self, topic: Topic, callback: Callable[[Any], object]) -> None:
         self._node.create_subscription(get_message(topic.type), topic.name,
                                        self._guard.wrap(f"subscription {topic.name}", callback),
                                        to_qos_profile(topic.qos))
@@ -151,7 +151,7 @@ class RclpyNode:
             to_qos_profile(topic.qos), raw=True
         )
 
-    def timer(self, period_s: float, callback: Callable[[], None]) -> Any:
+    def timer(self, period_s: float, callback: Callable[[], object]) -> Any:
         return self._node.create_timer(period_s, self._guard.wrap(f"timer {period_s:g} s", callback))
 
     def service(self, name: str, srv_type: str, callback: ServiceCallback) -> None:
@@ -177,7 +177,8 @@ class RclpyNode:
         return int(self._node.get_clock().now().nanoseconds)
 
     def msg(self, type_name: str) -> type:
-        return get_message(type_name)
+        cls: type = get_message(type_name)
+        return cls
 
     # -- parameters ------------------------------------------------------------------
     def declare_parameters(self, group: str, on_change: OnChange | None = None) -> dict[str, Any]:
@@ -203,7 +204,7 @@ class RclpyNode:
         from rclpy.parameter import Parameter
 
         result = self._node.set_parameters_atomically([Parameter(k, value=v) for k, v in changes.items()])
-        return None if result.successful else result.reason
+        return None if result.successful else str(result.reason)
 
     def _integers_as_doubles(self, params: list[Any]) -> list[Any]:
         """``ros2 param set /controller w 60`` sends an INTEGER: a double parameter takes it as 60.0.
@@ -261,7 +262,7 @@ class RclpyNode:
                     rclpy.shutdown()
             except Exception:
                 pass
-        self._node = None  # type: ignore[assignment]
+        self._node = None
 
     @property
     def is_shutdown(self) -> bool:

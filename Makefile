@@ -11,6 +11,8 @@ $(STAMP): setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'
+	@# compile the numba kernels once, here, with progress (demo, test and the nodes then load the cache)
+	$(PY) -c "from dem_ros.tools.common import warm_kernels; warm_kernels('make')"
 	touch $(STAMP)
 
 demo: $(STAMP)

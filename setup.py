@@ -50,14 +50,19 @@ setup(
         "matplotlib>=3.7",
         "cyclonedds>=0.10.5",
         "rosbags>=0.10",
-        "mcap>=1.1",
+        # the chunk compressions of rosbag2 MCAP files (written and read by dem_ros.bag)
+        "zstandard>=0.21",
+        "lz4>=4",
+        "dask[distributed]>=2024.1",
+        "pyserial>=3.4",  # the device link over serial lines (dem_ros/hardware/channel.py)
     ],
-    extras_require={"test": ["pytest>=7", "sympy>=1.12", "control>=0.10"]},
+    # mcap: an independent MCAP reader/writer the bag tests check our files against;
+    # ruff and mypy: tests/tools/test_lint.py runs them
+    extras_require={"test": ["pytest>=7", "sympy>=1.12", "mcap>=1.1", "ruff>=0.5", "mypy>=1.10"]},
     zip_safe=True,
     maintainer="dem_ros maintainers",
     maintainer_email="dem-ros@example.com",
     description="Adaptive control of a double-electromagnet maglev suspension as a ROS 2 package.",
     license="Apache-2.0",
-    tests_require=["pytest"],
     entry_points={"console_scripts": scripts},
 )

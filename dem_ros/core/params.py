@@ -24,7 +24,7 @@ from __future__ import annotations
 import functools
 import math
 import re
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -637,8 +637,3 @@ def parse_assignment(text: str, default_group: str = "controller") -> tuple[str,
     spec = SCHEMA.spec(group, name)
     return group, name, spec.coerce(value, f"{group}.{name}")
 
-
-def iter_specs() -> Iterable[tuple[str, ParamSpec]]:
-    for g, specs in SCHEMA.groups.items():
-        for p in specs:
-            yield g, p

@@ -3,10 +3,15 @@
 numba compiles on the first call (seconds) or loads its on-disk cache (about a
 second); either would make the first samples of a run stale. Nodes call
 :func:`warm_up` before they subscribe, so the plant starts the clock only once
-every kernel is resident.
+every kernel is resident. ``dem-ros launch`` and ``dem-ros sim`` call it first in
+their own process with ``progress`` (a callback given the name of what is being
+compiled), so a first run compiles once, visibly, and the nodes then load the cache.
 """
 
 from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
 
 import numpy as np
 
@@ -15,23 +20,42 @@ from .params import default_config
 __all__ = ["warm_up"]
 
 
-def warm_up() -> None:
+def warm_up(progress: Callable[[str], None] | None = None) -> None:
+    """Call every kernel once (compiling it, or loading it from numba's cache).
+
+    Args:
+        progress: called with the name of each part before it is warmed (e.g. ``"controller adaptive"``).
+    """
+    say = progress or (lambda _what: None)
+    from numba.core.errors import NumbaPerformanceWarning
+
+    with warnings.catch_warnings():  # numba's advice on small matrix products; nothing a user can act on
+        warnings.simplefilter("ignore", NumbaPerformanceWarning)
+        _warm(say)
+
+
+def _warm(say: Callable[[str], None]) -> None:
     from .controllers import make_controller
     from .estimator import KalmanEstimator
     from .model import hover_state, plant_vector, rk4
     from .reference import ReferenceModel
 
     cfg = default_config()
+    say("plant model")
     x0, u0 = hover_state(cfg["plant_sim"], 0.008)
     ref = np.array([0.008, 0.008, 0, 0, 0, 0, 0, 0], float)
     for name in ("adaptive", "adaptive_enhanced", "paper", "paper_fixed", "nonlinear_decoupling", "decentralized_pid"):
+        say(f"controller {name}")
         c = make_controller(cfg["controller"], name)
         c.reset(x0.copy(), u0)
         c.step(x0.copy(), ref)
+    say("estimator kf")
     est = KalmanEstimator(cfg["estimator"])
     est.step(x0, u0)
     est.step(x0, u0)
+    say("reference model")
     ReferenceModel(cfg["reference"]).step(np.array([0.008, 0.008]))
+    say("plant integrator")
     x = x0.copy()
     rk4(x, u0, plant_vector(cfg["plant_sim"]), 1e-3, 2)
     from .plant import DemPlant

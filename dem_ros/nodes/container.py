@@ -22,9 +22,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
-from ..transport import run_nodes
+from ..transport import Node, run_nodes
 from .controller import ControllerNode
 from .estimator import EstimatorNode
 from .plant_sim import PlantSimNode
@@ -49,7 +50,7 @@ def main(args=None) -> int:
     unknown = [n for n in names if n not in LOOP_NODES]
     if unknown or not names or len(set(names)) != len(names):
         p.exit(2, f"error: container: --nodes {a.nodes!r}: use distinct names from {', '.join(LOOP_NODES)}\n")
-    specs = [(n, LOOP_NODES[n]) for n in LOOP_NODES if n in names]
+    specs: list[tuple[str, Callable[[Node], object]]] = [(n, LOOP_NODES[n]) for n in LOOP_NODES if n in names]
     rec: list[RecorderNode] = []
     if a.bag is not None:  # first, so it sees every sample the others publish
         specs.insert(0, ("recorder", lambda node: rec.append(RecorderNode(node, Path(a.bag), meta))))

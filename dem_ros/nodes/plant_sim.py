@@ -38,6 +38,7 @@ answers. A hardware driver replaces this node by honouring the same topics.
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
@@ -308,9 +309,11 @@ class PlantSimNode:
             return
         s = self.stats()
         x = self.plant.x
-        print(f"t = {s['t_sim_s']:7.1f} s  gaps {x[0] * 1e3:6.3f} / {x[2] * 1e3:6.3f} mm  misses {s['deadline_misses']}"
-              f"  holds {s['holds']}  board {s['board_mode']}"
-              f"  latency p50 {s['latency_p50_us']:.0f} us p99 {s['latency_p99_us']:.0f} us  x{s['realtime_factor']:.2f} real time",
+        late = "waits" if self.cfg["lockstep"] else "misses"  # lockstep: the plant waited for a late command
+        lat = (f"  latency p50 {s['latency_p50_us']:.0f} us p99 {s['latency_p99_us']:.0f} us"
+               if math.isfinite(s["latency_p50_us"]) else "")  # none before the first command
+        print(f"t = {s['t_sim_s']:7.1f} s  gaps {x[0] * 1e3:6.3f} / {x[2] * 1e3:6.3f} mm  {late} {s['deadline_misses']}"
+              f"  holds {s['holds']}  board {s['board_mode']}{lat}  x{s['realtime_factor']:.2f} real time",
               flush=True)
         level = 0 if s["deadline_misses"] == 0 and s["holds"] == 0 else 1
         self.publish_diag(2 if s["landing"] else level, "landing" if s["landing"] else "running", s)

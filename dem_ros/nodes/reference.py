@@ -51,6 +51,7 @@ class ReferenceNode:
         return None
 
     def _publish_upto(self, k_last: int) -> None:
+        assert self.epoch is not None  # set by the first measurement
         while self.next_k <= k_last:
             t = self.next_k * self.cfg["dt"]
             r = command(self.cfg, t)

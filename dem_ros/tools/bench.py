@@ -2,7 +2,10 @@
 
 ``bench loop``: the node graph (``dem-ros launch`` on S1, no bag) with the plant's
 loop statistics, CPU per node, the hypervisor's steal and this machine's timer floor.
-``bench record``: the recorder's writer at the graph's load (:mod:`dem_ros.bag.bench`).
+``bench record``: the recorder's writer at the graph's load (:mod:`dem_ros.bag.bench`), and
+why the package keeps hand-written codecs (:func:`codec_comparison`): per message, our
+JointState CDR encoder/decoder against cyclonedds' generic IDL codec and rosbags'
+typestore, and our MCAP writer/reader against the ``mcap`` package's.
 
 ``bench sim``: the 100 s S1 scenario at 1 kHz control with 0.1 ms RK4 sub-steps:
 single-run wall time and x real time, the controller's per-call step time as
@@ -38,10 +41,11 @@ __all__ = ["bench_loop", "bench_record", "bench_sim", "machine", "run"]
 def machine() -> dict:
     cpu = platform.processor() or ""
     try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
     except OSError:
         pass
     return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()}
@@ -116,7 +120,7 @@ def _peer(cfg, duration: float, ref_arrays):
 
     _, ref = ref_arrays
     dt = pc["dt"]
-    n = int(round(duration / dt))
+    n = round(duration / dt)
     x, u0 = hover_state(pc, pc["gap0"])
     ctrl = make_controller(cfg["controller"], "adaptive")
     ctrl.reset(x.copy(), u0)
@@ -166,9 +170,9 @@ def bench_sim(batch: int = 64, peer_duration: float = 5.0) -> dict:
 
     offsets = np.linspace(0.0, 3.0, batch)
     simulate_batch(cfg, offsets[:2], controller="adaptive", duration=1.0)  # compile
-    t = time.perf_counter()
+    t_batch = time.perf_counter()
     simulate_batch(cfg, offsets, controller="adaptive", duration=100.0)
-    bw = time.perf_counter() - t
+    bw = time.perf_counter() - t_batch
     out["batch"] = {"plants": batch, "wall_s": bw}
     out["batch_runs_per_s"] = batch / bw
 
@@ -367,6 +371,103 @@ def bench_loop(args: argparse.Namespace) -> dict[str, Any]:
             "hypervisor_steal_percent": steal, "timer_floor": floor, "peer": peer}
 
 
+def _per_call_us(fn: Any, n: int) -> float:
+    """Best of 3 rounds of ``n`` calls of ``fn()``: us per call."""
+    best = float("inf")
+    for _ in range(3):
+        t0 = time.perf_counter()
+        for _ in range(n):
+            fn()
+        best = min(best, (time.perf_counter() - t0) / n)
+    return best * 1e6
+
+
+def codec_comparison(n_cdr: int = 20_000, n_bag: int = 100_000) -> dict[str, Any]:
+    """Our codecs against the libraries they replace, on the graph's messages (us per message).
+
+    CDR: a measurement JointState (2 names, 2 gaps, 2 rates, 2 currents) encoded and decoded by
+    :mod:`dem_ros.transport.dds.fastcdr`, by cyclonedds' IDL serializer (what DdsNode would
+    otherwise call) and by rosbags' typestore. MCAP: ``n_bag`` such messages over 7 topics written
+    with zstd chunks by :class:`dem_ros.bag.BagWriter` and by ``mcap.writer.Writer``, then read back
+    raw by :class:`dem_ros.bag.BagReader` and by ``mcap.reader``. A library that is not installed
+    is reported as missing.
+    """
+    from ..bag import BagReader, BagWriter
+    from ..contract import QOS_STREAM
+    from ..nodes.common import joint_state
+    from ..transport.dds import fastcdr, msgs
+
+    out: dict[str, Any] = {"cdr_messages": n_cdr, "mcap_messages": n_bag}
+    msg = joint_state(msgs.JointState, 1_700_000_000_123_456_789, (0.008, 0.0081), (1e-4, -2e-4), (4.0, 4.1))
+    enc = fastcdr.ENCODERS[msgs.JointState]
+    dec = fastcdr.DECODERS[msgs.JointState]
+    data = enc(msg)
+    assert bytes(msg.serialize()) == data and dec(data) == msg  # the same bytes and message as the library's
+    cdr: dict[str, dict[str, float]] = {
+        "dem_ros fastcdr": {"encode_us": _per_call_us(lambda: enc(msg), n_cdr),
+                            "decode_us": _per_call_us(lambda: dec(data), n_cdr)},
+        "cyclonedds IdlStruct": {"encode_us": _per_call_us(msg.serialize, n_cdr),
+                                 "decode_us": _per_call_us(lambda: msgs.JointState.deserialize(data), n_cdr)},
+    }
+    try:
+        from rosbags.typesys import Stores, get_typestore
+
+        ts = get_typestore(Stores.ROS2_JAZZY)
+        rmsg = ts.deserialize_cdr(data, "sensor_msgs/msg/JointState")
+        cdr["rosbags typestore"] = {
+            "encode_us": _per_call_us(lambda: ts.serialize_cdr(rmsg, "sensor_msgs/msg/JointState"), n_cdr),
+            "decode_us": _per_call_us(lambda: ts.deserialize_cdr(data, "sensor_msgs/msg/JointState"), n_cdr)}
+    except ImportError:
+        cdr["rosbags typestore"] = {"missing": True}
+    out["cdr"] = cdr
+
+    names = [f"/bench/js_{i}" for i in range(7)]
+    mcap_figures: dict[str, dict[str, float]] = {}
+    with tempfile.TemporaryDirectory(prefix="dem_ros_codec_") as tmp:
+        ours = Path(tmp) / "ours"
+        t0 = time.perf_counter()
+        w = BagWriter(ours, compression="zstd")
+        for name in names:
+            w.add_topic(name, "sensor_msgs/msg/JointState", QOS_STREAM)
+        for k in range(n_bag):
+            w.write(names[k % 7], 1_000_000 * k, data)
+        w.close()
+        write_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        r = BagReader(ours)
+        n_read = sum(1 for _ in r.raw_messages())
+        r.close()
+        read_s = time.perf_counter() - t0
+        assert n_read == n_bag
+        mcap_figures["dem_ros bag"] = {"write_us": 1e6 * write_s / n_bag, "read_us": 1e6 * read_s / n_bag}
+        try:
+            from mcap.reader import make_reader
+            from mcap.writer import CompressionType, Writer
+
+            theirs = Path(tmp) / "mcap.mcap"
+            t0 = time.perf_counter()
+            with open(theirs, "wb") as f:
+                mw = Writer(f, compression=CompressionType.ZSTD)
+                mw.start(profile="ros2", library="mcap-python")
+                schema = mw.register_schema("sensor_msgs/msg/JointState", "ros2msg", b"")
+                chans = [mw.register_channel(name, "cdr", schema) for name in names]
+                for k in range(n_bag):
+                    t = 1_000_000 * k
+                    mw.add_message(chans[k % 7], log_time=t, data=data, publish_time=t)
+                mw.finish()
+            write_s = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            with open(theirs, "rb") as f:
+                n_read = sum(1 for _ in make_reader(f).iter_messages())
+            read_s = time.perf_counter() - t0
+            assert n_read == n_bag
+            mcap_figures["mcap package"] = {"write_us": 1e6 * write_s / n_bag, "read_us": 1e6 * read_s / n_bag}
+        except ImportError:
+            mcap_figures["mcap package"] = {"missing": True}
+    out["mcap"] = mcap_figures
+    return out
+
+
 def bench_record(args: argparse.Namespace) -> dict[str, Any]:
     from ..bag.bench import bench_record as br
 
@@ -375,6 +476,16 @@ def bench_record(args: argparse.Namespace) -> dict[str, Any]:
     print(f"dem-ros bench record on {machine()['cpu']}: {seconds:g} s at the graph's load")
     for k, v in r.items():
         print(f"  {k}: {v}")
+    c = codec_comparison()
+    print(f"  codecs, us per message (best of 3; CDR: {c['cdr_messages']} calls, MCAP: {c['mcap_messages']} messages"
+          " over 7 topics, zstd):")
+    for lib, f in c["cdr"].items():
+        print(f"    CDR  {lib:<22} " + ("not installed" if f.get("missing") else
+                                         f"encode {f['encode_us']:.2f}, decode {f['decode_us']:.2f}"))
+    for lib, f in c["mcap"].items():
+        print(f"    MCAP {lib:<22} " + ("not installed" if f.get("missing") else
+                                         f"write {f['write_us']:.2f}, read {f['read_us']:.2f}"))
+    r["codecs"] = c
     r["machine"] = machine()
     return r
 

@@ -12,6 +12,7 @@
     dem-ros rig       the DEM rig and its I/O board, emulated behind the device link
     dem-ros hw        arm | disarm | estop | status of the running hardware driver
     dem-ros config    print the parameter schema or the default params file
+    dem-ros study     robustness over plant truth x controllers, on Dask distributed
 
 Bad input ends with a one-line error and exit status 2, never a traceback.
 """
@@ -19,19 +20,47 @@ Bad input ends with a one-line error and exit status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NoReturn
 
+from .. import __version__
 from ..core.params import SCHEMA, ConfigError
 from ..nodes import NODES
 from ..transport import param_get, param_set
-from . import bench, launcher, node_main, replay
-from .common import CONTROLLER_TYPES, ESTIMATOR_TYPES, UsageError, load_config
+from . import bench, launcher, node_main, replay, study
+from .common import (
+    CONTROLLER_TYPES,
+    ESTIMATOR_TYPES,
+    UsageError,
+    domain_id,
+    env_domain_id,
+    load_config,
+    out_dir,
+    out_file,
+    seconds,
+    seed,
+    warm_kernels,
+    write_json,
+)
 from .runmetrics import RunMetrics
 
 __all__ = ["build_parser", "main"]
+
+#: commands that join a DDS domain (and so read ROS_DOMAIN_ID)
+_DDS_COMMANDS = ("launch", "node", "param", "hw", "bench", "replay")
+_TRANSPORTS = ("auto", "rclpy", "dds")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return v
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
@@ -39,13 +68,16 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     cfg, sc = load_config(args)
     duration = args.duration if args.duration is not None else sc.duration
+    if args.delay is not None:  # checked here, before the kernels load (simulate checks it again)
+        SCHEMA.spec("controller", "command_delay").coerce(args.delay, "--delay (controller.command_delay)")
+    print(f"dem-ros sim: {sc.name} ({sc.description}), {duration:g} s", flush=True)
+    warm_kernels("dem-ros sim")
     res = simulate(cfg, controller=args.controller, estimator=args.estimator, duration=duration,
                    seed=args.seed, delay=args.delay, scenario=sc.name)
     m = RunMetrics.from_sim(res)
-    print(f"dem-ros sim: {sc.name} ({sc.description}), {duration:g} s")
     m.print()
     if args.json:
-        Path(args.json).write_text(json.dumps(m.to_dict(), indent=2) + "\n")
+        write_json(args.json, m.to_dict())
         print(f"  metrics written to {args.json}")
     if args.plot:
         from .plots import plot_run
@@ -78,7 +110,7 @@ def cmd_report(args) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     result = bench.run(args.what, args)
     if args.json:
-        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+        write_json(args.json, result)
         print(f"written to {args.json}")
     return 0
 
@@ -98,10 +130,23 @@ def cmd_config(args: argparse.Namespace) -> int:
 
 
 def cmd_node(args: argparse.Namespace) -> int:
-    return node_main.run(args.name, args.ros_args, args.transport)
+    transport, rest = args.transport, list(args.ros_args)
+    # argparse's REMAINDER takes everything after NAME: our own --transport may stand there (before --ros-args)
+    head = rest.index("--ros-args") if "--ros-args" in rest else len(rest)
+    for i, tok in enumerate(rest[:head]):
+        if tok == "--transport" or tok.startswith("--transport="):
+            value = tok.partition("=")[2] if "=" in tok else (rest[i + 1] if i + 1 < head else "")
+            if value not in _TRANSPORTS:
+                raise UsageError(f"--transport: got {value!r}, expected one of {', '.join(_TRANSPORTS)}")
+            transport = value
+            del rest[i:i + (1 if "=" in tok else 2)]
+            break
+    return node_main.run(args.name, rest, transport)
 
 
 def cmd_param(args: argparse.Namespace) -> int:
+    if args.action == "set" and args.value is not None:
+        _check_param_value(args.node, args.name, args.value)
     if args.action == "get":
         print(param_get(args.node, args.name, domain_id=args.domain_id, timeout_s=args.timeout))
         return 0
@@ -113,6 +158,21 @@ def cmd_param(args: argparse.Namespace) -> int:
         return 0
     print(f"Setting parameter failed: {reason}", file=sys.stderr)
     return 1
+
+
+def _check_param_value(node: str, name: str, text: str) -> None:
+    """A malformed value for one of our nodes' parameters is a usage error, found before the node is asked."""
+    import yaml
+
+    group = node.strip("/").rsplit("/", 1)[-1]
+    if group not in SCHEMA.groups or name not in {p.name for p in SCHEMA.groups[group]}:
+        return  # not one of ours (or not known here): the node answers
+    spec = SCHEMA.spec(group, name)
+    try:
+        value = yaml.safe_load(text) if spec.type is not str else text
+    except yaml.YAMLError:
+        value = text
+    spec.coerce(value, f"{group}.{name}")  # ConfigError: one line, exit 2
 
 
 def cmd_hw(args: argparse.Namespace) -> int:
@@ -130,37 +190,45 @@ def cmd_hw(args: argparse.Namespace) -> int:
     return 0 if v["state"] != "fault" or args.action == "estop" else 1
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (``dem-ros sim: error: ...``); the usage is one ``--help`` away."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="dem-ros", description="DEM maglev adaptive control: simulation, ROS 2 graph, recording and analysis.")
+    p = _Parser(prog="dem-ros", description="DEM maglev adaptive control: simulation, ROS 2 graph, recording and analysis.")
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("sim", help="offline closed-loop simulation of one scenario")
     s.add_argument("--scenario", default="S1", help="scenario name from config/scenarios.yaml (default S1)")
     s.add_argument("--controller", default=None, choices=CONTROLLER_TYPES, help="control law (default: config, 'adaptive')")
     s.add_argument("--estimator", default=None, choices=ESTIMATOR_TYPES, help="state estimator (default: config, 'kf')")
-    s.add_argument("--duration", type=float, default=None, help="seconds (default: the scenario's, 100)")
-    s.add_argument("--seed", type=int, default=None, help="seed of noise and perturbation (default: config)")
+    s.add_argument("--duration", type=seconds, default=None, help="seconds (default: the scenario's, 100)")
+    s.add_argument("--seed", type=seed, default=None, help="seed of noise and perturbation (default: config)")
     s.add_argument("--delay", type=int, default=None, help="command delay in samples for plant and controller (default: config, plant_sim.command_delay = "
                    f"{SCHEMA.spec('plant_sim', 'command_delay').default}, as in the node graph)")
     s.add_argument("--params", default=None, help="ROS 2 params file to load on top of the defaults")
     s.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE", help="override a parameter, e.g. k1=60 or plant_sim.m=16")
-    s.add_argument("--json", default=None, help="write the metrics as JSON")
-    s.add_argument("--plot", default=None, metavar="DIR", help="write figures (PNG) to DIR")
-    s.add_argument("--record", default=None, metavar="DIR", help="also write the run as a rosbag2 MCAP bag under DIR")
+    s.add_argument("--json", type=out_file, default=None, help="write the metrics as JSON")
+    s.add_argument("--plot", type=out_dir, default=None, metavar="DIR", help="write figures (PNG) to DIR")
+    s.add_argument("--record", type=out_dir, default=None, metavar="DIR", help="also write the run as a rosbag2 MCAP bag under DIR")
     s.set_defaults(func=cmd_sim)
 
     r = sub.add_parser("report", help="controller x scenario matrix with figures and a markdown report")
-    r.add_argument("--out", default="report", help="output directory (default ./report)")
-    r.add_argument("--duration", type=float, default=None, help="override every scenario's duration (s)")
-    r.add_argument("--jobs", type=int, default=None, help="parallel processes (default: cores)")
+    r.add_argument("--out", type=out_dir, default="report", help="output directory (default ./report)")
+    r.add_argument("--duration", type=seconds, default=None, help="override every scenario's duration (s)")
+    r.add_argument("--jobs", type=_positive_int, default=None, help="parallel processes (default: cores)")
     r.set_defaults(func=cmd_report)
 
     b = sub.add_parser("bench", help="benchmarks: sim | loop | record")
     b.add_argument("what", choices=["sim", "loop", "record"])
-    b.add_argument("--json", default=None, help="write the figures as JSON")
-    b.add_argument("--batch", type=int, default=64, help="bench sim: plants in the batch (default 64)")
-    b.add_argument("--peer-duration", type=float, default=5.0, help="bench sim: seconds simulated by the peer (default 5)")
-    b.add_argument("--duration", type=float, default=None, help="bench loop/record: seconds (default 60 / 10)")
+    b.add_argument("--json", type=out_file, default=None, help="write the figures as JSON")
+    b.add_argument("--batch", type=_positive_int, default=64, help="bench sim: plants in the batch (default 64)")
+    b.add_argument("--peer-duration", type=seconds, default=5.0, help="bench sim: seconds simulated by the peer (default 5)")
+    b.add_argument("--duration", type=seconds, default=None, help="bench loop/record: seconds (default 60 / 10)")
     b.add_argument("--transport", default="dds", choices=["auto", "rclpy", "dds"])
     b.add_argument("--compose", action="store_true", help="bench loop: all nodes in one process (see dem-ros launch --compose)")
     b.add_argument("--free-run", action="store_true", help="bench loop: the plant does not wait for late commands (plant_sim.lockstep=false)")
@@ -174,10 +242,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_config)
 
     lg = sub.add_parser("launch", help="run the node graph (each node its own process), record a bag, print a summary")
-    lg.add_argument("--scenario", default="S1")
-    lg.add_argument("--controller", default=None, choices=CONTROLLER_TYPES)
-    lg.add_argument("--estimator", default=None, choices=ESTIMATOR_TYPES)
-    lg.add_argument("--duration", type=float, default=None, help="seconds (default: the scenario's)")
+    lg.add_argument("--scenario", default="S1", help="scenario name from config/scenarios.yaml (default S1; "
+                    "see dem-ros sim --scenario): plant truth, reference steps and perturbations of the run")
+    lg.add_argument("--controller", default=None, choices=CONTROLLER_TYPES, help="control law (default: config, 'adaptive')")
+    lg.add_argument("--estimator", default=None, choices=ESTIMATOR_TYPES, help="state estimator (default: config, 'kf')")
+    lg.add_argument("--duration", type=seconds, default=None, help="seconds (default: the scenario's)")
     lg.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
     lg.add_argument("--compose", action="store_true",
                     help="all nodes in one process on one executor, topics between them in memory (dds); "
@@ -186,11 +255,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="free-running plant (plant_sim.lockstep false): hardware-like timing, a late command is held "
                          "at most hold_timeout, then the simulated board lands the plate; default: lockstep (exact)")
     lg.add_argument("--params", default=None, help="ROS 2 params file")
-    lg.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE")
-    lg.add_argument("--bag-dir", default="bags", help="where the run's bag goes (default ./bags)")
+    lg.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE", help="override a parameter, e.g. k1=60")
+    lg.add_argument("--bag-dir", type=out_dir, default="bags", help="where the run's bag goes (default ./bags)")
     lg.add_argument("--no-record", action="store_true", help="do not record a bag")
-    lg.add_argument("--json", default=None, help="write the summary as JSON")
-    lg.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID for this run")
+    lg.add_argument("--json", type=out_file, default=None, help="write the summary as JSON")
+    lg.add_argument("--domain-id", type=domain_id, default=None, help="ROS_DOMAIN_ID for this run")
     lg.add_argument("--hardware", default=None, metavar="LINK",
                     help="hw_driver instead of plant_sim, on udp://HOST:PORT or serial:///dev/PATH; 'rig' (UDP) or "
                          "'rig-serial' (a pty pair) also start the emulator 'dem-ros rig'")
@@ -207,27 +276,30 @@ def build_parser() -> argparse.ArgumentParser:
     hw = sub.add_parser("hw", help="the hardware driver: arm | disarm (a controlled landing) | estop | status")
     hw.add_argument("action", choices=["arm", "disarm", "estop", "status"])
     hw.add_argument("reason", nargs="?", default="", help="estop: why (recorded with the fault)")
-    hw.add_argument("--domain-id", type=int, default=None)
+    hw.add_argument("--domain-id", type=domain_id, default=None)
     hw.add_argument("--timeout", type=float, default=5.0, help="seconds to find the driver and get its answer (default 5)")
     hw.set_defaults(func=cmd_hw)
 
     nd = sub.add_parser("node", help="run one node of the graph")
     nd.add_argument("name", choices=NODES)
-    nd.add_argument("ros_args", nargs=argparse.REMAINDER, help="--ros-args ... (params file, remaps)")
-    nd.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
+    nd.add_argument("--transport", default="auto", choices=_TRANSPORTS,
+                    help="auto (rclpy when it imports) | rclpy | dds; before or after NAME")
+    nd.add_argument("ros_args", nargs=argparse.REMAINDER, help="node options, then --ros-args ... (params file, remaps)")
     nd.set_defaults(func=cmd_node)
 
     rp = sub.add_parser("replay", help="metrics, figures and what-if re-runs from a recorded bag")
     rp.add_argument("bag")
-    rp.add_argument("--json", default=None)
-    rp.add_argument("--plot", default=None, metavar="DIR")
+    rp.add_argument("--json", type=out_file, default=None, help="write the metrics as JSON")
+    rp.add_argument("--plot", type=out_dir, default=None, metavar="DIR", help="write figures (PNG) to DIR")
     rp.add_argument("--controller", default=None, choices=CONTROLLER_TYPES, help="what-if: re-run this controller on the recorded measurements")
     rp.add_argument("--set", action="append", metavar="NAME=VALUE", help="what-if: change a controller parameter")
     rp.add_argument("--publish", action="store_true", help="play the bag back onto the graph at its recorded rate")
     rp.set_defaults(func=replay.cmd_replay)
 
     bg = sub.add_parser("bag", help="inspect bags")
-    bg.add_argument("action", choices=["check", "info"])
+    bg.add_argument("action", choices=["check", "info"],
+                    help="info: what the bag holds (topics, types, counts, the run); check: its integrity "
+                         "(summary, chunks, sample gaps, rates, problems; exit 1 if any)")
     bg.add_argument("bag")
     bg.set_defaults(func=replay.cmd_bag)
 
@@ -236,9 +308,13 @@ def build_parser() -> argparse.ArgumentParser:
     pm.add_argument("node")
     pm.add_argument("name")
     pm.add_argument("value", nargs="?")
-    pm.add_argument("--domain-id", type=int, default=None)
+    pm.add_argument("--domain-id", type=domain_id, default=None)
     pm.add_argument("--timeout", type=float, default=5.0, help="seconds to find the node and get its reply (default 5)")
     pm.set_defaults(func=cmd_param)
+
+    sy = sub.add_parser("study", help="robustness study: plant truth (grid or Monte Carlo) x controllers on Dask distributed")
+    study.add_arguments(sy)
+    sy.set_defaults(func=study.cmd_study)
     return p
 
 
@@ -246,6 +322,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        if args.command in _DDS_COMMANDS:
+            env_domain_id()  # a malformed ROS_DOMAIN_ID is one line, before any participant is made
         return int(args.func(args) or 0)
     except (ConfigError, UsageError) as exc:
         print(f"dem-ros {args.command}: error: {exc}", file=sys.stderr)

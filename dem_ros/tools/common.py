@@ -5,19 +5,31 @@
 * :func:`yaml_scalar`: the one YAML emitter for parameter values (params files, launch files).
 * :func:`fmt_pair`: two numbers (e.g. e1 / e2) as one table cell.
 * ``CONTROLLER_TYPES`` / ``ESTIMATOR_TYPES``: the schema's choices, for argparse.
+* argparse ``type=`` checks that reject a mistake before anything starts: :func:`seconds`,
+  :func:`seed`, :func:`domain_id`, :func:`out_file`, :func:`out_dir`; :func:`env_domain_id`.
+* :func:`write_json`: the one JSON writer (standard JSON: ``null`` for NaN / inf, never bare ``NaN``).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import math
+import os
+import sys
 from collections.abc import Sequence
-from typing import Any
+from pathlib import Path
+from typing import IO, Any
 
-from ..core.params import SCHEMA, apply_overrides, load_params_file, parse_assignment
+from ..core.params import SCHEMA, ConfigError, apply_overrides, load_params_file, parse_assignment
 from ..core.scenarios import Scenario, get_scenario
 
-__all__ = ["CONTROLLER_TYPES", "ESTIMATOR_TYPES", "UsageError", "fmt_pair", "load_config", "yaml_scalar"]
+__all__ = ["CONTROLLER_TYPES", "ESTIMATOR_TYPES", "UsageError", "domain_id", "env_domain_id", "fmt_pair", "json_safe", "json_text",
+           "load_config", "out_dir", "out_file", "seconds", "seed", "warm_kernels", "write_json", "yaml_scalar"]
+
+#: DDS domain ids a ROS 2 participant can use (Cyclone DDS maps 0..232 to UDP ports)
+DOMAIN_ID_MAX = 232
 
 #: the control laws and estimators a run can use: the parameter schema's choices (one source)
 CONTROLLER_TYPES: tuple[str, ...] = tuple(SCHEMA.spec("controller", "type").choices or ())
@@ -71,3 +83,144 @@ def yaml_scalar(v: Any) -> str:
             text = f"{mant}.0e{exp}"
         return text
     return str(v)
+
+
+# -- argparse types: each mistake is one line (``argument --x: ...``) before anything starts ----------------------
+
+def seconds(text: str) -> float:
+    """A duration in seconds: a finite number > 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not math.isfinite(v) or v <= 0.0:
+        raise argparse.ArgumentTypeError(f"expected a finite number of seconds > 0, got {text!r}")
+    return v
+
+
+def seed(text: str) -> int:
+    """A seed for the noise generators, within the schema's ``plant_sim.seed`` bounds."""
+    spec = SCHEMA.spec("plant_sim", "seed")
+    try:
+        return int(spec.coerce(int(text), "seed"))
+    except (ValueError, ConfigError):
+        raise argparse.ArgumentTypeError(f"got {text!r}, expected {spec.allowed()}") from None
+
+
+def domain_id(text: str) -> int:
+    """A ROS domain id, 0..232."""
+    try:
+        v = int(text)
+    except ValueError:
+        v = -1
+    if not 0 <= v <= DOMAIN_ID_MAX:
+        raise argparse.ArgumentTypeError(f"got {text!r}, expected an integer in [0, {DOMAIN_ID_MAX}]")
+    return v
+
+
+def env_domain_id() -> int | None:
+    """``ROS_DOMAIN_ID`` from the environment (None if unset or empty); UsageError if malformed."""
+    text = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if not text:
+        return None
+    try:
+        return domain_id(text)
+    except argparse.ArgumentTypeError as exc:
+        raise UsageError(f"ROS_DOMAIN_ID: {exc}") from None
+
+
+def _writable_dir(d: Path, what: Path) -> None:
+    if not d.is_dir():
+        raise argparse.ArgumentTypeError(f"cannot write {what}: {d} is not a directory")
+    if not os.access(d, os.W_OK | os.X_OK):
+        raise argparse.ArgumentTypeError(f"cannot write {what}: {d} is not writable")
+
+
+def out_file(text: str) -> Path:
+    """A file to write: its directory exists and is writable; it is not a directory."""
+    p = Path(text)
+    if p.is_dir():
+        raise argparse.ArgumentTypeError(f"{p} is a directory, expected a file name")
+    _writable_dir(p.parent if str(p.parent) else Path("."), p)
+    return p
+
+
+def out_dir(text: str) -> Path:
+    """A directory to write into: an existing writable directory, or one that can be created."""
+    p = Path(text)
+    d = p
+    while not d.exists():  # the nearest existing ancestor must be a writable directory
+        if d.parent == d:
+            break
+        d = d.parent
+    _writable_dir(d, p)
+    return p
+
+
+def json_safe(obj: Any) -> Any:
+    """``obj`` with every non-finite float replaced by None (JSON ``null``), numpy scalars as Python numbers."""
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):  # numpy scalar
+        with contextlib.suppress(TypeError, ValueError):
+            obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def json_text(obj: Any) -> str:
+    """Standard JSON (RFC 8259) of ``obj``: NaN / inf become ``null``."""
+    return json.dumps(json_safe(obj), indent=2, allow_nan=False) + "\n"
+
+
+def write_json(path: Path | str, obj: Any) -> Path:
+    """Write ``obj`` as standard JSON (see :func:`json_text`)."""
+    path = Path(path)
+    path.write_text(json_text(obj))
+    return path
+
+
+def warm_kernels(prefix: str, stream: IO[str] | None = None) -> float:
+    """Compile (first run) or load numba's cache of every kernel here, with progress on ``stream``.
+
+    Nothing is printed when the cache loads within a second; otherwise a line names what
+    compiles and a new line follows at least every 5 s, so a first run is never silent.
+    Returns the seconds it took.
+    """
+    import threading
+    import time
+
+    from ..core.warmup import warm_up
+
+    out = stream if stream is not None else sys.stderr
+    t0 = time.monotonic()
+    state = {"what": "numba kernels", "said": 0.0}
+    done = threading.Event()
+
+    def beat() -> None:
+        while not done.wait(1.0 if state["said"] == 0.0 else 5.0):
+            dt = time.monotonic() - t0
+            if state["said"] == 0.0:
+                print(f"{prefix}: compiling numba kernels (first run only; cached for later runs): {state['what']} ...",
+                      file=out, flush=True)
+            else:
+                print(f"{prefix}:   ... {state['what']} ({dt:.0f} s)", file=out, flush=True)
+            state["said"] = dt
+
+    def progress(what: str) -> None:
+        state["what"] = what
+
+    th = threading.Thread(target=beat, name="warm-up progress", daemon=True)
+    th.start()
+    try:
+        warm_up(progress)
+    finally:
+        done.set()
+        th.join()
+    dt = time.monotonic() - t0
+    if state["said"]:
+        print(f"{prefix}: kernels ready in {dt:.0f} s", file=out, flush=True)
+    return dt

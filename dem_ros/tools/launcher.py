@@ -10,6 +10,7 @@ is complete), and prints a summary read back from the bag: tracking metrics
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import random
@@ -28,16 +29,20 @@ from typing import Any
 from .. import __version__
 from ..core.params import SCHEMA
 from ..core.scenarios import Scenario
-from .common import fmt_pair, load_config, yaml_scalar
+from .common import UsageError, env_domain_id, fmt_pair, load_config, warm_kernels, write_json, yaml_scalar
 from .runmetrics import RunMetrics
 
-__all__ = ["GraphError", "cmd_launch", "launch", "run_graph", "write_params_file"]
+__all__ = ["GraphError", "StartupError", "cmd_launch", "launch", "run_graph", "write_params_file"]
 
 NODES = ("recorder", "reference", "estimator", "controller", "plant_sim")
 
 
 class GraphError(RuntimeError):
     """The graph could not be started or run; the message says which node and where its log is."""
+
+
+class StartupError(GraphError):
+    """The graph did not start (a node exited or was not ready): nothing ran, no bag is kept."""
 
 
 def write_params_file(cfg: dict[str, dict[str, Any]], path: Path) -> Path:
@@ -57,7 +62,9 @@ def _wait_ready(logs: dict, procs: dict, timeout: float) -> None:
     while pending and time.monotonic() < end:
         for n, path in list(pending.items()):
             if procs[n].poll() is not None:
-                raise GraphError(f"node {n} exited during start-up (code {procs[n].returncode}); see {path}")
+                why = _last_line(path)
+                raise StartupError(f"node {n} exited during start-up (code {procs[n].returncode})"
+                                 + (f": {why}" if why else "") + f"; see {path}")
             try:
                 if "ready" in path.read_text(errors="replace"):
                     del pending[n]
@@ -65,7 +72,16 @@ def _wait_ready(logs: dict, procs: dict, timeout: float) -> None:
                 pass
         time.sleep(0.05)
     if pending:
-        raise GraphError(f"nodes not ready after {timeout:.0f} s: {', '.join(pending)}")
+        raise StartupError(f"nodes not ready after {timeout:.0f} s: {', '.join(pending)}")
+
+
+def _last_line(path: Path) -> str:
+    """The last non-empty line of a node's log (its error, when it exits during start-up)."""
+    try:
+        lines = [ln.strip() for ln in path.read_text(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        return ""
+    return lines[-1][:300] if lines else ""
 
 
 def _cpu_seconds(pid: int) -> float:
@@ -154,6 +170,8 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
         limit = time.monotonic() + 60.0 + 10.0 * (duration + cfg["plant_sim"]["preroll"])  # lockstep may run below real time
         os.set_blocking(plant.stdout.fileno(), False)
         buf = ""
+        tty = sys.stderr.isatty()
+        last_status = 0.0
         while plant.poll() is None and not interrupted and time.monotonic() < limit:
             for name, p in procs.items():
                 if name != lead and p.poll() is not None:
@@ -174,8 +192,12 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
                         cpu_start = {n: _cpu_seconds(p.pid) for n, p in procs.items()}
                         started = {n: time.monotonic() for n in procs}
                     if status and line.startswith("t ="):
-                        print("\r  " + line.strip(), end="", file=sys.stderr, flush=True)
-        if status:
+                        if tty:  # redrawn in place on a terminal; a log gets a line every 5 s
+                            print("\r  " + line.strip(), end="", file=sys.stderr, flush=True)
+                        elif time.monotonic() - last_status >= 5.0:
+                            print("  " + line.strip(), file=sys.stderr, flush=True)
+                            last_status = time.monotonic()
+        if status and tty:
             print(file=sys.stderr)
         rest = plant.stdout.read() if plant.poll() is not None else None
         if rest:
@@ -246,7 +268,7 @@ def _start_rig(cfg: dict, kind: str, faults: Sequence[str], workdir: Path) -> tu
     if proc.poll() is None:
         proc.kill()
         proc.wait()
-    raise GraphError(f"dem-ros rig did not start (code {proc.returncode}); see {log}")
+    raise StartupError(f"dem-ros rig did not start (code {proc.returncode}); see {log}")
 
 
 def _stop_rig(proc: subprocess.Popen | None) -> dict | None:
@@ -265,6 +287,15 @@ def _stop_rig(proc: subprocess.Popen | None) -> dict | None:
         if line.startswith("RIG ") and '"summary"' in line:
             summary = json.loads(line[4:])
     return summary
+
+
+def _resolve_transport(transport: str) -> str:
+    """``auto`` -> the transport the nodes will use (rclpy when it imports, else dds)."""
+    from ..transport import rclpy_available
+
+    if transport == "rclpy" and not rclpy_available():
+        raise UsageError("--transport rclpy needs a sourced ROS 2 (import rclpy failed); use dds")
+    return ("rclpy" if rclpy_available() else "dds") if transport == "auto" else transport
 
 
 def _config_from_args(args: Any) -> tuple[dict[str, dict[str, Any]], Scenario, float]:
@@ -289,6 +320,22 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
     from ..core.simulate import simulate
 
     cfg, sc, duration = _config_from_args(args)
+    # every check before anything starts or is written
+    domain_id = args.domain_id if args.domain_id is not None else env_domain_id()
+    hardware = getattr(args, "hardware", None)
+    if hardware is not None and hardware not in ("rig", "rig-serial"):
+        from urllib.parse import urlsplit
+
+        if urlsplit(hardware).scheme not in ("udp", "serial"):
+            raise UsageError(f"--hardware: got {hardware!r}, expected udp://HOST:PORT, serial:///dev/PATH, rig or rig-serial")
+    if getattr(args, "fault", None) and hardware not in ("rig", "rig-serial"):
+        raise UsageError("--fault needs --hardware rig or rig-serial (faults are injected by the emulated rig)")
+    transport = _resolve_transport(args.transport)
+    if not quiet:
+        print(f"dem-ros launch: {sc.name} ({sc.description}), controller {cfg['controller']['type']},"
+              f" estimator {cfg['estimator']['type']}, {duration:g} s, transport {transport}", file=sys.stderr, flush=True)
+    # compile once, here, with progress; the nodes then load the cache instead of compiling in parallel
+    warm_kernels("dem-ros launch", stream=io.StringIO() if quiet else None)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     bag_root = Path(args.bag_dir)
     bag_root.mkdir(parents=True, exist_ok=True)
@@ -300,14 +347,10 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
         tmp = Path(tempfile.mkdtemp(prefix="dem_ros_bag_"))
         bag = tmp / "run"
     meta = {"scenario": sc.name, "scenario_description": sc.description, "controller": cfg["controller"]["type"],
-            "estimator": cfg["estimator"]["type"], "transport": args.transport, "duration_s": duration,
+            "estimator": cfg["estimator"]["type"], "transport": transport, "duration_s": duration,
             "dem_ros_version": __version__, "config": cfg, "started": datetime.now().isoformat(timespec="seconds")}
-    if not quiet:
-        print(f"dem-ros launch: {sc.name} ({sc.description}), controller {meta['controller']}, estimator {meta['estimator']},"
-              f" {duration:g} s, transport {args.transport}", file=sys.stderr)
     compose = bool(getattr(args, "compose", False))
     meta["composed"] = compose
-    hardware = getattr(args, "hardware", None)
     if hardware is not None:  # a rig measures no gap rates: the offline comparison neither
         cfg["plant_sim"]["measure_velocity"] = False
         # one command delay: the controller predicts over it, the board applies it, offline simulates it
@@ -315,10 +358,14 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
         cfg["hw_driver"]["command_delay"] = cfg["plant_sim"]["command_delay"] = d
         meta["hardware"] = hardware
     try:
-        facts = run_graph(cfg, duration=duration, transport=args.transport, bag=bag, meta=meta, domain_id=args.domain_id,
+        facts = run_graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id,
                           status=not quiet, workdir=(bag.parent / (bag.name + "_logs")) if record else None,
                           compose=compose, hardware=hardware, faults=getattr(args, "fault", None) or ())
         metrics = RunMetrics.from_bag(bag)
+    except StartupError:
+        if record:  # nothing ran: no partial bag (the node logs stay, the error names them)
+            shutil.rmtree(bag, ignore_errors=True)
+        raise
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -328,20 +375,26 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
         if metrics.loop.plant_cpu_percent is not None:
             cpu["hw_driver" if hardware is not None else ("container" if compose else "plant_sim")] = metrics.loop.plant_cpu_percent
         metrics.loop.cpu_percent = cpu
-    offline = simulate(cfg, controller=cfg["controller"]["type"], estimator=cfg["estimator"]["type"], duration=duration,
-                       scenario=sc.name).metrics()
-    info = {"composed": compose, "offline_rms_error_um": offline["rms_error_um"], "bag": str(bag) if record else None,
+    ran = duration
+    if facts["interrupted"]:  # compare like with like: the offline run over the time the graph ran
+        ran = metrics.samples * cfg["plant_sim"]["dt"]
+    offline = simulate(cfg, controller=cfg["controller"]["type"], estimator=cfg["estimator"]["type"], duration=ran,
+                       scenario=sc.name).metrics() if ran > 0 else {"rms_error_um": None}
+    info = {"composed": compose, "offline_rms_error_um": offline["rms_error_um"], "offline_duration_s": ran, "bag": str(bag) if record else None,
             "hardware": hardware, "rig": facts.get("rig"),
             "recorder": facts["recorder"], "interrupted": facts["interrupted"]}
     if record and bag.is_dir():  # the run-time summary travels with the bag (replay compares against it)
-        (bag / "summary.json").write_text(json.dumps(metrics.to_dict() | info, indent=2) + "\n")
+        write_json(bag / "summary.json", metrics.to_dict() | info)
     return metrics, info
 
 
 def cmd_launch(args: Any) -> int:
     metrics, info = launch(args)
     how = "one process (composed)" if info["composed"] else "a process per node"
-    extra = [("processes", how), ("offline RMS error e1 / e2 [um]", f"{fmt_pair(info['offline_rms_error_um'])} (same timing)")]
+    extra = [("processes", how)]
+    if info["offline_rms_error_um"] is not None:
+        extra.append(("offline RMS error e1 / e2 [um]",
+                      f"{fmt_pair(info['offline_rms_error_um'])} (same configuration and timing, first {info['offline_duration_s']:g} s)"))
     if info["recorder"]:
         rc = info["recorder"]
         extra.append(("recorded", f"{sum(v['written'] for v in rc.values())} messages,"
@@ -359,7 +412,7 @@ def cmd_launch(args: Any) -> int:
         extra.append(("bag", info["bag"]))
     metrics.print(extra=extra)
     if args.json:
-        Path(args.json).write_text(json.dumps(metrics.to_dict() | info, indent=2) + "\n")
+        write_json(args.json, metrics.to_dict() | info)
         print(f"  summary written to {args.json}")
     if info["interrupted"]:
         return 130

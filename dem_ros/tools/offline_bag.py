@@ -33,7 +33,7 @@ def record_result(res: Any, root: Path) -> Path:
     from ..transport.dds.msgs import message_class
 
     JS = message_class("sensor_msgs/msg/JointState")
-    D = tuple(message_class(f"diagnostic_msgs/msg/{n}") for n in ("DiagnosticArray", "DiagnosticStatus", "KeyValue"))
+    DA, DS, KV = (message_class(f"diagnostic_msgs/msg/{n}") for n in ("DiagnosticArray", "DiagnosticStatus", "KeyValue"))
     String = message_class("std_msgs/msg/String")
     root.mkdir(parents=True, exist_ok=True)
     path = root / f"{datetime.now():%Y%m%d-%H%M%S}_{res.scenario}_{res.controller}_offline"
@@ -63,5 +63,5 @@ def record_result(res: Any, root: Path) -> Path:
                   "latency_p50_us": "nan", "latency_p99_us": "nan", "latency_max_us": "nan"}
         t_end = epoch + res.t.size * dt_ns
         w.write(contract.DIAGNOSTICS.name, t_end, serialize(
-            diag_array(*D, t_end, contract.LOOP_STATUS, 2 if res.failed else 0, "offline run", values)))
+            diag_array(DA, DS, KV, t_end, contract.LOOP_STATUS, 2 if res.failed else 0, "offline run", values)))
     return path

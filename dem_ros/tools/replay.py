@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -23,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from .. import contract
+from .common import write_json
 from .runmetrics import RunMetrics, load_run
 
 __all__ = ["analyse", "cmd_bag", "cmd_replay", "what_if"]
@@ -123,7 +123,7 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     st = _arrays(r, contract.CONTROLLER_STATE.name)
     if est is None or ref is None or cmd is None:
         raise BagError(f"{bag}: needs /dem/state_estimate, /dem/reference and /dem/command for a what-if replay")
-    dt_ns = int(round(ccfg["dt"] * 1e9))
+    dt_ns = round(ccfg["dt"] * 1e9)
     ref_by = {int(s): i for i, s in enumerate(ref["stamp_ns"])}
     cmd_by = {int(s): i for i, s in enumerate(cmd["stamp_ns"])}
     lag_by = {}
@@ -131,7 +131,7 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
         names = list(st["name"])
         if "ref_lag" in names:
             col = names.index("ref_lag")
-            lag_by = {int(s): v for s, v in zip(st["stamp_ns"], st["position"][:, col])}
+            lag_by = {int(s): v for s, v in zip(st["stamp_ns"], st["position"][:, col], strict=True)}
     ctrl = make_controller(ccfg, name)
     started = False
     u_new, u_old, stamps = [], [], []
@@ -159,14 +159,13 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
         stamps.append(t)
     if not stamps:
         raise BagError(f"{bag}: no sample on which the controller acted")
-    u_new = np.array(u_new)
-    u_old = np.array(u_old)
-    d = np.abs(u_new - u_old)
+    new, old = np.array(u_new), np.array(u_old)
+    d = np.abs(new - old)
     return {
         "law": name, "recorded_law": recorded_law, "changes": sets or [], "samples": len(stamps),
         "max_abs_diff_v": float(d.max()), "rms_diff_v": float(np.sqrt(np.mean(d**2))),
-        "reproduces_recording": bool(d.max() <= 1e-9 * max(1.0, float(np.abs(u_old).max()))),
-        "t": ((np.array(stamps) - stamps[0]) * 1e-9).tolist(), "u_replayed": u_new.tolist(), "u_recorded": u_old.tolist(),
+        "reproduces_recording": bool(d.max() <= 1e-9 * max(1.0, float(np.abs(old).max()))),
+        "t": ((np.array(stamps) - stamps[0]) * 1e-9).tolist(), "u_replayed": new.tolist(), "u_recorded": old.tolist(),
     }
 
 
@@ -191,7 +190,7 @@ def publish(bag: Path, rate: float = 1.0) -> dict:
             now = time.monotonic_ns()
             if due > now:
                 time.sleep((due - now) * 1e-9)
-            pubs[topic].publish_raw(data)
+            pubs[topic].publish_raw(bytes(data))
             sent += 1
     finally:
         node.shutdown()
@@ -211,7 +210,7 @@ def cmd_replay(args) -> int:
         print(f"  {res['samples']} samples; max |u_replayed - u_recorded| = {res['max_abs_diff_v']:.3e} V,"
               f" RMS {res['rms_diff_v']:.3e} V: {verdict}")
         if args.json:
-            Path(args.json).write_text(json.dumps({k: v for k, v in res.items() if k not in ("t", "u_replayed", "u_recorded")}, indent=2) + "\n")
+            write_json(args.json, {k: v for k, v in res.items() if k not in ("t", "u_replayed", "u_recorded")})
         if args.plot:
             from .plots import figure, save
 
@@ -230,7 +229,7 @@ def cmd_replay(args) -> int:
     print(f"replay of {bag}:")
     m.print()
     if args.json:
-        Path(args.json).write_text(json.dumps(m.to_dict(), indent=2) + "\n")
+        write_json(args.json, m.to_dict())
         print(f"  metrics written to {args.json}")
     if args.plot:
         files = plot_replay(series, Path(args.plot), f"{m.scenario} / {m.controller}")
@@ -250,5 +249,32 @@ def cmd_bag(args) -> int:
 
         return main_check([args.bag])
     rep = check(Path(args.bag))
-    print(rep.format())
+    print(_bag_info(rep))
     return 0 if rep.ok else 1
+
+
+def _bag_info(rep: Any) -> str:
+    """``dem-ros bag info``: what is in the bag, as ``ros2 bag info`` shows it, plus the run it recorded.
+
+    ``dem-ros bag check`` is the integrity report (summary, chunks, gaps, rates, problems);
+    this is the short inventory.
+    """
+    path = Path(rep.path)
+    files = [path / f for f in rep.files] if path.is_dir() else [path]
+    size = sum(f.stat().st_size for f in files if f.exists())
+    lines = [f"Files:             {', '.join(rep.files) or '-'}", f"Bag size:          {size / 1e6:.1f} MB",
+             "Storage id:        mcap"]
+    if rep.start_ns is not None and rep.end_ns is not None:
+        lines.append(f"Duration:          {(rep.end_ns - rep.start_ns) / 1e9:.3f} s")
+    lines.append(f"Messages:          {rep.message_count}")
+    run = rep.run_metadata or {}
+    if run:
+        what = ", ".join(f"{k} {run[k]}" for k in ("scenario", "controller", "estimator", "transport", "duration_s")
+                         if k in run)
+        lines.append(f"Run:               {what}")
+    w = max([len(t.name) for t in rep.topics] + [5])
+    lines.append("Topic information:")
+    lines += [f"  {t.name:<{w}}  {t.type:<38} {t.count:>9} msgs" for t in rep.topics]
+    if not rep.ok:
+        lines.append(f"({len(rep.problems)} problem(s): see dem-ros bag check)")
+    return "\n".join(lines)

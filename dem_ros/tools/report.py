@@ -8,7 +8,6 @@ the numbers (never written by hand).
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 import time
@@ -19,7 +18,9 @@ import numpy as np
 
 from ..core.scenarios import load_scenarios
 from ..core.simulate import simulate
+from .common import write_json
 from .plots import figure, overlay, save
+from .study import report_section
 
 __all__ = ["make_report", "run_matrix"]
 
@@ -232,7 +233,7 @@ def make_report(out: Path, duration: float | None = None, jobs: int | None = Non
     t0 = time.perf_counter()
     print(f"running {len(load_scenarios()) * len(ORDER) * len(ESTIMATORS)} closed-loop runs ...", file=sys.stderr)
     results = run_matrix(duration, jobs)
-    (out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
+    write_json(out / "results.json", results)
     print("figures ...", file=sys.stderr)
     figs = _paper_figures(out, duration)
     scen = list(load_scenarios())
@@ -269,6 +270,7 @@ def make_report(out: Path, duration: float | None = None, jobs: int | None = Non
         "reaching the law (compare the `none` and `kf` rows) but cannot remove a physical input disturbance; the",
         "decentralised PID with its inner current loop and integral action is far less sensitive to both.",
         "",
+    ] + report_section(out / "study") + [
         "## Figures",
         "",
     ] + [f"### {d}\n\n![{d}]({f})\n" for f, d in figs.items()]

@@ -78,10 +78,15 @@ class LoopStats:
         )
 
     def summary(self) -> str:
+        """One line; in lockstep the plant waits for every late command, so those are waits, not misses."""
         lat = self.latency_us
-        share = 100.0 * self.deadline_misses / max(self.cycles, 1)
-        text = (f"cycles {self.cycles}, deadline misses {self.deadline_misses} ({share:.3f} %),"
-                f" latency p50 {lat['p50']:.0f} us, p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us")
+        share = 100.0 * min(self.deadline_misses, self.cycles) / max(self.cycles, 1)
+        if self.lockstep:
+            text = f"cycles {self.cycles}, plant waited for the command in {self.deadline_misses} ({share:.1f} %)"
+        else:
+            text = f"cycles {self.cycles}, deadline misses {self.deadline_misses} ({share:.3f} %)"
+        if all(math.isfinite(lat.get(k, _NAN)) for k in ("p50", "p99", "max")):  # none before the first sample
+            text += f", latency p50 {lat['p50']:.0f} us, p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us"
         if math.isfinite(self.realtime_factor):
             text += f"; x{self.realtime_factor:.2f} real time{' (lockstep)' if self.lockstep else ' (free-running)'}"
         text += f"; holds {self.holds}; landing: " + (f"yes ({self.landing_reason})" if self.landing else "no")
@@ -110,6 +115,7 @@ class RunMetrics:
     command_latency_at_recorder_us: dict[str, float] | None = None  # p50, p99, max of stamp -> recorder log time
     wall_time_s: float | None = None
     loop: LoopStats | None = None
+    controllers_used: list[str] | None = None  # the laws in the order they ran (a live switch adds one)
     #: what makes a recorded run incomplete or degraded (truncated bag, samples without a reference,
     #: shorter than planned, recording failed); replay and launch exit non-zero when there is any
     problems: list[str] = dataclasses.field(default_factory=list)
@@ -137,15 +143,17 @@ class RunMetrics:
 
     def rows(self) -> list[tuple[str, str]]:
         """(label, value) rows of the printed table."""
+        laws = " -> ".join(self.controllers_used) if self.controllers_used else self.controller
         rows = [
-            ("scenario / controller / estimator", f"{self.scenario} / {self.controller} / {self.estimator} ({self.transport})"),
+            ("scenario / controller / estimator", f"{self.scenario} / {laws} / {self.estimator} ({self.transport})"),
             ("samples", f"{self.samples} (e = {self.error_source} gap - y_m)"),
             ("failed", f"yes, at t = {self.fail_time_s:.3f} s" if self.failed and self.fail_time_s is not None
              else ("yes" if self.failed else "no")),
             ("RMS error e1 / e2 [um]", fmt_pair(self.rms_error_um)),
             ("max error e1 / e2 [um]", fmt_pair(self.max_error_um)),
-            ("RMS error after 40 s [um]", fmt_pair(self.rms_error_after_40s_um)),
         ]
+        if _finite(self.rms_error_after_40s_um):  # a run shorter than 40 s has none
+            rows.append(("RMS error after 40 s [um]", fmt_pair(self.rms_error_after_40s_um)))
         if self.peak_voltage_v is not None:
             rows.append(("peak |u| [V]", f"{self.peak_voltage_v:.2f}"))
         if self.peak_current_a is not None:
@@ -172,6 +180,14 @@ class RunMetrics:
 
     def print(self, file: IO[str] | None = None, extra: Iterable[tuple[str, str]] = ()) -> None:
         print(self.format(extra), file=file)
+
+
+def _finite(v: Iterable[float] | None) -> bool:
+    """True if ``v`` has values and all are finite numbers."""
+    if v is None:
+        return False
+    vals = list(v)
+    return bool(vals) and all(isinstance(x, (int, float)) and math.isfinite(x) for x in vals)
 
 
 def _final_estimates(names: list[str], row: np.ndarray) -> dict[str, float] | None:
@@ -206,10 +222,15 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
         raise BagError(f"{bag}: not a dem_ros run (needs {contract.REFERENCE.name} and {contract.TRUTH.name}"
                        f" or {contract.MEASUREMENT.name}; has: {have})")
     loop_hist = []
+    laws: list[str] = []
     for _, log_ns, msg in r.messages([contract.DIAGNOSTICS.name]):
         for s in msg.status:
             if s.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
                 loop_hist.append((log_ns, {kv.key: kv.value for kv in s.values}))
+            elif s.name == "controller":
+                law = next((kv.value for kv in s.values if kv.key == "law"), "")
+                if law and (not laws or laws[-1] != law):
+                    laws.append(law)
     last = loop_hist[-1][1] if loop_hist else {}
     loop = LoopStats.from_status(last) if loop_hist else None
     src = truth if truth is not None else meas
@@ -232,7 +253,10 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
         rms_error_um=em["rms_error_um"], max_error_um=em["max_error_um"],
         rms_error_after_40s_um=em["rms_error_after_40s_um"], loop=loop,
         duration_s=float(run["duration_s"]) if "duration_s" in run else None,
+        controllers_used=laws if len(laws) > 1 else None,
     )
+    if len(laws) == 1:
+        m.controller = laws[0]
     series: dict[str, Any] = {"t": t, "gaps": gaps, "ref": ref["position"][i_r, :2], "e": e}
     cmd = arrays(contract.COMMAND.name)
     if cmd is not None and cmd["effort"].size:

@@ -32,6 +32,7 @@ LOCALHOST), ``ROS_STATIC_PEERS``, ``CYCLONEDDS_URI``.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -188,7 +189,7 @@ def run_nodes(
     Errors and signals are handled as in :func:`run_node`.
     """
     made: list[Node] = []
-    previous: dict[int, Any] = {}
+    previous: dict[signal.Signals, Any] = {}
     names = [n for n, _ in nodes]
     if args is None:
         args = sys.argv[1:]
@@ -213,14 +214,12 @@ def run_nodes(
         elif kind == "rclpy" and composed:
             from .rclpy_node import shared_executor
 
-            executor = shared_executor(args)
+            executor = shared_executor(list(args))
         # rclpy handles SIGINT itself (shuts its context down); we add SIGTERM
         sigs = (signal.SIGTERM,) if kind == "rclpy" else (signal.SIGINT, signal.SIGTERM)
         for sig in sigs:
-            try:
+            with contextlib.suppress(ValueError):  # not the main thread: the caller handles signals
                 previous[sig] = signal.signal(sig, stop)
-            except ValueError:  # not the main thread: the caller handles signals
-                pass
         for name, setup in nodes:
             node = make_node(name, transport=kind, args=args, executor=executor, composed=composed)
             made.append(node)
@@ -251,15 +250,11 @@ def run_nodes(
         raise
     finally:
         for n in made:
-            try:
+            with contextlib.suppress(Exception):
                 n.shutdown()
-            except Exception:
-                pass
         for sig, handler in previous.items():
-            try:
+            with contextlib.suppress(ValueError, TypeError):
                 signal.signal(sig, handler)
-            except (ValueError, TypeError):
-                pass
 
 
 def _spin(nodes: list[Node], stop_index: int | None) -> None:

@@ -23,6 +23,7 @@ from ..contract import Topic
 
 __all__ = [
     "SERVICE_TYPES",
+    "Callback",
     "CallbackGuard",
     "Logger",
     "Node",
@@ -46,8 +47,10 @@ class TransportError(RuntimeError):
 
 #: ``on_change(new_values) -> None | reason``; a string rejects the change.
 OnChange = Callable[[Mapping[str, Any]], "str | None"]
-#: ``callback(data)``: serialized CDR bytes including the 4-byte encapsulation header.
-RawCallback = Callable[[bytes], None]
+#: ``callback(data)``: serialized CDR bytes including the 4-byte encapsulation header (return value ignored).
+RawCallback = Callable[[bytes], object]
+#: ``callback(msg)`` (return value ignored)
+Callback = Callable[[Any], object]
 #: ``callback(request, response) -> response`` (as rclpy): fill ``response`` and return it.
 ServiceCallback = Callable[[Any, Any], Any]
 
@@ -111,13 +114,13 @@ class Node(Protocol):
     def publisher(self, topic: Topic) -> Publisher:
         """Publisher with the topic's contract QoS."""
 
-    def subscribe(self, topic: Topic, callback: Callable[[Any], None]) -> None:
+    def subscribe(self, topic: Topic, callback: Callback) -> None:
         """Call ``callback(msg)`` for every message on ``topic``."""
 
     def subscribe_raw(self, topic: Topic, callback: RawCallback) -> None:
         """Call ``callback(cdr_bytes)`` (encapsulation header included, what rosbag2 stores)."""
 
-    def timer(self, period_s: float, callback: Callable[[], None]) -> Timer:
+    def timer(self, period_s: float, callback: Callable[[], object]) -> Timer:
         """Call ``callback()`` every ``period_s`` seconds."""
 
     def service(self, name: str, srv_type: str, callback: ServiceCallback) -> None:

@@ -45,14 +45,14 @@ START_NS = 1_700_000_000_000_000_000
 @dataclass
 class _Subscription:
     node: MemoryNode
-    callback: Callable[[Any], None]
+    callback: Callable[[Any], object]
     raw: bool
 
 
 class MemoryTimer:
     """A periodic callback on the bus's manual clock (absolute deadlines, like the DDS timer)."""
 
-    def __init__(self, node: MemoryNode, period_s: float, callback: Callable[[], None]):
+    def __init__(self, node: MemoryNode, period_s: float, callback: Callable[[], object]):
         if not period_s > 0:
             raise ValueError(f"timer period must be positive, got {period_s!r} s")
         self.node = node
@@ -115,8 +115,9 @@ class MemoryNode:
                  ignore_undeclared: bool = False):
         self.bus = bus
         self._ros_args = parse_ros_args(list(args or []))
-        self.name = self._ros_args.node_name or name
-        self.namespace = self._ros_args.namespace or "/"
+        self._given_name = name  # node-targeted ROS arguments name this one
+        self.name = self._ros_args.name_for(name)
+        self.namespace = self._ros_args.namespace_for(name)
         self._ignore_undeclared = ignore_undeclared
         self.logger = _Logger(self)
         self._guard = CallbackGuard(lambda: self.logger)
@@ -140,23 +141,23 @@ class MemoryNode:
         return dict(self._guard.errors)
 
     def resolve(self, topic_name: str) -> str:
-        return self._ros_args.resolve(topic_name, self.namespace)
+        return self._ros_args.resolve(topic_name, self.namespace, self._given_name)
 
     def publisher(self, topic: Topic) -> MemoryPublisher:
         return MemoryPublisher(self.bus, self.resolve(topic.name), topic.type)
 
-    def _subscribe(self, topic: Topic, callback: Callable[[Any], None], raw: bool) -> None:
+    def _subscribe(self, topic: Topic, callback: Callable[[Any], object], raw: bool) -> None:
         name = self.resolve(topic.name)
         sub = _Subscription(self, self._guard.wrap(f"subscription {name}", callback), raw)
         self.bus.subscriptions.setdefault(name, []).append(sub)
 
-    def subscribe(self, topic: Topic, callback: Callable[[Any], None]) -> None:
+    def subscribe(self, topic: Topic, callback: Callable[[Any], object]) -> None:
         self._subscribe(topic, callback, raw=False)
 
     def subscribe_raw(self, topic: Topic, callback: RawCallback) -> None:
         self._subscribe(topic, callback, raw=True)
 
-    def timer(self, period_s: float, callback: Callable[[], None]) -> MemoryTimer:
+    def timer(self, period_s: float, callback: Callable[[], object]) -> MemoryTimer:
         t = MemoryTimer(self, period_s, self._guard.wrap(f"timer {period_s:g} s", callback))
         self.bus.timers.append(t)
         return t

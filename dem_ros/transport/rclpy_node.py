@@ -119,7 +119,7 @@ class RclpyNode:
 
     @property
     def fully_qualified_name(self) -> str:
-        return self._node.get_fully_qualified_name()
+        return str(self._node.get_fully_qualified_name())
 
     @property
     def ros_node(self) -> Any:
@@ -139,7 +139,7 @@ class RclpyNode:
     def publisher(self, topic: Topic) -> RclpyPublisher:
         return RclpyPublisher(self._node.create_publisher(get_message(topic.type), topic.name, to_qos_profile(topic.qos)))
 
-    def subscribe(self, topic: Topic, callback: Callable[[Any], None]) -> None:
+    def subscribe(self, topic: Topic, callback: Callable[[Any], object]) -> None:
         self._node.create_subscription(get_message(topic.type), topic.name,
                                        self._guard.wrap(f"subscription {topic.name}", callback),
                                        to_qos_profile(topic.qos))
@@ -151,7 +151,7 @@ class RclpyNode:
             to_qos_profile(topic.qos), raw=True
         )
 
-    def timer(self, period_s: float, callback: Callable[[], None]) -> Any:
+    def timer(self, period_s: float, callback: Callable[[], object]) -> Any:
         return self._node.create_timer(period_s, self._guard.wrap(f"timer {period_s:g} s", callback))
 
     def service(self, name: str, srv_type: str, callback: ServiceCallback) -> None:
@@ -177,7 +177,8 @@ class RclpyNode:
         return int(self._node.get_clock().now().nanoseconds)
 
     def msg(self, type_name: str) -> type:
-        return get_message(type_name)
+        cls: type = get_message(type_name)
+        return cls
 
     # -- parameters ------------------------------------------------------------------
     def declare_parameters(self, group: str, on_change: OnChange | None = None) -> dict[str, Any]:
@@ -190,6 +191,8 @@ class RclpyNode:
         self._params = ParameterStore(group, values, on_change)
         # registered after declaring: rclpy runs on-set callbacks on declaration too
         self._node.add_on_set_parameters_callback(self._on_set)
+        if hasattr(self._node, "add_pre_set_parameters_callback"):  # rclpy >= Iron (Jazzy): before the type check
+            self._node.add_pre_set_parameters_callback(self._integers_as_doubles)
         return dict(values)
 
     @property
@@ -201,7 +204,24 @@ class RclpyNode:
         from rclpy.parameter import Parameter
 
         result = self._node.set_parameters_atomically([Parameter(k, value=v) for k, v in changes.items()])
-        return None if result.successful else result.reason
+        return None if result.successful else str(result.reason)
+
+    def _integers_as_doubles(self, params: list[Any]) -> list[Any]:
+        """``ros2 param set /controller w 60`` sends an INTEGER: a double parameter takes it as 60.0.
+
+        rclpy would reject it ("expected DOUBLE got INTEGER") before our on-set callback runs;
+        the DDS transport accepts it the same way (the schema coerces int -> float).
+        """
+        from rclpy.parameter import Parameter
+
+        store = self._params
+        out = []
+        for p in params:
+            spec = store.specs.get(p.name) if store is not None else None
+            if spec is not None and spec.type is float and p.type_ == Parameter.Type.INTEGER:
+                p = Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+            out.append(p)
+        return out
 
     def _on_set(self, params: list[Any]) -> SetParametersResult:
         store = self._params
@@ -242,7 +262,7 @@ class RclpyNode:
                     rclpy.shutdown()
             except Exception:
                 pass
-        self._node = None  # type: ignore[assignment]
+        self._node = None
 
     @property
     def is_shutdown(self) -> bool:

@@ -26,19 +26,39 @@ __all__ = ["RosArgs", "initial_parameters", "parse_ros_args"]
 
 @dataclass
 class RosArgs:
-    """What ``--ros-args`` asked for."""
+    """What ``--ros-args`` asked for.
 
-    node_name: str | None = None
-    namespace: str | None = None
+    Rules may target one node (``-r controller:/dem/command:=/x``, ``-r controller:__node:=ctl``):
+    several nodes of one process share the arguments and each applies the global rules
+    and those naming it (:meth:`name_for`, :meth:`namespace_for`, :meth:`resolve`).
+    """
+
+    node_name: str | None = None  # global -r __node:=
+    namespace: str | None = None  # global -r __ns:=
     params_files: list[str] = field(default_factory=list)
     params: list[tuple[str | None, str, Any]] = field(default_factory=list)  # (node or None, name, value)
-    remaps: dict[str, str] = field(default_factory=dict)  # topic remaps, absolute names
+    #: topic remap rules in command-line order, (node or None, from, to), absolute names
+    remaps: list[tuple[str | None, str, str]] = field(default_factory=list)
+    node_renames: dict[str, str] = field(default_factory=dict)  # node-targeted __node
+    node_namespaces: dict[str, str] = field(default_factory=dict)  # node-targeted __ns
     user_args: list[str] = field(default_factory=list)
 
-    def resolve(self, topic_name: str, namespace: str = "/") -> str:
-        """Absolute topic name after ``-r from:=to`` remaps (relative names join ``namespace``)."""
+    def name_for(self, node: str) -> str:
+        """The name node ``node`` gets: its own ``node:__node:=`` rule, else the global one, else ``node``."""
+        return self.node_renames.get(node) or self.node_name or node
+
+    def namespace_for(self, node: str) -> str:
+        """The namespace of node ``node`` (``/`` unless a ``__ns`` rule applies to it)."""
+        return self.node_namespaces.get(node) or self.namespace or "/"
+
+    def resolve(self, topic_name: str, namespace: str = "/", node: str | None = None) -> str:
+        """Absolute topic name for node ``node`` (relative names join ``namespace``) after the first
+        remap rule that matches it: a global rule, or one targeting ``node``, as rcl applies them."""
         full = topic_name if topic_name.startswith("/") else namespace.rstrip("/") + "/" + topic_name
-        return self.remaps.get(full, full)
+        for target, src, dst in self.remaps:
+            if src == full and (target is None or target == node):
+                return dst
+        return full
 
 
 _FLAGS_WITH_VALUE = {"--log-level", "-e", "--enclave", "--log-config-file", "--external-log-config"}
@@ -90,14 +110,22 @@ def parse_ros_args(args: Sequence[str] | None) -> RosArgs:
                 key, sep, to = rule.partition(":=")
                 if not sep or not key or not to:
                     raise ConfigError(f"-r {rule!r}: expected from:=to")
-                if key.count(":") and not key.startswith("/"):
-                    key = key.split(":", 1)[1]  # node-targeted remap; we have one node per process
+                target: str | None = None
+                if ":" in key and not key.startswith("/"):  # node-targeted: applies to that node only
+                    target, key = key.split(":", 1)
                 if key in ("__node", "__name"):
-                    out.node_name = to
+                    if target is None:
+                        out.node_name = to
+                    else:
+                        out.node_renames[target] = to
                 elif key == "__ns":
-                    out.namespace = to if to.startswith("/") else "/" + to
+                    ns = to if to.startswith("/") else "/" + to
+                    if target is None:
+                        out.namespace = ns
+                    else:
+                        out.node_namespaces[target] = ns
                 else:
-                    out.remaps["/" + key.lstrip("/")] = "/" + to.lstrip("/")
+                    out.remaps.append((target, "/" + key.lstrip("/"), "/" + to.lstrip("/")))
             elif a in _FLAGS_WITH_VALUE:
                 next(it)
             elif a in _FLAGS or a.startswith("--enable-") or a.startswith("--disable-") or a.startswith("--log-level="):

@@ -36,8 +36,9 @@ def test_unknown_or_repeated_key_is_an_error_that_names_it(tmp_path, text, names
 def test_wildcard_name_declared_by_some_node_still_reaches_it(tmp_path):
     cfg, _ = _load(tmp_path, "/**:\n  ros__parameters:\n    gap_floor: 0.0006\n    dt: 0.001\n")
     assert cfg["controller"]["gap_floor"] == 0.0006
-    with_dt = [g for g, specs in SCHEMA.groups.items() if any(p.name == "dt" for p in specs)]
-    assert len(with_dt) >= 4 and all(cfg[g]["dt"] == 0.001 for g in with_dt)
+    with_dt = [g for g, specs in SCHEMA.groups.items() if any(s.name == "dt" for s in specs)]
+    assert len(with_dt) >= 4
+    assert all(cfg[g]["dt"] == 0.001 for g in with_dt)
 
 
 @pytest.mark.parametrize(("data", "says"), [

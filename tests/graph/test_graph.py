@@ -1,17 +1,28 @@
 """The real node graph: separate processes over real DDS on loopback, a unique domain per run.
 
 One recorded S1 run (module fixture) is shared by the tests that only read its results;
-live parameter changes are made while it runs. Nothing of the middleware is mocked.
+live parameter changes are made while it runs, and a plain cyclonedds reader (ROS 2 names,
+its own type definition) listens to the commands. Nothing of the middleware is mocked.
+No ``from __future__ import annotations`` here: this module defines an IdlStruct.
 """
 
+import itertools
 import os
 import subprocess
 import sys
 import threading
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
+from cyclonedds.domain import Domain, DomainParticipant
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl.types import float64, int32, sequence, uint32
+from cyclonedds.qos import Policy, Qos
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
 
 from dem_ros import contract
 from dem_ros.core.scenarios import get_scenario
@@ -22,6 +33,36 @@ from dem_ros.tools.runmetrics import RunMetrics
 DURATION = 4.0
 PREROLL = 1.0
 START_DELAY = 12.0
+
+#: a ROS 2 process's Cyclone configuration on localhost (rmw_cyclonedds' LOCALHOST range)
+LOCALHOST_XML = (
+    "<CycloneDDS><Domain><General><Interfaces><NetworkInterface address=\"127.0.0.1\"/></Interfaces>"
+    "<AllowMulticast>false</AllowMulticast></General>"
+    "<Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>32</MaxAutoParticipantIndex>"
+    '<Peers><Peer address="localhost"/></Peers></Discovery></Domain></CycloneDDS>'
+)
+
+
+# --- the plain reader's own view of sensor_msgs/JointState (independent of dem_ros.transport.dds.msgs)
+@dataclass
+class RTime(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    sec: int32 = 0
+    nanosec: uint32 = 0
+
+
+@dataclass
+class RHeader(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    stamp: RTime = field(default_factory=RTime)
+    frame_id: str = ""
+
+
+@dataclass
+class RJointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
+    header: RHeader = field(default_factory=RHeader)
+    name: sequence[str] = field(default_factory=list)
+    position: sequence[float64] = field(default_factory=list)
+    velocity: sequence[float64] = field(default_factory=list)
+    effort: sequence[float64] = field(default_factory=list)
 
 
 def _domain(offset: int) -> int:
@@ -38,8 +79,20 @@ def graph_run(tmp_path_factory):
     cfg["plant_sim"]["start_delay"] = START_DELAY  # parameter changes happen before the loop starts
     meta = {"scenario": "S1", "controller": "adaptive", "estimator": "kf", "transport": "dds", "config": cfg}
     out: dict = {}
-    t = threading.Thread(target=lambda: out.update(facts=launcher.run_graph(
-        cfg, duration=DURATION, transport="dds", bag=bag, meta=meta, domain_id=domain, status=False, workdir=root / "logs")))
+    # a plain cyclonedds participant with ROS 2 names only, up before the graph (it misses no command);
+    # its history holds the whole run, so it loses nothing however late this thread takes
+    dom = Domain(domain, LOCALHOST_XML)
+    dp = DomainParticipant(domain, qos=Qos(Policy.Userdata(b"enclave=/;")))
+    reader = DataReader(dp, Topic(dp, "rt/dem/command", RJointState), qos=Qos(
+        Policy.Reliability.Reliable(duration(seconds=1)), Policy.History.KeepLast(20000)))
+    def run() -> None:
+        try:
+            out["facts"] = launcher.run_graph(cfg, duration=DURATION, transport="dds", bag=bag, meta=meta,
+                                              domain_id=domain, status=False, workdir=root / "logs")
+        except Exception as exc:  # reported by the fixture, with the logs' place
+            out["error"] = exc
+
+    t = threading.Thread(target=run)
     t.start()
     # every node up, the plant still in its start delay: change the controller's parameters live,
     # through the rcl_interfaces services over DDS, the way a user does (dem-ros param)
@@ -60,9 +113,20 @@ def graph_run(tmp_path_factory):
         "k1_after": cli("get", "controller", "k1"),
         "w_after": cli("get", "controller", "w"),
     }
-    t.join(timeout=300)
+    # the run's commands, as any ROS 2 node would take them off the wire: rt/dem/command, our own type
+    raw: list = []
+    end = time.monotonic() + 300
+    while t.is_alive() and time.monotonic() < end:
+        raw += [m for m in reader.take(1000) if isinstance(m, RJointState)]  # (not the writers' unregistrations)
+        time.sleep(0.05)
+    t.join(timeout=10)
     assert not t.is_alive(), "the graph did not finish"
-    return {"bag": bag, "facts": out["facts"], "changes": changes, "cfg": cfg, "logs": root / "logs"}
+    assert "error" not in out, f"the graph failed: {out.get('error')!r}"
+    time.sleep(0.5)
+    raw += [m for m in reader.take(20000) if isinstance(m, RJointState)]
+    dp.__del__()
+    dom.__del__()
+    return {"bag": bag, "facts": out["facts"], "changes": changes, "cfg": cfg, "logs": root / "logs", "raw_commands": raw}
 
 
 def test_closed_loop_levitates_and_tracks_like_offline(graph_run):
@@ -141,14 +205,13 @@ def test_what_if_reproduces_the_run(graph_run):
 
 
 def test_raw_ros_named_reader_receives_commands(graph_run):
-    """A plain cyclonedds reader using only ROS 2 names (rt/..., pkg::msg::dds_::Type_) decodes our commands."""
-    from dem_ros.bag import BagReader
-
-    # the bag's command messages were received over exactly that DDS topic by the recorder;
-    # decode one with rosbags (independent CDR) to check the wire bytes
-    r = BagReader(graph_run["bag"])
-    raw = next(d for t, _, _, d in r.raw_messages(["/dem/command"]))
-    from rosbags.typesys import Stores, get_typestore
-
-    msg = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(bytes(raw), "sensor_msgs/msg/JointState")
-    assert list(msg.name) == list(contract.MAGNETS) and len(msg.effort) == 2 and np.all(np.isfinite(msg.effort))
+    """A plain cyclonedds reader using only ROS 2 names (rt/..., pkg::msg::dds_::Type_) and its own
+    definition of the type decodes every command the controller sent, in order."""
+    raw = graph_run["raw_commands"]
+    counts = graph_run["facts"]["recorder"]
+    # (the recorder may match a little after this reader, which is up before every node)
+    assert len(raw) >= counts[contract.COMMAND.name]["received"] >= int(DURATION * 1000)
+    assert all(list(m.name) == list(contract.MAGNETS) and len(m.effort) == 2 for m in raw)
+    assert np.all(np.isfinite([m.effort for m in raw]))
+    stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in raw]
+    assert all(b > a for a, b in itertools.pairwise(stamps))

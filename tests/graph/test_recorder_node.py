@@ -73,7 +73,7 @@ def test_sigint_finalises_a_complete_bag(tmp_path):
 
 
 def test_sigkill_leaves_a_bag_readable_up_to_its_last_chunk(tmp_path):
-    bag, code, out = _record(tmp_path, signal.SIGKILL, 5000, 2.5)
+    bag, code, _out = _record(tmp_path, signal.SIGKILL, 5000, 2.5)
     assert code == -signal.SIGKILL
     rep = check(bag)
     assert rep.truncation is not None  # no summary/footer: check says where it stops

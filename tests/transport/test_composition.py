@@ -6,6 +6,7 @@ Real DDS (own domain per test); the remote side is another process.
 import subprocess
 import sys
 import time
+from dataclasses import replace
 
 import pytest
 
@@ -122,3 +123,23 @@ def test_container_bad_arguments_are_clear_errors(domain_id, args, text):
     r = subprocess.run([sys.executable, "-m", "dem_ros.tools.node_main", "container", "--transport", "dds", *args],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and text in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_a_node_targeted_remap_in_a_container_remaps_only_that_node(domain_id):
+    """``-r controller:/dem/command:=/x`` given to a container: the controller publishes on /x, the plant
+    still subscribes to /dem/command (rosargs.py used to drop the node prefix and remap every node)."""
+    args = ["--ros-args", "-r", "controller:/dem/command:=/x"]
+    ex = DdsExecutor(Participant.get(), intra_process=True)
+    ctl = DdsNode("controller", args, executor=ex, ignore_undeclared=True)
+    plant = DdsNode("plant_sim", args, executor=ex, ignore_undeclared=True)
+    try:
+        got = {"plant": [], "x": []}
+        plant.subscribe(contract.COMMAND, got["plant"].append)
+        plant.subscribe(replace(contract.COMMAND, name="/x"), got["x"].append)
+        JS = ctl.msg("sensor_msgs/msg/JointState")
+        ctl.publisher(contract.COMMAND).publish(JS(name=list(contract.MAGNETS), effort=[1.0, 2.0]))
+        ex.spin_once(0.0)
+        assert ctl.resolve(contract.COMMAND.name) == "/x" and plant.resolve(contract.COMMAND.name) == "/dem/command"
+        assert len(got["x"]) == 1 and got["plant"] == []
+    finally:
+        ex.shutdown()

@@ -163,9 +163,28 @@ def test_ros_args_like_rcl(tmp_path):
     ra = parse_ros_args(["user", "--ros-args", "--params-file", str(f), "-p", "k2:=2000", "-r", "__node:=ctl",
                          "-r", "__ns:=/dem", "-r", "/dem/command:=/x/command", "--log-level", "info", "--", "tail"])
     assert (ra.node_name, ra.namespace, ra.user_args) == ("ctl", "/dem", ["user", "tail"])
-    assert ra.remaps == {"/dem/command": "/x/command"}
+    assert ra.resolve("command", "/dem") == ra.resolve("/dem/command") == "/x/command"
+    assert ra.resolve("/dem/other", "/dem", "ctl") == "/dem/other"
     v = initial_parameters("controller", ra, "ctl")
     assert (v["k1"], v["k2"], v["type"], v["k3"]) == (80.0, 2000.0, "paper", 12000.0)
+
+
+def test_node_targeted_rules_apply_to_their_node_only():
+    """rcl's ``node:rule``: in a container every node sees the same arguments; each takes its own rules."""
+    ra = parse_ros_args(["--ros-args", "-r", "controller:/dem/command:=/x", "-r", "/dem/reference:=/ref",
+                         "-r", "plant_sim:__node:=rig", "-r", "estimator:__ns:=/est"])
+    assert ra.resolve("/dem/command", node="controller") == "/x"
+    assert ra.resolve("/dem/command", node="plant_sim") == "/dem/command"
+    assert ra.resolve("/dem/command") == "/dem/command"
+    assert ra.resolve("/dem/reference", node="plant_sim") == ra.resolve("/dem/reference", node="controller") == "/ref"
+    assert (ra.name_for("plant_sim"), ra.name_for("controller")) == ("rig", "controller")
+    assert (ra.namespace_for("estimator"), ra.namespace_for("controller")) == ("/est", "/")
+    assert ra.node_name is None  # nothing global: a container may run these
+
+
+def test_first_matching_remap_rule_wins_as_in_rcl():
+    ra = parse_ros_args(["--ros-args", "-r", "controller:/t:=/first", "-r", "/t:=/second"])
+    assert ra.resolve("/t", node="controller") == "/first" and ra.resolve("/t", node="plant_sim") == "/second"
 
 
 def test_bad_params_file_gives_config_error(tmp_path):

@@ -41,7 +41,6 @@ CONTROLLERS = {
     "nonlinear_decoupling": kernels.MODE_FIXED,
     "decentralized_pid": -1,
 }
-DIAG_NAMES = ("m_hat", "R_hat", "K_hat", "ec_1", "ec_2", "e_1", "e_2", "adapting", "fault")
 
 
 class Controller:
@@ -58,12 +57,6 @@ class Controller:
 
     def set_params(self, cfg: Mapping) -> None:  # pragma: no cover - interface
         raise NotImplementedError
-
-    def estimates(self) -> dict | None:
-        """Physical estimates {m_kg, R_ohm, K} or None when the law has none."""
-        if not np.all(np.isfinite(self.diag[:3])):
-            return None
-        return {"m_kg": float(self.diag[0]), "R_ohm": float(self.diag[1]), "K": float(self.diag[2])}
 
 
 def _cp_vector(cfg: Mapping) -> np.ndarray:

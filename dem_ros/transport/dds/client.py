@@ -32,7 +32,8 @@ def _node_fqn(node_name: str) -> str:
     return n if n.startswith("/") else "/" + n
 
 
-_ENDPOINTS: dict = {}
+#: (domain id, node, service) -> [participant, writer, reader, wait set, condition, client guid, last seq]
+_ENDPOINTS: dict[tuple[int, str, str], list[Any]] = {}
 
 
 def _endpoints(p: Any, fqn: str, srv: str, srv_type: str) -> list[Any]:

@@ -30,6 +30,7 @@ reference's one-sample lead, and the controller acts on an older reference:
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections import deque
@@ -62,6 +63,9 @@ class Member(Protocol):
     def flush_replies(self) -> None:
         """Send the service replies whose client is now matched (or timed out)."""
 
+    def shutdown(self) -> None:
+        """Stop: leave the executor (idempotent)."""
+
 
 class DdsTimer:
     """A periodic callback scheduled against absolute deadlines on the monotonic clock.
@@ -74,7 +78,7 @@ class DdsTimer:
             (the timer then resumes at the next future deadline, never bursts).
     """
 
-    def __init__(self, period_s: float, callback: Callable[[], None], node: Member | None = None):
+    def __init__(self, period_s: float, callback: Callable[[], object], node: Member | None = None):
         if not period_s > 0:
             raise ValueError(f"timer period must be positive, got {period_s!r} s")
         self.period_ns = round(period_s * 1e9)
@@ -105,7 +109,7 @@ class LocalSubscription:
 
     __slots__ = ("callback", "node", "raw")
 
-    def __init__(self, node: Member, callback: Callable[[Any], None], raw: bool):
+    def __init__(self, node: Member, callback: Callable[[Any], object], raw: bool):
         self.node = node
         self.callback = callback
         self.raw = raw
@@ -163,10 +167,8 @@ class DdsExecutor:
 
     def _forget(self, node: Member) -> None:
         for entry in [e for e in self.readers if e[3] is node]:
-            try:
+            with contextlib.suppress(Exception):
                 self.ws.detach(entry[2])
-            except Exception:
-                pass
             self.readers.remove(entry)
         self.timers = [t for t in self.timers if t.node is not node]
         for subs in self.local.values():
@@ -177,10 +179,8 @@ class DdsExecutor:
             self._stopped = True
 
     def wake(self) -> None:
-        try:
+        with contextlib.suppress(Exception):
             self.guard.set(True)
-        except Exception:
-            pass
 
     @property
     def stopped(self) -> bool:

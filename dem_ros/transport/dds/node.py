@@ -16,11 +16,12 @@ announced on ``/parameter_events``.
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, ClassVar
 
 from cyclonedds._clayer import ddspy_write
 from cyclonedds.core import ReadCondition
@@ -48,7 +49,7 @@ _REMOTE_CHECK_NS = 100_000_000
 
 
 def _guid_bytes(entity: Any) -> bytes:
-    return entity.get_guid().bytes
+    return bytes(entity.get_guid().bytes)
 
 
 class Participant:
@@ -224,7 +225,7 @@ class DdsPublisher:
 
 
 class _Logger:
-    _LEVELS = {"DEBUG": 10, "INFO": 20, "WARN": 30, "ERROR": 40, "FATAL": 50}
+    _LEVELS: ClassVar[dict[str, int]] = {"DEBUG": 10, "INFO": 20, "WARN": 30, "ERROR": 40, "FATAL": 50}
 
     def __init__(self, node: DdsNode):
         self._node = node
@@ -235,13 +236,11 @@ class _Logger:
         sys.stderr.write(f"[{level}] [{t // 10**9}.{t % 10**9:09d}] [{self._node.logger_name}]: {text}\n")
         sys.stderr.flush()
         if self._rosout is not None:
-            try:
+            with contextlib.suppress(Exception):  # logging must never raise
                 self._rosout.publish(msgs.Log(
                     stamp=msgs.Time(sec=t // 10**9, nanosec=t % 10**9), level=self._LEVELS[level],
                     name=self._node.logger_name, msg=text, file="", function="", line=0,
                 ))
-            except Exception:  # logging must never raise
-                pass
 
     def debug(self, msg: str) -> None:
         pass
@@ -270,8 +269,9 @@ class DdsNode:
         does not declare is left to the other nodes of the process (composition) instead of
         being an error."""
         self._ros_args: RosArgs = parse_ros_args(args)
-        self.name = self._ros_args.node_name or name
-        self.namespace = self._ros_args.namespace or "/"
+        self._given_name = name  # node-targeted ROS arguments name this one
+        self.name = self._ros_args.name_for(name)
+        self.namespace = self._ros_args.namespace_for(name)
         self._p = Participant.get(domain_id)
         self._ignore_undeclared = ignore_undeclared
         self._reader_gids: list[bytes] = []
@@ -303,7 +303,7 @@ class DdsNode:
 
     def resolve(self, topic_name: str) -> str:
         """Absolute topic name after ``-r from:=to`` remaps (relative names join the namespace)."""
-        return self._ros_args.resolve(topic_name, self.namespace)
+        return self._ros_args.resolve(topic_name, self.namespace, self._given_name)
 
     @property
     def settings(self) -> wire.Settings:
@@ -339,7 +339,7 @@ class DdsNode:
     def publisher(self, topic: Topic) -> DdsPublisher:
         return self._make_writer(topic.name, topic.type, topic.qos, intra=self._ex.intra_process)
 
-    def _subscribe(self, topic: Topic, callback: Callable[[Any], None], raw: bool) -> None:
+    def _subscribe(self, topic: Topic, callback: Callable[[Any], object], raw: bool) -> None:
         cls = msgs.message_class(topic.type)
         resolved = self.resolve(topic.name)
         dds_name = wire.topic_name(resolved)
@@ -355,14 +355,14 @@ class DdsNode:
         # a sample that does not decode or a callback that raises is counted and logged, never fatal
         self._make_reader(dds_name, topic.type, cls, topic.qos, self._guard.wrap(what, handler), intra=intra)
 
-    def subscribe(self, topic: Topic, callback: Callable[[Any], None]) -> None:
+    def subscribe(self, topic: Topic, callback: Callable[[Any], object]) -> None:
         self._subscribe(topic, callback, raw=False)
 
     def subscribe_raw(self, topic: Topic, callback: RawCallback) -> None:
         """Deliver the CDR bytes as received (no decode): what rosbag2 stores."""
         self._subscribe(topic, callback, raw=True)
 
-    def timer(self, period_s: float, callback: Callable[[], None]) -> DdsTimer:
+    def timer(self, period_s: float, callback: Callable[[], object]) -> DdsTimer:
         t = DdsTimer(period_s, self._guard.wrap(f"timer {period_s:g} s", callback), self)
         self._ex.add_timer(t)
         return t
@@ -476,7 +476,7 @@ class DdsNode:
 
         self._serve(name.strip("/"), srv_type, req_cls, rep_cls, compute)
 
-    def _serve(self, srv: str, srv_type: str, req_cls: type, rep_cls: type, compute: Callable[[Any, Any], None]) -> None:
+    def _serve(self, srv: str, srv_type: str, req_cls: Any, rep_cls: Any, compute: Callable[[Any, Any], None]) -> None:
         rq, rr = wire.service_topics(self.fully_qualified_name + "/" + srv)
         self._csid += 1
         gid = self._p.gid

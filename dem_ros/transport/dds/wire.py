@@ -211,7 +211,7 @@ def _typestore(distro: str):  # type: ignore[no-untyped-def]
     types = {}
     for name, text in _SRV_DEFS.items():
         # rosbags would file "pkg/srv/X" under "pkg/srv/msg/X"; keep rosidl's name, it is hashed
-        types.update({name: v for v in get_types_from_msg(text, name).values()})
+        types[name] = list(get_types_from_msg(text, name).values())[-1]
     store.register(types)
     return store
 

@@ -9,6 +9,11 @@ publishes the reference for sample k+1 (stamped t_k + T), one period ahead, so
 the controller has it when measurement k+1 arrives; on the first measurement it
 also publishes sample 0. Lost measurements are caught up sample by sample, so
 the sequence is the offline simulator's exactly.
+
+Implausible measurements are refused (counted, logged once a second), never acted on: fewer than two
+gaps, a stamp more than ``FUTURE_S`` ahead of this node's clock (a rogue or broken clock: a +1 h stamp
+would otherwise make the node compute an hour of reference before it answers again), or a jump of
+more than ``MAX_CATCH_UP_S`` past the schedule at once.
 """
 
 from __future__ import annotations
@@ -25,6 +30,9 @@ from .common import JointStates, stamp_ns
 
 __all__ = ["ReferenceNode", "main"]
 
+FUTURE_S = 1.0  # stamps may lead this node's clock by transport jitter, never by a second
+MAX_CATCH_UP_S = 10.0  # lost measurements are caught up sample by sample, at most this much at once
+
 
 class ReferenceNode:
     def __init__(self, node: Node):
@@ -36,6 +44,8 @@ class ReferenceNode:
         self.pre_seen = False
         self.pre_gaps: list[tuple[float, float]] = []  # measured gaps of the pre-roll
         self.next_k = 0
+        self.refused = 0
+        self._last_warn = 0
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.REFERENCE_NAMES)  # shared by every message published (never modified)
@@ -63,8 +73,21 @@ class ReferenceNode:
         """Publish [y_d (8), r (2)] stamped ``t_ns`` (see ``contract.REFERENCE_NAMES``)."""
         self.pub.publish(self.js.make(self.js.header(t_ns, frame), self.names, vec))
 
+    def _refuse(self, why: str) -> None:
+        self.refused += 1
+        now = self.node.now_ns()
+        if now - self._last_warn > 1_000_000_000:
+            self._last_warn = now
+            self.node.logger.warn(f"measurement refused ({self.refused} so far): {why}")
+
     def on_measurement(self, msg) -> None:
         t = stamp_ns(msg)
+        if len(msg.position) < 2:
+            self._refuse(f"{len(msg.position)} gaps, expected 2")
+            return
+        if t - self.node.now_ns() > FUTURE_S * 1e9:
+            self._refuse(f"stamp {(t - self.node.now_ns()) * 1e-9:.3g} s in the future")
+            return
         if self.epoch is None and msg.header.frame_id == contract.FRAME_PREROLL:
             # levitating before t = 0: the model rests where the plate hovers
             self.pre_gaps.append((float(msg.position[0]), float(msg.position[1])))
@@ -84,6 +107,9 @@ class ReferenceNode:
             if self.pre_seen:
                 self.next_k = 1  # sample 0 went out with the last pre-roll sample (the model at rest)
         k = round((t - self.epoch) / self.dt_ns)
+        if k + 1 - self.next_k > MAX_CATCH_UP_S / self.cfg["dt"]:
+            self._refuse(f"stamp {(k + 1 - self.next_k) * self.cfg['dt']:.3g} s past the schedule at once")
+            return
         self._publish_upto(k + 1)
 
 

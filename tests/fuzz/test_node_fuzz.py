@@ -53,16 +53,7 @@ def _plausible(bus: MemoryBus, k: int, rng: random.Random) -> bytes:
     return fastcdr.encode_joint_state(m)
 
 
-REFERENCE_HANGS = (
-    "the reference node hangs on a far-future stamp (nodes/reference.py on_measurement -> _publish_upto loops "
-    "up to it: issue #12 '+1 h stamp hung the reference node'); reproduced here with 100 samples; un-skip when "
-    "the reference node bounds its catch-up"
-)
-
-
-@pytest.mark.parametrize("name", ["estimator", "controller",
-                                  pytest.param("reference", marks=pytest.mark.skip(reason=REFERENCE_HANGS)),
-                                  "plant_sim"])
+@pytest.mark.parametrize("name", ["estimator", "controller", "reference", "plant_sim"])
 def test_mutated_samples_through_the_node_callbacks_never_escape(name, capsys):
     cls, topics = _nodes()[name]
     bus = MemoryBus()

@@ -1,6 +1,6 @@
 """Tracking metrics of a run: the numbers the report, the CLI and the tests compare.
 
-All errors are e = true gap - reference-model output y_m (notes 7), reported in
+All errors are e = true gap - reference-model output y_m (docs/manual/scenarios.md), reported in
 micrometres; voltages in V, currents in A.
 """
 

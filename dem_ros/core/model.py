@@ -8,7 +8,7 @@ State ``x = [d1, d1', d2, d2', i1, i2]`` (m, m/s, m, m/s, A, A), input
     A = 1/m + Ll/I, B = 1/m - Ll/I, C = 1/m + L^2/I, D = 1/m - L^2/I (Eq. 4)
     F_j = K i_j^2 / delta_j^2                                      (Eq. 5, 8)
 
-the corrected dynamics are (notes section 1; errata 1-3)::
+the corrected dynamics are (docs/manual/model.md; errata 1-3)::
 
     d1'' = -A F1 - B F2 + C N1 + D N2 + g                           (Eq. 3a)
     d2'' = -B F1 - A F2 + D N1 + C N2 + g                           (Eq. 3b)
@@ -17,7 +17,7 @@ the corrected dynamics are (notes section 1; errata 1-3)::
 (each coil has its own resistance R_j; the control laws assume R1 = R2 = R).
 
 With a_j = i_j^2/delta_j, b_j = i_j/delta_j, q_j = b_j^2 the output has
-relative degree (3, 3) and (notes 1 a-b)::
+relative degree (3, 3) and (docs/manual/model.md a-b)::
 
     y'   = [d1', d2']
     y''  = L_f^2 h = W2^T theta + g
@@ -172,7 +172,7 @@ def rk4(x: np.ndarray, u: np.ndarray, p: np.ndarray, T: float, n: int) -> None:
 
 @njit(cache=True)
 def theta_of(phi: np.ndarray, cA: float, cC: float, theta: np.ndarray) -> None:
-    """theta(phi) for phi = (1/m, R, K[, rho]) (notes 6, A2 i); cA = Ll/I, cC = L^2/I; theta (8,) or (10,)."""
+    """theta(phi) for phi = (1/m, R, K[, rho]) (docs/manual/controllers.md, A2 i); cA = Ll/I, cC = L^2/I; theta (8,) or (10,)."""
     mu, R, K = phi[0], phi[1], phi[2]
     Ap = mu + cA
     Bp = mu - cA
@@ -234,7 +234,7 @@ def lie_terms(d1: float, d2: float, i1: float, i2: float, P: float, Q: float, ab
 
 @njit(cache=True)
 def regressors(ab: np.ndarray, u: np.ndarray, N1: float, N2: float, W3: np.ndarray, W2: np.ndarray) -> None:
-    """W3 (8x2 or 10x2): y''' = W3^T theta;  W2 (same shape): y'' - g = W2^T theta (notes 1)."""
+    """W3 (8x2 or 10x2): y''' = W3^T theta;  W2 (same shape): y'' - g = W2^T theta (docs/manual/model.md)."""
     a1, a2, b1, b2, q1, q2 = ab[0], ab[1], ab[2], ab[3], ab[4], ab[5]
     W3[:, :] = 0.0
     W2[:, :] = 0.0

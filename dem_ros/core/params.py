@@ -165,7 +165,7 @@ class Schema:
 
 
 # ---------------------------------------------------------------------------
-# Physical constants of the rig (paper Table 2, notes section 3).
+# Physical constants of the rig (paper Table 2, docs/manual/model.md).
 # ---------------------------------------------------------------------------
 TABLE2 = {
     "L": 0.3,  # m, centre O to load points
@@ -175,8 +175,8 @@ TABLE2 = {
     "N1": 36.5,  # N
     "N2": 36.5,  # N
     "g": 9.81,  # m/s^2
-    "R": 20.0,  # ohm (notes 3, recommended truth)
-    "K": 4.374e-4,  # N m^2 / A^2 (notes 3)
+    "R": 20.0,  # ohm (docs/manual/model.md, recommended truth)
+    "K": 4.374e-4,  # N m^2 / A^2 (docs/manual/model.md)
 }
 
 
@@ -386,7 +386,7 @@ SCHEMA = Schema(
         + (
             ParamSpec("m_init", float, 10.0, "kg", "initial mass estimate (paper: 10)", 0.1, 1e4),
             ParamSpec("R_init", float, 15.0, "ohm", "initial resistance estimate (paper: 15)", 0.01, 1e4),
-            ParamSpec("K_init", float, 3.0618e-4, "N*m^2/A^2", "initial force-coefficient estimate (notes 3: 0.7 K)", 1e-7, 1.0),
+            ParamSpec("K_init", float, 3.0618e-4, "N*m^2/A^2", "initial force-coefficient estimate (docs/manual/model.md: 0.7 K)", 1e-7, 1.0),
             ParamSpec("m_nominal", float, TABLE2["m"], "kg", "fixed mass of nonlinear_decoupling / decentralized_pid", 0.1, 1e4),
             ParamSpec("R_nominal", float, TABLE2["R"], "ohm", "fixed resistance of nonlinear_decoupling / decentralized_pid", 0.01, 1e4),
             ParamSpec("K_nominal", float, TABLE2["K"], "N*m^2/A^2", "fixed force coefficient of nonlinear_decoupling / decentralized_pid", 1e-7, 1.0),
@@ -406,7 +406,7 @@ SCHEMA = Schema(
             ParamSpec("q_rho", float, 0.0, "s^-1", "random-walk rate of the scaled rho (coils heating at different rates)", 0.0, 1e9),
             ParamSpec("rho_max", float, 10.0, "ohm", "bound of |rho|, half the largest resistance difference of the coils", 0.0, 1e4),
 
-            ParamSpec("hover_init", bool, True, "", "initialise the estimates from the measured hover before start (notes 6 A2 iv)"),
+            ParamSpec("hover_init", bool, True, "", "initialise the estimates from the measured hover before start (docs/manual/controllers.md A2 iv)"),
             ParamSpec("hover_window", float, 0.2, "s", "hover initialisation: average this much of the pre-roll (the law holds the applied voltage meanwhile)", 0.0, 60.0),
             ParamSpec("w", float, 50.0, "", "leakage weight of Eq. 48 (adaptive_enhanced)", 0.0, 1e9),
             ParamSpec("R0", float, 10.0, "s^-1", "dead zone of Eq. 48: adapt only while ||dP/dt|| > R0 (adaptive_enhanced, deadzone=pdot)", 0.0, 1e12),

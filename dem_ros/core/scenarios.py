@@ -1,4 +1,4 @@
-r"""Scenarios of notes section 7 (S1, S2, S3a-c, S4a-c) and rig conditions (S5, S6): named overrides of the schema.
+r"""Scenarios of docs/manual/scenarios.md (S1, S2, S3a-c, S4a-c) and rig conditions (S5, S6): named overrides of the schema.
 
 The definitions live in ``config/scenarios.yaml``; this module finds and
 validates them and builds what a scenario implies, all seeded:

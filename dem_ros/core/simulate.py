@@ -1,6 +1,6 @@
 r"""Offline closed-loop simulator (compiled), one run or a batch of plants.
 
-Timing model (notes 6 "common loop", the same as the node graph's): at each
+Timing model (docs/manual/controllers.md "common loop", the same as the node graph's): at each
 sample t_k = k T the sensors read x(t_k) (+ noise), the estimator and the
 controller produce u_k, and u_k (+ the input perturbation) is held over
 [t_k, t_{k+1}) while the plant is integrated with ``substeps`` RK4 steps.
@@ -231,7 +231,7 @@ def simulate(
     delay: int | None = None,
     scenario: str = "custom",
 ) -> SimResult:
-    """Simulate the closed loop for ``duration`` s from the 8 mm hover (notes 7).
+    """Simulate the closed loop for ``duration`` s from the 8 mm hover (docs/manual/scenarios.md).
 
     ``delay`` (samples) sets both the plant's command delay and the controller's
     knowledge of it; ``None`` takes ``plant_sim.command_delay`` and

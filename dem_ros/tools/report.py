@@ -163,7 +163,7 @@ def _claims(results: list[dict]) -> list[tuple[str, str, str]]:
     a0 = g("S1", "paper")
     claims.append(("The adaptive law as printed (Eq. 36, Table 1) tracks the reference",
                    "not reproduced" if a0 and a0["failed"] else "reproduced",
-                   f"A0 fails at t = {a0['fail_time_s']} s (wrong sign of P', normalisation caps adaptation at ~1 1/s; notes 5)" if a0 and a0["failed"] else "A0 did not fail"))
+                   f"A0 fails at t = {a0['fail_time_s']} s (wrong sign of P', normalisation caps adaptation at ~1 1/s; docs/manual/errata.md)" if a0 and a0["failed"] else "A0 did not fail"))
     s1 = g("S1", "adaptive")
     ok = s1 and not s1["failed"] and max(s1["rms_error_um"]) < 5 and max(s1["max_error_um"]) < 20
     claims.append(("Satisfactory tracking of the reference model (Figs 5-6), corrected design",
@@ -266,7 +266,7 @@ def make_report(out: Path, duration: float | None = None, jobs: int | None = Non
         "",
         "Why the noise and perturbation claims fail here: the feedback-linearising law differentiates the gap through",
         "(L_f^2 h)_e ~ i^2/delta^2 with k1 = 70, amplifying gap noise ~25x beyond the k3 path, and has no integral action",
-        "(5.6 mm of gap error per volt of low-frequency input offset; notes 5). A model-based estimator reduces the noise",
+        "(5.6 mm of gap error per volt of low-frequency input offset; docs/manual/errata.md). A model-based estimator reduces the noise",
         "reaching the law (compare the `none` and `kf` rows) but cannot remove a physical input disturbance; the",
         "decentralised PID with its inner current loop and integral action is far less sensitive to both.",
         "",

@@ -5,7 +5,7 @@
 the recorded bag (:func:`load_run`, the same code for both), and all three
 print it with :meth:`RunMetrics.format` and write it with :meth:`RunMetrics.to_dict`.
 
-Tracking error e = true gap - reference-model output y_m (notes 7), in
+Tracking error e = true gap - reference-model output y_m (docs/manual/scenarios.md), in
 micrometres (``*_um``), matched by stamp and counted from the experiment's
 t = 0 (the plant's ``epoch_ns``; the pre-roll is left out); voltages in V,
 currents in A, latencies in us.

@@ -19,13 +19,13 @@ def scenarios():
 
 @pytest.fixture(scope="session")
 def s1_adaptive_15s(scenarios):
-    """S1, ``adaptive`` (A2), raw noiseless measurements, notes-6 timing (delay 0), first 15 s."""
+    """S1, ``adaptive`` (A2), raw noiseless measurements, docs/manual/controllers.md timing (delay 0), first 15 s."""
     return simulate(scenarios["S1"].config(), controller="adaptive", estimator="none", duration=15.0, delay=0,
                     scenario="S1")
 
 
 @pytest.fixture(scope="session")
 def s2_adaptive(scenarios):
-    """S2, ``adaptive``, raw noiseless measurements, notes-6 timing (delay 0), the full 100 s."""
+    """S2, ``adaptive``, raw noiseless measurements, docs/manual/controllers.md timing (delay 0), the full 100 s."""
     return simulate(scenarios["S2"].config(), controller="adaptive", estimator="none", duration=100.0, delay=0,
                     scenario="S2")

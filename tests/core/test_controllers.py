@@ -1,4 +1,4 @@
-"""Control laws (dem_ros.core.controllers): exact linearisation, augmented error, adaptation laws (notes 1, 2, 6)."""
+"""Control laws (dem_ros.core.controllers): exact linearisation, augmented error, adaptation laws (docs/manual/controllers.md, docs/manual/errata.md, docs/manual/model.md)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from dem_ros.core.reference import reference_trajectory
 CFG = default_config()
 PC = CFG["plant_sim"]
 CC = dict(CFG["controller"])
-if "command_delay" in CC:  # notes 6 timing, as run_loop below applies it: u_k held over [t_k, t_k+1)
+if "command_delay" in CC:  # docs/manual/controllers.md timing, as run_loop below applies it: u_k held over [t_k, t_k+1)
     CC["command_delay"] = 0
 K1, K2, K3 = CC["k1"], CC["k2"], CC["k3"]
 CA = PC["L"] * PC["l"] / PC["I"]
@@ -39,7 +39,7 @@ NTH = K.NTH
 
 
 def run_loop(ctrl, n: int, ref_cfg: dict | None = None, pc: dict | None = None, before=None, after=None):
-    """Closed loop on the true plant, noiseless, from the 8 mm hover (notes 6 common loop).
+    """Closed loop on the true plant, noiseless, from the 8 mm hover (docs/manual/controllers.md common loop).
 
     The command of sample k is held over [t_k+d, t_k+d+1) with d the controller's
     ``command_delay`` (0 unless a test sets it), the pipe starting full of the hover voltage.
@@ -138,7 +138,7 @@ def _augmented_error_run(dt: float, delay: int = 0, T: float = 1.5):
         xi = c.Z[0, : 2 * NTH].reshape(NTH, 2)  # F(s) W_p, channel 2r + j = W_p[r, j]
         zeta = c.Z[0, 2 * NTH :]  # F(s) (W_p^T theta_hat)
         e = x[[0, 2]] - yd[k, :2]
-        ec[k] = xi.T @ th_hat - zeta - e  # notes 6 sign convention
+        ec[k] = xi.T @ th_hat - zeta - e  # docs/manual/controllers.md sign convention
         rhs[k] = xi.T @ (th_hat - THETA_TRUE)
 
     run_loop(ctrl, n, {**EARLY_STEPS, "dt": dt}, before=before)
@@ -194,14 +194,14 @@ def test_kernel_augmented_error_uses_the_notes_sign():
 
 
 # ---------------------------------------------------------------------------
-# hover initialisation (notes 6 A1, A2 iv)
+# hover initialisation (docs/manual/controllers.md A1, A2 iv)
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("name", ["adaptive", "adaptive_enhanced"])
 @pytest.mark.parametrize("gap,u_factor", [(0.008, 1.0), (0.005, 1.0), (0.008, 1.02)])
 def test_A2_hover_initialisation(name, gap, u_factor):
     """R_hat = u0/i0 and K_hat i0^2/delta0^2 = N + m_hat g/2, from the *measured* hover.
 
-    "Exactly" in notes 6 means: to the convergence of 3 Gauss-Newton steps (3e-9 relative in R).
+    "Exactly" in docs/manual/controllers.md means: to the convergence of 3 Gauss-Newton steps (3e-9 relative in R).
     """
     x0, u0 = hover_state(PC, gap)
     u0 = u0 * u_factor  # a measured voltage that disagrees with the true R: R_hat follows the data

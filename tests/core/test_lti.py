@@ -1,4 +1,4 @@
-"""ZOH discretisation and the all-pole filters F(s), M(s) (dem_ros.core.lti; notes 4) against scipy.signal."""
+"""ZOH discretisation and the all-pole filters F(s), M(s) (dem_ros.core.lti; docs/manual/controllers.md) against scipy.signal."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Plant model (dem_ros.core.model) against an independent sympy derivation (notes 1, 2)."""
+"""Plant model (dem_ros.core.model) against an independent sympy derivation (docs/manual/errata.md, docs/manual/model.md)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from dem_ros.core import model
 from dem_ros.core.params import TABLE2, default_config
 
 PC = default_config()["plant_sim"]
-# Table 2 + the recommended truth R = 20 ohm, K = 4.374e-4 N m^2/A^2 (notes 3)
+# Table 2 + the recommended truth R = 20 ohm, K = 4.374e-4 N m^2/A^2 (docs/manual/model.md)
 TRUE = dict(TABLE2)
 assert TRUE["R"] == 20.0 and TRUE["K"] == 4.374e-4
 
@@ -81,7 +81,7 @@ def test_set_mass_matches_plant_vector():
 
 
 # ---------------------------------------------------------------------------
-# Lie derivatives and the linear parameterisation (notes 1 a-c)
+# Lie derivatives and the linear parameterisation (docs/manual/model.md a-c)
 # ---------------------------------------------------------------------------
 def test_relative_degree_three_symbolically():
     """L_g h = 0 and L_g L_f h = 0 identically (so the relative degree is (3, 3))."""
@@ -142,7 +142,7 @@ def test_flux_conservation_along_f6():
     f6 = sp.Matrix([x2, g, x4, g, x5 * dde1 / de1, x6 * dde2 / de2])
     for q in (x5**2 / de1**2, x6**2 / de2**2):
         assert sp.cancel((sp.Matrix([q]).jacobian(sym.X) * f6)[0]) == 0
-    # notes 1 (a): dF_j/dt along f + G u is exactly (i_j/delta_j)(u_j - R i_j); K drops out
+    # docs/manual/model.md (a): dF_j/dt along f + G u is exactly (i_j/delta_j)(u_j - R i_j); K drops out
     for F, i, de, u in ((K * x5**2 / de1**2, x5, de1, sym.u[0]), (K * x6**2 / de2**2, x6, de2, sym.u[1])):
         dF = (sp.Matrix([F]).jacobian(sym.X) * sym.xdot)[0]
         assert sp.cancel(dF - i / de * (u - R * i)) == 0
@@ -212,7 +212,7 @@ def test_hover_state_is_an_exact_equilibrium(gap, i_expected, u_expected):
     assert x0[5] == i0
     # force balance K i^2/delta^2 = N + m g/2 per magnet (symmetric hover: delta = gap)
     assert PC["K"] * i0**2 / gap**2 == pytest.approx(PC["N1"] + PC["m"] * PC["g"] / 2, rel=1e-12)
-    assert i0 == pytest.approx(i_expected, abs=1e-3)  # notes 3: 2.5 A at 5 mm, 4 A at 8 mm
+    assert i0 == pytest.approx(i_expected, abs=1e-3)  # docs/manual/model.md: 2.5 A at 5 mm, 4 A at 8 mm
     np.testing.assert_allclose(u0, u_expected, atol=0.02)
     np.testing.assert_allclose(u0, PC["R"] * i0, rtol=1e-15)
 

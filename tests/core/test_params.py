@@ -52,7 +52,7 @@ def test_true_plant_defaults_are_table2_plus_notes_3():
         assert pc[k] == TABLE2[k]
     assert (TABLE2["R"], TABLE2["K"]) == (20.0, 4.374e-4)
     c = default_config()["controller"]
-    # paper's initial estimates and K_hat0 = 0.7 K (notes 3)
+    # paper's initial estimates and K_hat0 = 0.7 K (docs/manual/model.md)
     assert (c["m_init"], c["R_init"]) == (10.0, 15.0)
     assert c["K_init"] == pytest.approx(0.7 * TABLE2["K"], rel=1e-3)
     assert (c["k1"], c["k2"], c["k3"]) == (70.0, 1600.0, 12000.0)

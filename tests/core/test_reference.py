@@ -1,4 +1,4 @@
-"""Reference generator (dem_ros.core.reference): M(s) = 0.25/((s+1)(s+0.5)^2), staggered steps (notes 4, 7)."""
+"""Reference generator (dem_ros.core.reference): M(s) = 0.25/((s+1)(s+0.5)^2), staggered steps (docs/manual/controllers.md, docs/manual/scenarios.md)."""
 
 from __future__ import annotations
 
@@ -120,7 +120,7 @@ def test_settling(traj):
         assert 21.5 < last_1um < 23.0
     assert np.abs(yd[t >= 23.5, 0] - 0.005).max() < 1e-6
     assert np.abs(yd[t >= 32.5, 1] - 0.005).max() < 1e-6
-    # the reference itself demands only small accelerations (notes 4: ~1 mm/s^2)
+    # the reference itself demands only small accelerations (docs/manual/controllers.md: ~1 mm/s^2)
     assert np.abs(yd[:, 4:6]).max() < 1e-3
 
 

@@ -1,4 +1,4 @@
-"""Scenario definitions (config/scenarios.yaml, dem_ros.core.scenarios) against notes section 7."""
+"""Scenario definitions (config/scenarios.yaml, dem_ros.core.scenarios) against docs/manual/scenarios.md."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ def test_all_scenarios_load_and_validate(scenarios):
     assert sorted(scenarios) == sorted(NAMES)
     for name in NAMES:
         sc = scenarios[name]
-        assert sc.duration == 100.0  # notes 7: T = 100 s
+        assert sc.duration == 100.0  # docs/manual/scenarios.md: T = 100 s
         cfg = sc.config()
         assert {"plant_sim", "reference", "estimator", "controller"} <= set(cfg)
     assert get_scenario("S2").overrides == scenarios["S2"].overrides
@@ -40,7 +40,7 @@ def test_common_settings_of_notes_7(scenarios):
         assert (rc["target_1"], rc["step_time_1"]) == (0.005, 1.0)
         assert (rc["target_2"], rc["step_time_2"]) == (0.005, 10.0)
         assert (pc["gap_min"], pc["gap_max"]) == (1e-4, 0.030)  # failure: <= 0.1 mm or > 30 mm
-        assert pc["dt"] == DT and pc["substeps"] == 10  # 1 ms ZOH, RK4 at 0.1 ms (notes 6)
+        assert pc["dt"] == DT and pc["substeps"] == 10  # 1 ms ZOH, RK4 at 0.1 ms (docs/manual/controllers.md)
 
 
 def test_S1_is_nominal(scenarios):

@@ -3,7 +3,7 @@
 ==========================  =====================================================
 name                        what it is
 ==========================  =====================================================
-``adaptive`` (default)      corrected adaptive design "A2" (notes 6)
+``adaptive`` (default)      corrected adaptive design "A2" (docs/manual/controllers.md)
 ``adaptive_enhanced``       A2 + corrected leakage ``w`` and dead zone ``R0`` (Eq. 48, "A2e")
 ``paper``                   the adaptive law exactly as printed (Eq. 36, "A0"); it fails
 ``paper_fixed``             minimal errata fixes to the paper's 8-theta law ("A1")

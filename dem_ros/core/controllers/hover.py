@@ -7,7 +7,7 @@ filters them: the window mean (the minimum-variance estimate of a constant in
 white noise) gives d_j, i_j, u_j; the scatter of the per-sample equations gives
 how well each equation is known.
 
-**The hover equations** of the law's model (notes 1 and 6 A2 iv) at rest
+**The hover equations** of the law's model (docs/manual/model.md and controllers.md, hover initialisation) at rest
 (d' = d'' = i' = 0), in phi = (mu, R, K, rho), mu = 1/m, coil resistances
 R_1,2 = R +- rho, with delta_j of Eq. 6 and q_j = i_j^2 / delta_j^2::
 
@@ -44,7 +44,7 @@ A direction is *determined* when the window pins it to better than 1/s_det of
 its prior standard deviation (s_det = 10); the others keep their prior value
 (at rest: R, rho and the heave combination of (mu, K) are determined, so 3 of 4;
 fewer when, e.g., the currents are zero).
-The step is the minimum-P0^{-1}-norm one (as notes 6 A2 iv), bounded to the
+The step is the minimum-P0^{-1}-norm one (as docs/manual/controllers.md A2 iv), bounded to the
 law's box after every iteration. P stays P0: the law keeps adapting from there.
 """
 

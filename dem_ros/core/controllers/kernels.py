@@ -1,6 +1,6 @@
 r"""Compiled control laws (numba). One step = one sample of the 1 kHz loop.
 
-Certainty-equivalence (CE) family, paper Eqs. 17-36 corrected (notes 6).
+Certainty-equivalence (CE) family, paper Eqs. 17-36 corrected (docs/manual/controllers.md).
 Every member shares the control law and the augmented error; they differ in
 how theta_hat is adapted (``mode``):
 
@@ -10,7 +10,7 @@ how theta_hat is adapted (``mode``):
     MODE_ADAPTIVE  "A2": phi = (1/m, R, K), Gauss-Newton RLS, random walk on 1/m, bounds
     MODE_ENHANCED  "A2e": A2 + corrected leakage and dead zone of Eq. 48
 
-Per sample k (notes 6, "common loop")::
+Per sample k (docs/manual/controllers.md, "common loop")::
 
     xi, zeta  <- outputs of F(s) from the previous updates
     e         = y - y_d
@@ -265,7 +265,7 @@ def _update_adaptive(cp, theta, v, scale, v0, P, xi, ec, enhanced, dz_mode) -> f
 
 @njit(cache=True)
 def _ydd_hat(theta, ab, N1, N2, g):
-    """(L_f^2 h)_e = W2^T theta_hat + g (notes 1c)."""
+    """(L_f^2 h)_e = W2^T theta_hat + g (docs/manual/model.md, claim c)."""
     q1 = ab[4]
     q2 = ab[5]
     y1 = theta[1] * q1 + theta[3] * q2 + theta[6] * N1 + theta[7] * N2 + g
@@ -475,7 +475,7 @@ def ce_step(mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, meas, ref, u, diag)
 
 
 # --------------------------------------------------------------------------
-# Decentralised cascade PID (notes 6): one loop per magnet, coupling ignored.
+# Decentralised cascade PID (docs/manual/controllers.md): one loop per magnet, coupling ignored.
 # --------------------------------------------------------------------------
 (PID_KP, PID_KD, PID_KI, PID_KC, PID_R, PID_FF, PID_TS, PID_ULIM) = range(8)
 NPID = 8

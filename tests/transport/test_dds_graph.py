@@ -17,7 +17,7 @@ import pytest
 from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, float64, int32, sequence, uint8, uint32
+from cyclonedds.idl.types import array, bounded_str, float64, int32, sequence, uint8, uint32
 from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
@@ -67,8 +67,8 @@ class Gid16(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
 
 @dataclass
 class NodeInfo16(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
-    node_namespace: str = ""
-    node_name: str = ""
+    node_namespace: bounded_str[256] = ""  # string<=256, as rmw_dds_common declares it
+    node_name: bounded_str[256] = ""
     reader_gid_seq: sequence[Gid16] = field(default_factory=list)
     writer_gid_seq: sequence[Gid16] = field(default_factory=list)
 
@@ -86,8 +86,8 @@ class Gid24(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
 
 @dataclass
 class NodeInfo24(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
-    node_namespace: str = ""
-    node_name: str = ""
+    node_namespace: bounded_str[256] = ""  # string<=256, as rmw_dds_common declares it
+    node_name: bounded_str[256] = ""
     reader_gid_seq: sequence[Gid24] = field(default_factory=list)
     writer_gid_seq: sequence[Gid24] = field(default_factory=list)
 

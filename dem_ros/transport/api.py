@@ -190,3 +190,18 @@ class CallbackGuard:
 
         guarded.__wrapped__ = fn  # type: ignore[attr-defined]
         return guarded
+
+    def answer(self, what: str, callback: Callable[[Any, Any], Any], req: Any, rep: Any) -> Any:
+        """Run a Trigger/SetBool service ``callback(req, rep)`` and return the response to send.
+
+        An exception answers ``success = False`` with the exception as the message (counted and
+        logged once like any callback error); a callback that returns None answers ``rep``.
+        """
+        try:
+            out = callback(req, rep)
+        except Exception as exc:
+            self.failed(what, exc)
+            rep.success = False
+            rep.message = f"{type(exc).__name__}: {exc}"
+            return rep
+        return rep if out is None else out

@@ -323,12 +323,6 @@ class MemoryBus:
         _srv_type, (req_cls, rep_cls), callback, node = self.services[service]
         self.spin_once()
         req, rep = req_cls(**fields), rep_cls()
-        try:
-            out = callback(req, rep)
-        except Exception as exc:
-            node._guard.failed(f"service {service}", exc)
-            rep.success = False
-            rep.message = f"{type(exc).__name__}: {exc}"
-            out = rep
+        out = node._guard.answer(f"service {service}", callback, req, rep)
         self.spin_once()
-        return rep if out is None else out
+        return out

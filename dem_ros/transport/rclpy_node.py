@@ -162,14 +162,7 @@ class RclpyNode:
         guard = self._guard
 
         def handle(req: Any, rep: Any) -> Any:
-            try:
-                out = callback(req, rep)
-            except Exception as exc:
-                guard.failed(what, exc)
-                rep.success = False
-                rep.message = f"{type(exc).__name__}: {exc}"
-                return rep
-            return rep if out is None else out
+            return guard.answer(what, callback, req, rep)
 
         self._node.create_service(get_service(srv_type), "~/" + name.strip("/"), handle)
 

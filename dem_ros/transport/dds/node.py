@@ -463,14 +463,8 @@ class DdsNode:
         guard = self._guard
 
         def compute(req: Any, rep: Any) -> None:
-            try:
-                out = callback(req, rep)
-            except Exception as exc:
-                guard.failed(what, exc)
-                rep.success = False
-                rep.message = f"{type(exc).__name__}: {exc}"
-                return
-            if out is not None and out is not rep:
+            out = guard.answer(what, callback, req, rep)
+            if out is not rep:
                 for f in ("success", "message"):
                     setattr(rep, f, getattr(out, f))
 

@@ -25,7 +25,7 @@ bench: $(STAMP)
 	$(VENV)/bin/dem-ros bench sim
 
 report: $(STAMP)
-	$(VENV)/bin/dem-ros report --out report
+	$(VENV)/bin/dem-ros report --out docs/report
 
 clean-venv:
 	rm -rf $(VENV)

@@ -12,13 +12,11 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pytest
 from cyclonedds.domain import Domain, DomainParticipant
-from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import float64, int32, sequence, uint32
 from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
@@ -30,39 +28,13 @@ from dem_ros.core.simulate import simulate
 from dem_ros.tools import launcher
 from dem_ros.tools.runmetrics import RunMetrics
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "transport"))
+from rospeer import LOCALHOST_XML, RJointState  # a ROS 2 process's configuration and its own JointState
+
 DURATION = 4.0
 PREROLL = 1.0
 START_DELAY = 12.0
 
-#: a ROS 2 process's Cyclone configuration on localhost (rmw_cyclonedds' LOCALHOST range)
-LOCALHOST_XML = (
-    "<CycloneDDS><Domain><General><Interfaces><NetworkInterface address=\"127.0.0.1\"/></Interfaces>"
-    "<AllowMulticast>false</AllowMulticast></General>"
-    "<Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>32</MaxAutoParticipantIndex>"
-    '<Peers><Peer address="localhost"/></Peers></Discovery></Domain></CycloneDDS>'
-)
-
-
-# --- the plain reader's own view of sensor_msgs/JointState (independent of dem_ros.transport.dds.msgs)
-@dataclass
-class RTime(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
-    sec: int32 = 0
-    nanosec: uint32 = 0
-
-
-@dataclass
-class RHeader(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
-    stamp: RTime = field(default_factory=RTime)
-    frame_id: str = ""
-
-
-@dataclass
-class RJointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
-    header: RHeader = field(default_factory=RHeader)
-    name: sequence[str] = field(default_factory=list)
-    position: sequence[float64] = field(default_factory=list)
-    velocity: sequence[float64] = field(default_factory=list)
-    effort: sequence[float64] = field(default_factory=list)
 
 
 def _domain(offset: int) -> int:

@@ -17,47 +17,17 @@ import pytest
 from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, bounded_str, float64, int32, sequence, uint8, uint32
+from cyclonedds.idl.types import array, bounded_str, sequence, uint8
 from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
+from rospeer import LOCALHOST_XML, RJointState  # a ROS 2 process's configuration and its own JointState
 
 from dem_ros import contract
 from dem_ros.transport import make_node, param_get, param_list, param_set
 
 JOINT_STATE_HASH = "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e"  # Jazzy
-# rmw_cyclonedds' LOCALHOST configuration. A Jazzy process (Cyclone 0.10) accepts discovery
-# arriving over lo whatever interface it selected; this reader runs on PyPI Cyclone 11, which
-# drops discovery from unselected interfaces, so it selects lo explicitly to behave the same.
-LOCALHOST_XML = (
-    "<CycloneDDS><Domain><General><Interfaces><NetworkInterface address=\"127.0.0.1\"/></Interfaces>"
-    "<AllowMulticast>false</AllowMulticast></General>"
-    "<Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>32</MaxAutoParticipantIndex>"
-    '<Peers><Peer address="localhost"/></Peers></Discovery></Domain></CycloneDDS>'
-)
-
-
-# --- a ROS 2 reader's own view of the types (independent of dem_ros.transport.dds.msgs)
-@dataclass
-class RTime(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
-    sec: int32 = 0
-    nanosec: uint32 = 0
-
-
-@dataclass
-class RHeader(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
-    stamp: RTime = field(default_factory=RTime)
-    frame_id: str = ""
-
-
-@dataclass
-class RJointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
-    header: RHeader = field(default_factory=RHeader)
-    name: sequence[str] = field(default_factory=list)
-    position: sequence[float64] = field(default_factory=list)
-    velocity: sequence[float64] = field(default_factory=list)
-    effort: sequence[float64] = field(default_factory=list)
 
 
 @dataclass

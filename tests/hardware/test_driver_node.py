@@ -82,7 +82,13 @@ def test_the_driver_honours_plant_sims_contract_and_its_lifecycle_answers_reques
         assert any(a.effort[0] == pytest.approx(80.0, abs=0.5) for a in applied)  # the clamp's hover voltage
     finally:
         node.shutdown()
+    # /dem/hw/state is published at 10 Hz and latched: the newest one may predate the samples this
+    # test saw; wait (bounded) for one that counts them
     v = request("status", timeout_s=60)
+    end = time.monotonic() + 30
+    while int(v["samples"]) == 0 and time.monotonic() < end:
+        time.sleep(0.2)
+        v = request("status", timeout_s=60)
     assert v["state"] == "inactive" and v["board_mode"] == "off"
     assert int(v["corrupt"]) == 0 and int(v["samples"]) > 0, v
     v = request("arm", timeout_s=60)

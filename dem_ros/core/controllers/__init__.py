@@ -83,6 +83,9 @@ def _cp_vector(cfg: Mapping) -> np.ndarray:
     cp[kernels.CP_DELAY] = cfg["command_delay"]
     cp[kernels.CP_QRHO] = cfg["q_rho"]
     cp[kernels.CP_RHO_MAX] = cfg["rho_max"]
+    cp[kernels.CP_KI] = cfg["ki"]
+    cp[kernels.CP_COIL_W] = cfg["coil_weight"]
+    cp[kernels.CP_COIL_A] = 1.0 - np.exp(-cfg["coil_bandwidth"] * cfg["dt"])
     return cp
 
 
@@ -122,6 +125,7 @@ class CEController(Controller):
     def _filter(self) -> None:
         c = self.cfg
         self.F = AllPoleFilter([c["k3"], c["k2"], c["k1"]], 1.0, c["dt"])
+        self.law = kernels.CELaw(self.mode, self.cp, self.F.Ad, self.F.Bd)
 
     # -- state ------------------------------------------------------------
     def reset(self, meas0: np.ndarray | None, u0: np.ndarray | None) -> None:
@@ -169,6 +173,9 @@ class CEController(Controller):
                 self.theta = _theta(self.scale[:n] * self.v[:n], cp)
             self.v0[:] = self.v
         self.u = np.zeros(2) if u0 is None else np.asarray(u0, float).copy()
+        self.ie = np.zeros(2)
+        self.coil = np.full((5, 2), np.nan)  # coil-equation filters: start at the first sample
+        self.state = kernels.CEState(self.theta, self.v, self.scale, self.v0, self.P, self.Z, self.uh, self.ie, self.coil)
         self.diag = np.full(kernels.NDIAG, np.nan)
         self._fill_estimates()
 
@@ -208,8 +215,7 @@ class CEController(Controller):
 
     # -- loop -------------------------------------------------------------
     def step(self, meas: np.ndarray, ref: np.ndarray) -> np.ndarray:
-        kernels.ce_step(self.mode, self.cp, self.theta, self.v, self.scale, self.v0, self.P, self.Z, self.uh,
-                  self.F.Ad, self.F.Bd, meas, ref, self.u, self.diag)
+        kernels.ce_step(self.law, self.state, meas, ref, self.u, self.diag)
         return self.u
 
     def set_params(self, cfg: Mapping) -> None:
@@ -227,8 +233,6 @@ class CEController(Controller):
         if self.mode == kernels.MODE_FIXED:
             self.theta[:] = _theta([1 / new["m_nominal"], new["R_nominal"], new["K_nominal"]], self.cp)
 
-    def kernel_args(self) -> tuple:
-        return (self.mode, self.cp, self.theta, self.v, self.scale, self.v0, self.P, self.Z, self.uh, self.F.Ad, self.F.Bd)
 
 
 class PIDController(Controller):

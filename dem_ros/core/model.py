@@ -44,7 +44,6 @@ import numpy as np
 from numba import njit
 
 __all__ = [
-    "PlantParams",
     "apply_schedule",
     "derived",
     "dynamics",
@@ -95,17 +94,6 @@ def plant_vector(cfg: Mapping, m: float | None = None) -> np.ndarray:
     P, Q, A, B, C, D = derived(cfg["L"], cfg["l"], mass, cfg["I"])
     R1, R2 = coil_resistances(cfg)
     return np.array([P, Q, A, B, C, D, cfg["K"], R1, cfg["N1"], cfg["N2"], cfg["g"], R2])
-
-
-class PlantParams:
-    """Convenience wrapper: named physical parameters and their kernel vector."""
-
-    def __init__(self, cfg: dict):
-        self.cfg = dict(cfg)
-        self.vector = plant_vector(cfg)
-
-    def with_mass(self, m: float) -> np.ndarray:
-        return plant_vector(self.cfg, m)
 
 
 @njit(cache=True)

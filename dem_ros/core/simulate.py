@@ -19,9 +19,9 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from .controllers import CEController, PIDController, make_controller
+from .controllers import CEController, Controller, PIDController, make_controller
 from .controllers import kernels as CK
-from .estimator import NS, KalmanEstimator, ekf_step, make_estimator
+from .estimator import NS, KalmanEstimator, PassThrough, ekf_step, make_estimator
 from .model import IP, IQ, NPP, SM, apply_schedule, initial_state, plant_vector, rk4
 from .reference import hover_start, reference_trajectory
 from .scenarios import NOISE_UNIT, disturbances, plant_schedule, sensor_model
@@ -83,7 +83,7 @@ class Logs(NamedTuple):
 
 
 @njit(cache=True)
-def _closed_loop(law, est, plant, ref, logs):
+def _closed_loop(law: LawArgs, est: EstimatorArgs, plant: PlantArgs, ref: np.ndarray, logs: Logs) -> int:
     """Run the loop (``law`` :class:`LawArgs`, ``est`` :class:`EstimatorArgs`, ``plant`` :class:`PlantArgs`,
     ``ref`` (n, 8), ``logs`` :class:`Logs`); returns the index of the first failed sample or -1.
 
@@ -146,7 +146,7 @@ def _closed_loop(law, est, plant, ref, logs):
 
 
 @njit(cache=True)
-def _batch_metrics(X, ref, start):
+def _batch_metrics(X: np.ndarray, ref: np.ndarray, start: int) -> np.ndarray:
     """(rms (2,), max (2,), rms after ``start`` (2,)) of e = gaps - y_m over rows of X."""
     n = X.shape[0]
     out = np.zeros(6)
@@ -173,7 +173,7 @@ class SimResult:
     scenario: str
     controller: str
     estimator: str
-    config: dict
+    config: dict[str, dict[str, Any]]
     t: np.ndarray  # (N,) s
     x: np.ndarray  # (N, 6) true state [d1, d1', d2, d2', i1, i2] (m, m/s, A)
     u: np.ndarray  # (N, 2) commanded voltage held over [t_k, t_k+1) (V)
@@ -186,12 +186,12 @@ class SimResult:
     failed: bool
     fail_time: float | None
     wall_time: float
-    extra: dict = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
 
     @property
     def error(self) -> np.ndarray:
         """Tracking error e = true gap - y_m (N, 2) in m."""
-        return self.x[:, [0, 2]] - self.ref[:, :2]
+        return np.asarray(self.x[:, [0, 2]] - self.ref[:, :2])
 
     def metrics(self) -> dict[str, Any]:
         from .metrics import tracking_metrics
@@ -199,20 +199,20 @@ class SimResult:
         return tracking_metrics(self)
 
 
-def _final_estimates(D: np.ndarray) -> dict | None:
+def _final_estimates(D: np.ndarray) -> dict[str, float] | None:
     if D.shape[0] == 0 or not np.all(np.isfinite(D[-1, :3])):
         return None
     return {"m_kg": float(D[-1, 0]), "R_ohm": float(D[-1, 1]), "K": float(D[-1, 2])}
 
 
-def _estimator_args(est, measure_velocity: bool) -> EstimatorArgs:
+def _estimator_args(est: KalmanEstimator | PassThrough, measure_velocity: bool) -> EstimatorArgs:
     if isinstance(est, KalmanEstimator):
         return EstimatorArgs(True, *est.kernel_args())
     mask = np.array([1.0, float(measure_velocity), 1.0, float(measure_velocity), 1.0, 1.0])
     return EstimatorArgs(False, np.zeros(NS), np.eye(NS), mask, np.zeros(NPP), 1e-3, np.zeros(4), np.zeros(6))
 
 
-def _law_args(ctrl) -> LawArgs:
+def _law_args(ctrl: Controller) -> LawArgs:
     if isinstance(ctrl, PIDController):
         dummy = CK.CEState(*(np.zeros(a.shape) for a in _ce_shapes()))
         return LawArgs(True, CK.CELaw(0, np.zeros(CK.NCP), np.eye(3), np.zeros(3)), dummy, ctrl.cp, ctrl.integ)
@@ -227,7 +227,8 @@ def _ce_shapes() -> tuple[np.ndarray, ...]:
             np.zeros((CK.NUH, 2)), np.zeros(2), np.zeros((5, 2)))
 
 
-def prepare(cfg: Mapping, duration: float, seed: int | None = None):
+def prepare(cfg: Mapping[str, Mapping[str, Any]], duration: float, seed: int | None = None
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(t, r, ref, mass, noise, pert) of a run of ``duration`` s (see :func:`.scenarios.disturbances`)."""
     pc = cfg["plant_sim"]
     dt = pc["dt"]
@@ -253,7 +254,7 @@ class Preroll:
     gaps: np.ndarray
 
 
-def preroll(pc: Mapping, est, x0: np.ndarray, u0: np.ndarray, sg: np.ndarray, sb: np.ndarray,
+def preroll(pc: Mapping[str, Any], est: KalmanEstimator | PassThrough, x0: np.ndarray, u0: np.ndarray, sg: np.ndarray, sb: np.ndarray,
             window: float, seed: int | None = None) -> Preroll:
     """The graph's pre-roll, offline: the plate rests at x0 under u0 for ``preroll`` s before t = 0.
 
@@ -304,9 +305,10 @@ def simulate(
         raise ConfigError(f"duration: got {duration!r}, expected a positive number of seconds")
     wall0 = time.perf_counter()
     if delay is not None:
-        cfg = {g: dict(v) for g, v in cfg.items()}
-        cfg["plant_sim"]["command_delay"] = int(delay)
-        cfg["controller"]["command_delay"] = int(delay)
+        copy = {g: dict(v) for g, v in cfg.items()}
+        copy["plant_sim"]["command_delay"] = int(delay)
+        copy["controller"]["command_delay"] = int(delay)
+        cfg = copy
     pc = cfg["plant_sim"]
     delay = pc["command_delay"]
     dt = pc["dt"]
@@ -343,7 +345,8 @@ def simulate(
 
 
 @njit(cache=True, parallel=True)
-def _batch(law, states, integ, plant, scheds, ref, start, out):
+def _batch(law: LawArgs, states: CK.CEState, integ: np.ndarray, plant: PlantArgs, scheds: np.ndarray, ref: np.ndarray, start: int,
+           out: np.ndarray) -> None:
     """Run plant b with schedule ``scheds[b]`` and law state ``states`` row b, for every b in parallel.
 
     ``law`` :class:`LawArgs` (its states unused), ``states`` stacked CEState, ``integ`` (B, 2) PID integrators,
@@ -374,7 +377,7 @@ def _batch(law, states, integ, plant, scheds, ref, start, out):
         out[b, :6] = _batch_metrics(X[:m], ref[:m], start)
 
 
-def simulate_batch(cfg: Mapping, mass_offsets: np.ndarray, *, controller: str | None = None, duration: float = 100.0) -> np.ndarray:
+def simulate_batch(cfg: Mapping[str, Mapping[str, Any]], mass_offsets: np.ndarray, *, controller: str | None = None, duration: float = 100.0) -> np.ndarray:
     """Run ``len(mass_offsets)`` plants (added mass, kg) in parallel (no noise, no estimator).
 
     Returns (B, 7): rms e1, rms e2, max e1, max e2, rms e1 after 40 s, rms e2 after 40 s (m),

@@ -173,7 +173,7 @@ def _sym2_norm(a: float, b: float, d: float) -> float:
     """2-norm of the symmetric 2x2 [[a, b], [b, d]]."""
     h = 0.5 * (a + d)
     r = np.sqrt(0.25 * (a - d) ** 2 + b * b)
-    return max(abs(h + r), abs(h - r))
+    return float(max(abs(h + r), abs(h - r)))
 
 
 @njit(cache=True)
@@ -238,7 +238,7 @@ def _rls_cov_step(P: np.ndarray, G: np.ndarray, X: np.ndarray, n: int, dP: np.nd
 
 
 @njit(cache=True)
-def _update_paper(cp, theta, v, P, xi, ec) -> None:
+def _update_paper(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, P: np.ndarray, xi: np.ndarray, ec: np.ndarray) -> None:
     """A0: Eq. 36 as printed, Euler-integrated: theta' = -P xi e_c / n, P' = +P xi xi^T P / n."""
     Ts = cp[CP_TS]
     Pp = np.ascontiguousarray(P[:8, :8])
@@ -257,7 +257,7 @@ def _update_paper(cp, theta, v, P, xi, ec) -> None:
 
 
 @njit(cache=True)
-def _update_paper_fixed(cp, theta, v, scale, P, xi, ec) -> None:
+def _update_paper_fixed(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np.ndarray, P: np.ndarray, xi: np.ndarray, ec: np.ndarray) -> None:
     """A1: per-sample RLS on scaled theta, decreasing P, cone projection -v5 >= |v6| + 0.01."""
     X = np.empty((8, 2))
     for i in range(8):
@@ -290,7 +290,8 @@ def _update_paper_fixed(cp, theta, v, scale, P, xi, ec) -> None:
 
 
 @njit(cache=True)
-def _update_adaptive(cp, theta, v, scale, v0, P, xi, ec, enhanced, dz_mode, Xc, rc) -> float:
+def _update_adaptive(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np.ndarray, v0: np.ndarray, P: np.ndarray, xi: np.ndarray, ec: np.ndarray, enhanced: bool,
+                     dz_mode: int, Xc: np.ndarray, rc: np.ndarray) -> float:
     """A2 / A2e: Gauss-Newton RLS on scaled phi = (1/m, R, K, rho); returns 1.0 if adapting.
 
     The rows are the augmented errors e_c (2) and, when ``Xc`` is not all zero, the weighted coil
@@ -369,7 +370,8 @@ def _update_adaptive(cp, theta, v, scale, v0, P, xi, ec, enhanced, dz_mode, Xc, 
 
 
 @njit(cache=True)
-def _coil_rows(cp, scale, v, coil, uprev, i1, i2, b1, b2, Xc, rc) -> None:
+def _coil_rows(cp: np.ndarray, scale: np.ndarray, v: np.ndarray, coil: np.ndarray, uprev: np.ndarray, i1: float, i2: float, b1: float, b2: float,
+               Xc: np.ndarray, rc: np.ndarray) -> None:
     """The coil equations as regression rows of A2 (module docstring, "coil equations").
 
     ``coil`` (5, 2) filter state per coil: lp(u), lp(i), lp(b'), and the previous i, b (NaN: start).
@@ -412,7 +414,7 @@ def _coil_rows(cp, scale, v, coil, uprev, i1, i2, b1, b2, Xc, rc) -> None:
 
 
 @njit(cache=True)
-def _ydd_hat(theta, ab, N1, N2, g):
+def _ydd_hat(theta: np.ndarray, ab: np.ndarray, N1: float, N2: float, g: float) -> tuple[float, float]:
     """(L_f^2 h)_e = W2^T theta_hat + g (docs/manual/model.md, claim c)."""
     q1 = ab[4]
     q2 = ab[5]
@@ -422,7 +424,7 @@ def _ydd_hat(theta, ab, N1, N2, g):
 
 
 @njit(cache=True)
-def _ce_law(theta, ab, ve1, ve2, u) -> None:
+def _ce_law(theta: np.ndarray, ab: np.ndarray, ve1: float, ve2: float, u: np.ndarray) -> None:
     """u = M_hat^{-1} (v_e - (L_f^3 h)_e) (Eq. 22 corrected); NaN when M_hat is singular."""
     a1, a2, b1, b2 = ab[0], ab[1], ab[2], ab[3]
     L3_1 = 2 * (theta[0] + theta[8]) * a1 + 2 * (theta[2] - theta[9]) * a2
@@ -443,7 +445,7 @@ def _ce_law(theta, ab, ve1, ve2, u) -> None:
 
 
 @njit(cache=True)
-def _predict(mode, cp, theta, v, scale, uh, delay, x) -> bool:
+def _predict(mode: int, cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np.ndarray, uh: np.ndarray, delay: int, x: np.ndarray) -> bool:
     """Advance ``x`` by ``delay`` samples under uh[delay-1], ..., uh[0] with the estimated model."""
     est = np.empty(3)
     if mode == MODE_PAPER or mode == MODE_PAPER_FIX:  # noqa: SIM109 (numba)
@@ -481,11 +483,11 @@ def _predict(mode, cp, theta, v, scale, uh, delay, x) -> bool:
         ua[0] = uh[j, 0]
         ua[1] = uh[j, 1]
         rk4(x, ua, p, cp[CP_TS], 2)
-    return np.all(np.isfinite(x))
+    return bool(np.all(np.isfinite(x)))
 
 
 @njit(cache=True)
-def _integral_term(cp, ydd1, ydd2, rd, xd, E1, E2, out) -> None:
+def _integral_term(cp: np.ndarray, ydd1: float, ydd2: float, rd: np.ndarray, xd: np.ndarray, E1: float, E2: float, out: np.ndarray) -> None:
     """sigma_hat_j = (y_j''_e - y_dj'') + k1 e_j' + k2 e_j + k3 E_j, E_j = int e_j dt (module docstring).
 
     ``rd`` (8,): reference per magnet (y, y', y'', y'''), ``xd`` (6,): the state the law acts on.
@@ -498,7 +500,7 @@ def _integral_term(cp, ydd1, ydd2, rd, xd, E1, E2, out) -> None:
 
 
 @njit(cache=True)
-def ce_step(law, st, meas, ref, u, diag) -> None:
+def ce_step(law: CELaw, st: CEState, meas: np.ndarray, ref: np.ndarray, u: np.ndarray, diag: np.ndarray) -> None:
     """One sample of the CE family: ``law`` a :class:`CELaw`, ``st`` a :class:`CEState` (updated in place).
 
     ``meas`` = [d1, d1', d2, d2', i1, i2], ``ref`` = reference (8,), ``u`` (2,) out: the command (V).
@@ -668,7 +670,7 @@ NPID = 8
 
 
 @njit(cache=True)
-def pid_step(cp, integ, meas, ref, u, diag) -> None:
+def pid_step(cp: np.ndarray, integ: np.ndarray, meas: np.ndarray, ref: np.ndarray, u: np.ndarray, diag: np.ndarray) -> None:
     """i_ref = y_m sqrt(F0/K) + kp e + kd (d' - y_m') + ki int e;  u = R i_ref + kc (i_ref - i).
 
     A non-finite measurement or reference leaves the integrators untouched and sets the fault flag.

@@ -399,8 +399,8 @@ def codec_comparison(n_cdr: int = 20_000, n_bag: int = 100_000) -> dict[str, Any
 
     out: dict[str, Any] = {"cdr_messages": n_cdr, "mcap_messages": n_bag}
     msg = joint_state(msgs.JointState, 1_700_000_000_123_456_789, (0.008, 0.0081), (1e-4, -2e-4), (4.0, 4.1))
-    enc = fastcdr.ENCODERS[msgs.JointState]
-    dec = fastcdr.DECODERS[msgs.JointState]
+    enc = fastcdr.encode_joint_state
+    dec = fastcdr.decoder(msgs.JointState)
     data = enc(msg)
     assert bytes(msg.serialize()) == data and dec(data) == msg  # the same bytes and message as the library's
     cdr: dict[str, dict[str, float]] = {

@@ -8,7 +8,7 @@ A command that may take more than a few seconds (compiling the kernels, ``report
   work advanced (one long step, e.g. a compile, is never a silent wait);
 * on a terminal the line is redrawn in place (``\\r``) twice a second; in a log or a pipe each
   report is a new line and no ``\\r`` is written;
-* :meth:`Progress.close` ends with a line giving the total time, if anything was printed.
+* :meth:`Progress.close` ends with a summary line (or the final count), if anything was printed.
 
 The work advances with :meth:`Progress.step` (cheap: a counter; the reporting thread prints) and
 names its current stage with :meth:`Progress.stage`. Lines look like::
@@ -79,13 +79,17 @@ class Progress:
         return time.monotonic() - self._t0
 
     def close(self, summary: str | None = None) -> float:
-        """Stop reporting; if anything was printed, end with the final state (or ``summary``). Returns the elapsed s."""
+        """Stop reporting; returns the elapsed s.
+
+        If anything was printed, ``summary`` follows (e.g. "ready in 12 s"); without one, a counted job
+        ends with its final count (a terminal's redrawn line always ends with its final state).
+        """
         dt = self.elapsed
         if self._thread is not None:
             self._stop.set()
             self._thread.join()
             self._thread = None
-            if self.said:
+            if self.said and (summary or self.total is not None or self.tty):
                 self._print(summary or self.line(), end=True)
         return dt
 

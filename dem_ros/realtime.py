@@ -31,7 +31,18 @@ What each setting is for (a Python loop on a stock, non-RT Linux kernel):
 
 The loop never spins: the executor sleeps until its next deadline or sample (a FIFO thread that
 spins would starve every normal thread of its core; the kernel's RT throttling,
-``sched_rt_runtime_us``, would then cut in).
+``sched_rt_runtime_us``, would then cut in: once the real-time threads on a CPU have run 950 ms
+of a second, *every* real-time thread on that CPU, any process's, stops for the remaining 50 ms,
+measured here). Two guards keep a process of ours from being that thread:
+
+* **RT budget** (``RLIMIT_RTTIME``, :data:`RT_BUDGET_MS`): a real-time thread of the process that
+  runs that long without sleeping gets ``SIGXCPU``; the handler puts the whole process back to
+  normal scheduling and says so in one line (a healthy loop sleeps every period; a catch-up
+  after a long stall runs a few tens of ms);
+* **leaving the loop** (:func:`leave_loop`): when the loop ends, the process's threads go back to
+  normal scheduling before the shutdown work (finalising a bag: hundreds of ms of compression
+  and writing), which at SCHED_FIFO would hold the CPU against every other process's loop of
+  the same priority.
 
 Settings come from the environment, so that one switch reaches every node process and the
 container alike (``dem-ros launch/bench --rt/--no-rt`` set it for their children):
@@ -84,14 +95,14 @@ import resource
 import sys
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from .core.params import ConfigError
 
 __all__ = ["ENV", "REPORT_PREFIX", "STALLS_PREFIX", "Granted", "RtConfig", "RtConfigError", "StallMonitor", "apply",
-           "config_from_env", "enter_loop", "granted", "loop_monitor"]
+           "config_from_env", "enter_loop", "granted", "leave_loop", "loop_monitor", "tty_workers_fifo"]
 
 #: environment variables read by :func:`config_from_env`
 ENV = {"enabled": "DEM_ROS_RT", "priority": "DEM_ROS_RT_PRIORITY", "lock_memory": "DEM_ROS_RT_LOCK_MEMORY",
@@ -110,6 +121,8 @@ REPORT_PREFIX = "REALTIME "
 STALLS_PREFIX = "STALLS "
 #: at most this many ``STALL`` lines a second (the rest are counted in the summary)
 STALL_LINES_PER_S = 5
+#: a real-time thread that runs this long without sleeping puts the process back to normal scheduling
+RT_BUDGET_MS = 200
 #: how to grant what is missing (one line)
 HOW_TO_GRANT = ("grant it with '@realtime - rtprio 99' and '@realtime - memlock unlimited' in "
                 "/etc/security/limits.conf (user in group realtime), or in a container "
@@ -156,6 +169,7 @@ class Granted:
         timer_slack_ns: the loop thread's timer slack (ns), or None if not set.
         cpus: cores the loop's threads are pinned to, or None.
         gc_frozen: objects moved to the permanent generation; automatic collection disabled.
+        rt_budget_ms: the RT budget (``RLIMIT_RTTIME``) armed, or None.
         missing: what was asked for and refused, one short phrase each.
     """
 
@@ -166,6 +180,7 @@ class Granted:
     timer_slack_ns: int | None = None
     cpus: list[int] | None = None
     gc_frozen: bool = False
+    rt_budget_ms: int | None = None
     missing: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
@@ -296,6 +311,46 @@ def _lock_memory(libc: ctypes.CDLL, g: Granted) -> None:
     g.missing.append(f"mlockall ({why})")
 
 
+def _arm_rt_budget(ms: int) -> int | None:
+    """``RLIMIT_RTTIME`` soft limit ``ms`` with a SIGXCPU handler that leaves real time (see the
+    module docstring); None where it cannot be armed (not the main thread, no such limit)."""
+    import signal
+
+    def over_budget(signum: int, frame: Any) -> None:
+        n = leave_loop()
+        with contextlib.suppress(Exception):
+            sys.stderr.write(f"error: dem_ros real time: a real-time thread of this process ran {ms} ms without"
+                             f" sleeping; {n} thread(s) back to normal scheduling (RT throttling would otherwise"
+                             " stop every real-time thread on its CPU)\n")
+            sys.stderr.flush()
+
+    try:
+        signal.signal(signal.SIGXCPU, over_budget)
+        hard = resource.getrlimit(resource.RLIMIT_RTTIME)[1]
+        soft = ms * 1000 if hard == resource.RLIM_INFINITY else min(ms * 1000, hard)
+        resource.setrlimit(resource.RLIMIT_RTTIME, (soft, hard))
+    except (ValueError, OSError, AttributeError):  # not the main thread; no RLIMIT_RTTIME here
+        return None
+    return ms
+
+
+def leave_loop() -> int:
+    """Put every real-time thread of this process back to normal scheduling; how many there were.
+
+    Called when the loop ends (the shutdown work that follows must not hold a CPU at real-time
+    priority) and by the RT budget's SIGXCPU handler. Idempotent.
+    """
+    n = 0
+    for tid, _ in _threads():
+        try:
+            if os.sched_getscheduler(tid) in (os.SCHED_FIFO, os.SCHED_RR):
+                os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+                n += 1
+        except OSError:  # the thread has ended
+            pass
+    return n
+
+
 def apply(cfg: RtConfig, *, warn=None) -> Granted:
     """Apply ``cfg`` to this process (the calling thread is the loop's); return what was granted.
 
@@ -321,6 +376,8 @@ def apply(cfg: RtConfig, *, warn=None) -> Granted:
     if cfg.lock_memory:
         _lock_memory(libc, g)
     _set_fifo(cfg.priority, threads, g)
+    if g.fifo_priority is not None:
+        g.rt_budget_ms = _arm_rt_budget(RT_BUDGET_MS)
     if g.missing:
         line = (f"warning: dem_ros real time: running without {', '.join(g.missing)}; {HOW_TO_GRANT}")
         (warn or (lambda s: (sys.stderr.write(s + "\n"), sys.stderr.flush())))(line)
@@ -491,3 +548,45 @@ class StallMonitor:
             with contextlib.suppress(Exception):  # at exit: stdout may be gone
                 sys.stdout.write(STALLS_PREFIX + json.dumps(self.summary()) + "\n")
                 sys.stdout.flush()
+
+
+#: kernel threads of the unbound workqueue: the tty layer pushes every byte a serial port or a pty
+#: receives to its reader from one of them (``tty_flip_buffer_push`` -> ``system_unbound_wq``)
+TTY_WORKERS_PREFIX = "kworker/u"
+
+
+@contextlib.contextmanager
+def tty_workers_fifo(priority: int) -> Iterator[list[int]]:
+    """Run the unbound workqueue's kernel workers at SCHED_FIFO ``priority`` meanwhile (root only).
+
+    Why: a byte written to a serial port or a pty reaches the reading process only after a
+    kernel worker (``kworker/u*``, normal priority) has pushed it through the tty layer. On a
+    loaded machine that worker waits behind every busy normal-priority process and every
+    real-time thread, and the serial link's round trip grows from ~0.2 ms to several ms (see
+    ``docs/hardware-link.md``, "Serial latency"). UDP does not take this detour.
+
+    This changes kernel threads that the whole machine shares, so it is never done implicitly:
+    ``linkbench --tty-workers-fifo N`` uses it. Workers that exist on entry get FIFO ``priority``
+    and their previous policy back on exit; workers the kernel starts meanwhile are not touched.
+    Yields the thread ids changed (empty where not permitted).
+    """
+    changed: list[tuple[int, int, int]] = []
+    try:
+        for pid in os.listdir("/proc"):
+            if not pid.isdigit():
+                continue
+            try:
+                with open(f"/proc/{pid}/comm") as f:
+                    if not f.read().startswith(TTY_WORKERS_PREFIX):
+                        continue
+                tid = int(pid)
+                policy, prio = os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+                changed.append((tid, policy, prio))
+            except OSError:  # gone, or not permitted
+                continue
+        yield [t for t, _, _ in changed]
+    finally:
+        for tid, policy, prio in changed:
+            with contextlib.suppress(OSError):
+                os.sched_setscheduler(tid, policy, os.sched_param(prio))

@@ -224,3 +224,42 @@ def test_a_stall_spent_preempted_by_a_higher_priority_thread_is_runnable():
     assert r.returncode == 0, r.stderr[-2000:]
     e = _line(r.stdout, "CHILD ")
     assert e["cause"] == "runnable" and e["runnable_ms"] >= 30 and e["running_ms"] < 25, e
+
+
+#: a loop thread that spins at SCHED_FIFO instead of sleeping, then reports its scheduling
+SPIN_CHILD = textwrap.dedent("""
+    import json, os, time
+    from dem_ros.realtime import enter_loop
+    g = enter_loop(report=False)
+    end = time.monotonic() + 0.6  # 600 ms without sleeping: three times the RT budget
+    while time.monotonic() < end:
+        pass
+    print("CHILD " + json.dumps({"budget": g.rt_budget_ms, "fifo": g.fifo_priority,
+                                 "policy_after": os.sched_getscheduler(0)}))
+""")
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="SCHED_FIFO for the test's process needs root (CAP_SYS_NICE)")
+def test_a_real_time_thread_that_stops_sleeping_is_put_back_to_normal_scheduling():
+    """RLIMIT_RTTIME: the SIGXCPU handler leaves real time (one error line) and the process runs on,
+    instead of spinning at SCHED_FIFO into the kernel's RT throttling."""
+    r = _run_child(SPIN_CHILD)
+    assert r.returncode == 0, r.stderr[-2000:]
+    child = _line(r.stdout, "CHILD ")
+    assert child["fifo"] == 50 and child["budget"] == 200
+    assert child["policy_after"] == os.SCHED_OTHER, child
+    lines = [ln for ln in r.stderr.splitlines() if "ran 200 ms without sleeping" in ln]
+    assert len(lines) == 1, r.stderr
+
+
+def test_leave_loop_is_idempotent_and_counts_what_it_changed():
+    code = textwrap.dedent("""
+        import os
+        from dem_ros.realtime import enter_loop, leave_loop
+        g = enter_loop(report=False)
+        print("CHILD", g.fifo_priority is not None and leave_loop() >= 1, leave_loop(), os.sched_getscheduler(0))
+    """)
+    r = _run_child(code)
+    assert r.returncode == 0, r.stderr
+    line = next(ln for ln in r.stdout.splitlines() if ln.startswith("CHILD")).split()
+    assert line[1] == ("True" if os.geteuid() == 0 else "False") and line[2] == "0" and int(line[3]) == os.SCHED_OTHER

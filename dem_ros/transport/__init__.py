@@ -255,6 +255,10 @@ def run_nodes(
             return 0
         raise
     finally:
+        # the loop is over: the shutdown work (a bag to finalise) must not hold a CPU at real-time priority
+        from ..realtime import leave_loop
+
+        leave_loop()
         for n in made:
             with contextlib.suppress(Exception):
                 n.shutdown()

@@ -39,6 +39,7 @@ import os
 import struct
 import time
 import zlib
+from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -133,6 +134,7 @@ class _McapWriter:
     def __init__(self, stream: _DirectStream, compression: str, chunk_size: int, library: str) -> None:
         self.s = stream
         self.compression = "" if compression == "none" else compression
+        self._compress: Callable[[bytes], bytes]
         if compression == "zstd":
             import zstandard
 
@@ -180,7 +182,7 @@ class _McapWriter:
         self.s.write(rec)
         self.metadata_indexes.append(index)
 
-    def add_message(self, cid: int, log_time: int, data: bytes, publish_time: int) -> bool:
+    def add_message(self, cid: int, log_time: int, data: bytes | bytearray | memoryview, publish_time: int) -> bool:
         """Append to the current chunk; True if that completed and wrote a chunk."""
         buf = self._buf
         idx = self._index.get(cid)
@@ -416,7 +418,8 @@ class BagWriter:
         self.custom_data[key] = value
 
     # -- messages --------------------------------------------------------
-    def write(self, topic: str, log_time_ns: int, cdr_bytes: bytes, publish_time_ns: int | None = None) -> None:
+    def write(self, topic: str, log_time_ns: int, cdr_bytes: bytes | bytearray | memoryview,
+              publish_time_ns: int | None = None) -> None:
         """Append one message.
 
         Args:

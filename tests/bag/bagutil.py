@@ -12,6 +12,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from dem_ros.bag import BagWriter
 from dem_ros.contract import TOPICS
+from dem_ros.transport.dds.fastcdr import joint_state_bytes
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 T = STORE.types
@@ -33,6 +34,12 @@ def joint_state(k: int, topic_index: int) -> Any:
         velocity=np.array([] if topic_index == 0 else [1e-3 * k, -1e-3 * k]),
         effort=np.array([1.0 + topic_index, 2.0 + k * 1e-4]),
     )
+
+
+def joint_state_cdr(names: list[str], position: list[float], velocity: list[float], effort: list[float],
+                    stamp_ns: int = 0) -> bytes:
+    """CDR bytes of a ``sensor_msgs/msg/JointState`` stamped ``stamp_ns`` [ns], by the package's one codec."""
+    return joint_state_bytes(stamp_ns // 10**9, stamp_ns % 10**9, "", names, position, velocity, effort)
 
 
 def diagnostics(k: int) -> Any:

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 import yaml
+from bagutil import joint_state_cdr
 
 from dem_ros.bag import BagError, BagReader, BagWriter, Recorder, check, main_check
-from dem_ros.bag.bench import joint_state_cdr
 from dem_ros.contract import COMMAND, MEASUREMENT
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -114,13 +114,13 @@ def test_recorder_counters_survive_a_full_disk_in_a_child_that_exits(small_disk:
     code = (
         "import random, sys, time\n"
         "from dem_ros.bag import Recorder\n"
-        "from dem_ros.bag.bench import joint_state_cdr\n"
+        "from dem_ros.transport.dds.fastcdr import joint_state_bytes\n"
         "from dem_ros.contract import MEASUREMENT\n"
         "rec = Recorder(sys.argv[1], [MEASUREMENT], compression='none', chunk_size=8192,\n"
         "               on_error=lambda r: print('REPORTED', r, flush=True))\n"
         "rng = random.Random(3)\n"
         "for k in range(40000):\n"
-        "    rec.on_message(MEASUREMENT.name, k, joint_state_cdr(['a', 'b'], [rng.random()] * 2, [], [1.0, 2.0], k))\n"
+        "    rec.on_message(MEASUREMENT.name, k, joint_state_bytes(0, k, '', ['a', 'b'], [rng.random()] * 2, [], [1.0, 2.0]))\n"
         "    if k % 500 == 0: time.sleep(0.002)\n"
         "c = rec.close()[MEASUREMENT.name]\n"
         "print('COUNTERS', c.received, c.written, c.dropped)\n"

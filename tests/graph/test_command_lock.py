@@ -125,7 +125,7 @@ def test_a_rogue_publisher_of_1e6_volts_changes_nothing_and_is_reported(tmp_path
     # nothing the rogue sent was applied: the board would clip 1e6 V to u_max = 200 V
     assert r["applied"].max() < 150.0, r["applied"].max()
     assert r["gaps"].min() > 0.0045 and r["gaps"].max() < 0.0085, (r["gaps"].min(), r["gaps"].max())
-    level, message, last = r["diags"][-1]
+    _level, message, last = r["diags"][-1]
     foreign = int(last["commands_foreign"])
     assert message.startswith("finished") and last["failed"] == "False" and last["landing"] == "False", last
     assert foreign >= rogue_cmds // 2, (foreign, rogue_cmds)  # what the plant saw (the bag: what the recorder saw)

@@ -435,7 +435,7 @@ class DdsNode:
         if intra:
             self._ex.local_subscriptions(dds_name).append(
                 SourcedLocalSubscription(self, self._guard.wrap(what, lambda pair: callback(*pair)), False))
-        deser = fastcdr.DECODERS.get(cls, cls.deserialize)
+        deser = fastcdr.decoder(cls)
         gids: dict[int, bytes] = {}
         box: list[DataReader] = []
 

@@ -405,6 +405,9 @@ SCHEMA = Schema(
             ParamSpec("k1", float, 70.0, "s^-1", "error dynamics s^3+k1 s^2+k2 s+k3 (coefficient of e'')", 0.0, 1e6),
             ParamSpec("k2", float, 1600.0, "s^-2", "error dynamics coefficient of e'", 0.0, 1e9),
             ParamSpec("k3", float, 12000.0, "s^-3", "error dynamics coefficient of e", 0.0, 1e12),
+            ParamSpec("coil_weight", float, 1.0, "", "adaptive / adaptive_enhanced: weight of the coil equations u_j = R_j i_j + 2K d(i_j/delta_j)/dt in the least squares, relative to the tracking error a coil-voltage misfit causes (0: off)", 0.0, 1e6),
+            ParamSpec("coil_bandwidth", float, 10.0, "rad/s", "low-pass bw/(s + bw) of the coil equations' signals (no differentiated current; slow: averages out unknown fast voltages such as a 50 Hz disturbance, which would bias R)", 0.1, 1e4),
+            ParamSpec("ki", float, 10.0, "s^-1", "integral action of adaptive / adaptive_enhanced: error dynamics (s + ki)(s^3 + k1 s^2 + k2 s + k3) on int e (0: off)", 0.0, 1e4),
         )
         + _geometry("model ")
         + (
@@ -424,10 +427,10 @@ SCHEMA = Schema(
             ParamSpec("P0_R", float, 1.0, "", "initial covariance of R (scaled)", 0.0, 1e12),
             ParamSpec("P0_K", float, 0.1, "", "initial covariance of K (scaled)", 0.0, 1e12),
             ParamSpec("q_m", float, 10.0, "s^-1", "random-walk rate of the scaled 1/m (tracks load changes)", 0.0, 1e9),
-            ParamSpec("q_R", float, 0.0, "s^-1", "random-walk rate of the scaled R", 0.0, 1e9),
+            ParamSpec("q_R", float, 1.0, "s^-1", "random-walk rate of the scaled R (coil heating)", 0.0, 1e9),
             ParamSpec("q_K", float, 0.0, "s^-1", "random-walk rate of the scaled K", 0.0, 1e9),
             ParamSpec("P0_rho", float, 0.01, "", "initial covariance of the coil-resistance difference rho = (R1 - R2)/2 (scaled by R_init)", 0.0, 1e12),
-            ParamSpec("q_rho", float, 0.0, "s^-1", "random-walk rate of the scaled rho (coils heating at different rates)", 0.0, 1e9),
+            ParamSpec("q_rho", float, 1.0, "s^-1", "random-walk rate of the scaled rho (coils heating at different rates)", 0.0, 1e9),
             ParamSpec("rho_max", float, 10.0, "ohm", "bound of |rho|, half the largest resistance difference of the coils", 0.0, 1e4),
 
             ParamSpec("hover_init", bool, True, "", "initialise the estimates from the measured hover before start (docs/manual/controllers.md A2 iv)"),

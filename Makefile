@@ -8,16 +8,17 @@ PYTHON ?= python3
 
 .PHONY: demo test bench report clean-venv
 
-# pip -qq: errors only (setuptools' editable-install notice is nothing a user can act on); the
-# background loop is the progress line pip does not give when its output is not a terminal
+# pip -qq: errors only (setuptools' editable-install notice is nothing a user can act on); the background
+# loop is the progress line that venv and pip do not give (it ends with the recipe's shell, Ctrl-C included)
 $(STAMP): setup.py
 	@echo "make: first run: creating $(VENV) and installing dem_ros with its test dependencies (numpy, scipy, numba, cyclonedds, ...)"
-	$(PYTHON) -m venv $(VENV)
-	@t0=$$(date +%s); \
-	( while sleep 5; do echo "make:   ... pip install -e '.[test]' ($$(( $$(date +%s) - t0 )) s)"; done ) & beat=$$!; \
-	$(PY) -m pip install -qq --upgrade pip && $(PY) -m pip install -qq -e '.[test]'; rc=$$?; \
+	@t0=$$(date +%s); me=$$$$; \
+	( while sleep 5 && kill -0 $$me 2>/dev/null; do echo "make:   ... ($$(( $$(date +%s) - t0 )) s)"; done ) & beat=$$!; \
+	{ echo "make: $(PYTHON) -m venv $(VENV)" && $(PYTHON) -m venv $(VENV) && \
+	  echo "make: $(PY) -m pip install -qq -e '.[test]'" && \
+	  $(PY) -m pip install -qq --upgrade pip && $(PY) -m pip install -qq -e '.[test]'; }; rc=$$?; \
 	kill $$beat; \
-	if [ $$rc -eq 0 ]; then echo "make: installed in $$(( $$(date +%s) - t0 )) s"; fi; exit $$rc
+	if [ $$rc -eq 0 ]; then echo "make: $(VENV) ready in $$(( $$(date +%s) - t0 )) s"; fi; exit $$rc
 	@# compile the numba kernels once, here, with progress (demo, test and the nodes then load the cache)
 	$(PY) -c "from dem_ros.tools.common import warm_kernels; warm_kernels('make')"
 	touch $(STAMP)

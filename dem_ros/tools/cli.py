@@ -118,11 +118,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def cmd_config(args: argparse.Namespace) -> int:
     if args.what == "schema":
         for g, specs in SCHEMA.groups.items():
+            if args.group and g != args.group:
+                continue
             print(f"[{g}]")
             for p in specs:
                 ro = " (read-only)" if p.read_only else ""
                 print(f"  {p.name:<24} {p.type.__name__:<5} default {p.default!r:<12} {p.allowed()}{ro}  -- {p.description}")
         return 0
+    if args.group:
+        raise UsageError("config params takes no GROUP (it writes every group's defaults)")
     from .params_file import render_params_file
 
     sys.stdout.write(render_params_file())
@@ -250,6 +254,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("what", choices=["schema", "params"],
                    help="schema: every parameter with type, default, range, unit and meaning; params: a ROS 2 params "
                         "file of the defaults (config/dem_ros.yaml)")
+    c.add_argument("group", nargs="?", choices=list(SCHEMA.groups), metavar="GROUP",
+                   help=f"schema: only this group ({', '.join(SCHEMA.groups)})")
     c.set_defaults(func=cmd_config)
 
     lg = sub.add_parser("launch", help="run the node graph (each node its own process), record a bag, print a summary")

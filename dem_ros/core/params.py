@@ -239,6 +239,9 @@ def _check_controller_safety(v: Mapping[str, Any]) -> str | None:
     if 0.0 < v["max_age"] < v["dt"]:
         return (f"max_age = {v['max_age']:g} s is shorter than one control period (dt = {v['dt']:g} s): every "
                 "measurement would be too old; use 0 (no check) or at least dt")
+    if not v["reference_gap_min"] < v["reference_gap_max"]:
+        return (f"reference_gap_min = {v['reference_gap_min']:g} m must be below reference_gap_max = "
+                f"{v['reference_gap_max']:g} m")
     return None
 
 
@@ -283,6 +286,9 @@ SAFETY_SPECS = (
     ParamSpec("landing_gap", float, 0.011, "m", "landing position: the plate rests on its support at this load-point gap (larger gap = away from the rail)", 1e-4, 0.1),
     ParamSpec("landing_speed", float, 0.01, "m/s", "a landing descends no faster than this", 1e-4, 1.0),
 )
+
+
+_SAFETY_DEFAULTS = {p.name: p.default for p in SAFETY_SPECS}
 
 
 # The command source lock of the nodes that drive the coils (plant_sim, hw_driver): they take /dem/command
@@ -411,6 +417,9 @@ SCHEMA = Schema(
             ParamSpec("k1", float, 70.0, "s^-1", "error dynamics s^3+k1 s^2+k2 s+k3 (coefficient of e'')", 0.0, 1e6),
             ParamSpec("k2", float, 1600.0, "s^-2", "error dynamics coefficient of e'", 0.0, 1e9),
             ParamSpec("k3", float, 12000.0, "s^-3", "error dynamics coefficient of e", 0.0, 1e12),
+            ParamSpec("coil_weight", float, 1.0, "", "adaptive / adaptive_enhanced: weight of the coil equations u_j = R_j i_j + 2K d(i_j/delta_j)/dt in the least squares, relative to the tracking error a coil-voltage misfit causes (0: off)", 0.0, 1e6),
+            ParamSpec("coil_bandwidth", float, 10.0, "rad/s", "low-pass bw/(s + bw) of the coil equations' signals (no differentiated current; slow: averages out unknown fast voltages such as a 50 Hz disturbance, which would bias R)", 0.1, 1e4),
+            ParamSpec("ki", float, 10.0, "s^-1", "integral action of adaptive / adaptive_enhanced: error dynamics (s + ki)(s^3 + k1 s^2 + k2 s + k3) on int e (0: off)", 0.0, 1e4),
         )
         + _geometry("model ")
         + (
@@ -430,10 +439,10 @@ SCHEMA = Schema(
             ParamSpec("P0_R", float, 1.0, "", "initial covariance of R (scaled)", 0.0, 1e12),
             ParamSpec("P0_K", float, 0.1, "", "initial covariance of K (scaled)", 0.0, 1e12),
             ParamSpec("q_m", float, 10.0, "s^-1", "random-walk rate of the scaled 1/m (tracks load changes)", 0.0, 1e9),
-            ParamSpec("q_R", float, 0.0, "s^-1", "random-walk rate of the scaled R", 0.0, 1e9),
+            ParamSpec("q_R", float, 1.0, "s^-1", "random-walk rate of the scaled R (coil heating)", 0.0, 1e9),
             ParamSpec("q_K", float, 0.0, "s^-1", "random-walk rate of the scaled K", 0.0, 1e9),
             ParamSpec("P0_rho", float, 0.01, "", "initial covariance of the coil-resistance difference rho = (R1 - R2)/2 (scaled by R_init)", 0.0, 1e12),
-            ParamSpec("q_rho", float, 0.0, "s^-1", "random-walk rate of the scaled rho (coils heating at different rates)", 0.0, 1e9),
+            ParamSpec("q_rho", float, 1.0, "s^-1", "random-walk rate of the scaled rho (coils heating at different rates)", 0.0, 1e9),
             ParamSpec("rho_max", float, 10.0, "ohm", "bound of |rho|, half the largest resistance difference of the coils", 0.0, 1e4),
 
             ParamSpec("hover_init", bool, True, "", "initialise the estimates from the measured hover before start (docs/manual/controllers.md A2 iv)"),
@@ -448,7 +457,10 @@ SCHEMA = Schema(
             ParamSpec("pid_ki", float, 4672.0, "A/(m*s)", "decentralized_pid integral gain", 0.0, 1e12),
             ParamSpec("pid_kc", float, 87.5, "V/A", "decentralized_pid inner current-loop gain", 0.0, 1e9),
             ParamSpec("command_delay", int, 1, "samples", "samples between a measurement and the period its command is held over (the plant's command_delay); the law predicts over it", 0, 8),
-            ParamSpec("max_age", float, 0.0, "s", "never act on a measurement older than this (wall clock - stamp); 0: no check (lockstep simulation, whose clock lags wall time); 0.005 with hardware", 0.0, 10.0),
+            ParamSpec("max_age", float, 0.002, "s", "never act on an estimate older than this on the experiment clock (newest /dem/applied_voltage stamp - its stamp), nor on one stamped this far ahead: (command_delay + 1) dt, beyond which its command can no longer be applied (dem_ros.core.controllers.checks); 0: no stamp checks", 0.0, 10.0),
+            ParamSpec("reference_gap_min", float, _SAFETY_DEFAULTS["trip_gap_min"], "m", "a received reference gap below this is refused (the last good reference is held): the board's trip_gap_min", 0.0, 0.1),
+            ParamSpec("reference_gap_max", float, _SAFETY_DEFAULTS["trip_gap_max"], "m", "a received reference gap above this is refused: the board's trip_gap_max", 1e-4, 1.0),
+            ParamSpec("reference_max_speed", float, 1.9e-3, "m/s", "a received reference faster than this (|y_d'|, or its gaps moving faster since the last accepted one) is refused: (gap max - min)/2 ||h'||_1 of the reference model M(s), 1.86 mm/s for the defaults (dem_ros.core.controllers.checks.reference_speed_bound)", 1e-6, 10.0),
             ParamSpec("voltage_limit", float, 1e4, "V", "commands are clipped to +-this before publishing", 0.0, 1e6),
         ),
         "hw_driver": (

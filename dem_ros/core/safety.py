@@ -85,11 +85,11 @@ plant, rail contact, lies below it: the rest is the estimate's error). The bound
 neglects the resistive decay R i (it only helps) and bounds the magnets' pull by its
 impulse G tau/3 delivered at once (over-estimates by at most G tau^2/12).
 
-Numbers (Table 2, e = 0.25, U = 200 V, T = 1 ms): at hover (F = 109 N, lambda = 0.44 V s)
-with the 80 V hover command, lambda+ = 0.63 V s, F+ = 180 N, G = 31 m/s^2, tau = 4.1 ms:
-at rest D = 0.2 mm; approaching at 45 mm/s D = 0.5 mm, at 100 mm/s D = 1.3 mm (n = g).
-So a plate approaching at 100 mm/s is braked at p < 2.8 mm and stops above 1.5 mm; the
-old gap-only trip (p < 1.5 mm) could not stop a 45 mm/s approach (rail contact, #11).
+Numbers (Table 2, e = 0.25, U = 200 V, T = 1 ms, n = g): hovering at 8 mm (4.0 A) under
+the 80 V hover command, lambda+ = 0.547 + 0.080 = 0.627 V s, F+ = 180 N, A_b = 0.173 /kg,
+G = 31.1 m/s^2, tau = 4.1 ms, G tau/3 = 43 mm/s: at rest D = 0.22 mm, approaching at 45
+mm/s D = 0.66 mm, at 100 mm/s D = 1.49 mm (tests/core/test_safety.py). So a plate rising
+at 100 mm/s is braked above 3.0 mm and stops above 1.5 mm; the old gap-only trip (p < 1.5 mm) could not stop a 45 mm/s approach (rail contact, #11).
 
 The landing law (uses only what a board has: measured gaps y (2,) [m] and coil
 currents i (2,) [A], nominal parameters m, R, K, L, l, I, N1, N2, g)

@@ -239,6 +239,9 @@ def _check_controller_safety(v: Mapping[str, Any]) -> str | None:
     if 0.0 < v["max_age"] < v["dt"]:
         return (f"max_age = {v['max_age']:g} s is shorter than one control period (dt = {v['dt']:g} s): every "
                 "measurement would be too old; use 0 (no check) or at least dt")
+    if not v["reference_gap_min"] < v["reference_gap_max"]:
+        return (f"reference_gap_min = {v['reference_gap_min']:g} m must be below reference_gap_max = "
+                f"{v['reference_gap_max']:g} m")
     return None
 
 
@@ -283,6 +286,9 @@ SAFETY_SPECS = (
     ParamSpec("landing_gap", float, 0.011, "m", "landing position: the plate rests on its support at this load-point gap (larger gap = away from the rail)", 1e-4, 0.1),
     ParamSpec("landing_speed", float, 0.01, "m/s", "a landing descends no faster than this", 1e-4, 1.0),
 )
+
+
+_SAFETY_DEFAULTS = {p.name: p.default for p in SAFETY_SPECS}
 
 
 def _check_safety(v: Mapping[str, Any]) -> str | None:
@@ -418,7 +424,10 @@ SCHEMA = Schema(
             ParamSpec("pid_ki", float, 4672.0, "A/(m*s)", "decentralized_pid integral gain", 0.0, 1e12),
             ParamSpec("pid_kc", float, 87.5, "V/A", "decentralized_pid inner current-loop gain", 0.0, 1e9),
             ParamSpec("command_delay", int, 1, "samples", "samples between a measurement and the period its command is held over (the plant's command_delay); the law predicts over it", 0, 8),
-            ParamSpec("max_age", float, 0.0, "s", "never act on a measurement older than this (wall clock - stamp); 0: no check (lockstep simulation, whose clock lags wall time); 0.005 with hardware", 0.0, 10.0),
+            ParamSpec("max_age", float, 0.002, "s", "never act on an estimate older than this on the experiment clock (newest /dem/applied_voltage stamp - its stamp), nor on one stamped this far ahead: (command_delay + 1) dt, beyond which its command can no longer be applied (dem_ros.core.controllers.checks); 0: no stamp checks", 0.0, 10.0),
+            ParamSpec("reference_gap_min", float, _SAFETY_DEFAULTS["trip_gap_min"], "m", "a received reference gap below this is refused (the last good reference is held): the board's trip_gap_min", 0.0, 0.1),
+            ParamSpec("reference_gap_max", float, _SAFETY_DEFAULTS["trip_gap_max"], "m", "a received reference gap above this is refused: the board's trip_gap_max", 1e-4, 1.0),
+            ParamSpec("reference_max_speed", float, 1.9e-3, "m/s", "a received reference faster than this (|y_d'|, or its gaps moving faster since the last accepted one) is refused: (gap max - min)/2 ||h'||_1 of the reference model M(s), 1.86 mm/s for the defaults (dem_ros.core.controllers.checks.reference_speed_bound)", 1e-6, 10.0),
             ParamSpec("voltage_limit", float, 1e4, "V", "commands are clipped to +-this before publishing", 0.0, 1e6),
         ),
         "hw_driver": (

@@ -25,6 +25,8 @@ from typing import Any
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import array, bounded_str, float64, int32, int64, sequence, uint8, uint32, uint64
 
+from . import fastcdr
+
 __all__ = [
     "MESSAGES",
     "SERVICES",
@@ -36,11 +38,9 @@ __all__ = [
 
 
 def _deserialize(cls: type, data: bytes, has_header: bool = True, use_version_2: bool | None = None) -> Any:
-    from .fastcdr import CdrError, decode  # fastcdr imports this module
-
     if use_version_2:
-        raise CdrError(f"{cls.__name__}: XCDR2 is not used by ROS 2 endpoints")
-    return decode(cls, data, has_header=has_header)
+        raise fastcdr.CdrError(f"{cls.__name__}: XCDR2 is not used by ROS 2 endpoints")
+    return fastcdr.decode(cls, data, has_header=has_header)
 
 
 def strict(cls: type) -> type:

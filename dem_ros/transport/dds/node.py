@@ -170,7 +170,7 @@ class DdsPublisher:
         self._writer = writer
         self._cls = cls
         self.ref = self._ref = writer._ref
-        self._encode = fastcdr.ENCODERS.get(cls)
+        self._encode = fastcdr.encoder(cls)
         self._local = local
         self._queue = queue
         self._remote = 0
@@ -350,7 +350,7 @@ class DdsNode:
         if raw:
             handler = lambda data, info: callback(data)  # noqa: E731
         else:
-            deser = fastcdr.DECODERS.get(cls, cls.deserialize)
+            deser = fastcdr.decoder(cls)
             handler = lambda data, info: callback(deser(data))  # noqa: E731
         # a sample that does not decode or a callback that raises is counted and logged, never fatal
         self._make_reader(dds_name, topic.type, cls, topic.qos, self._guard.wrap(what, handler), intra=intra)

@@ -452,7 +452,7 @@ class Supervisor:
         self._ui = np.zeros(2)
         self._obs_ready = False
         self.u = np.zeros(2) if u0 is None else np.asarray(u0, float).copy()
-        self._u_last = self.u.copy()
+        self._u_last: np.ndarray = self.u.copy()
         self._t_fresh: int | None = None
         self._braking = False
         self._gated = np.zeros(2)
@@ -519,7 +519,8 @@ class Supervisor:
         self.land(reason)
 
     # -- the sample ---------------------------------------------------------------------------
-    def step(self, t_ns: int, y: Sequence[float], i: Sequence[float], u_cmd: Sequence[float] | None,
+    def step(self, t_ns: int, y: Sequence[float] | np.ndarray, i: Sequence[float] | np.ndarray,
+             u_cmd: Sequence[float] | np.ndarray | None,
              requested: Mode = Mode.RUN, bus: float | None = None) -> np.ndarray:
         """Voltages (2,) [V] to apply over [t, t + T).
 

@@ -611,7 +611,7 @@ def test_landing_completes_from_the_state_a_trip_leaves(case):
     rail, and the currents are then removed."""
     g0, v0, kind, variant = case
     cfg = board_cfg()
-    g_min, sup, info = approach(g0, v0, kind, VARIANTS[variant], to_landed=True)
+    g_min, sup, _ = approach(g0, v0, kind, VARIANTS[variant], to_landed=True)
     assert sup.mode == Mode.LANDED, sup.snapshot()
     assert g_min > cfg["trip_gap_min"] - 0.3e-3
     assert sup.counters["landings"] == 1

@@ -89,7 +89,12 @@ Numbers (Table 2, e = 0.25, U = 200 V, T = 1 ms, n = g): hovering at 8 mm (4.0 A
 the 80 V hover command, lambda+ = 0.547 + 0.080 = 0.627 V s, F+ = 180 N, A_b = 0.173 /kg,
 G = 31.1 m/s^2, tau = 4.1 ms, G tau/3 = 43 mm/s: at rest D = 0.22 mm, approaching at 45
 mm/s D = 0.66 mm, at 100 mm/s D = 1.49 mm (tests/core/test_safety.py). So a plate rising
-at 100 mm/s is braked above 3.0 mm and stops above 1.5 mm; the old gap-only trip (p < 1.5 mm) could not stop a 45 mm/s approach (rail contact, #11).
+at 100 mm/s is braked above 3.0 mm and stops above 1.5 mm; the old gap-only trip (p < 1.5
+mm) could not stop a 45 mm/s approach (rail contact, #11). The bound errs on the early side:
+against the true plant (approaching at 50-100 mm/s at the hover current) it is 2.5-5x the
+distance travelled (up to 7x for a 21.6 kg plate, whose larger hover current the board reads
+as a stronger pull), and up to 15x at twice the hover current, where the neglected R i decays
+the flux as fast as the bus does.
 
 The landing law (uses only what a board has: measured gaps y (2,) [m] and coil
 currents i (2,) [A], nominal parameters m, R, K, L, l, I, N1, N2, g)

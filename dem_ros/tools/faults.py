@@ -71,6 +71,8 @@ class Injector:
         self.events: list[str] = []  # what was done when (experiment time)
         self.counts: dict[str, int] = {}  # injected samples, by outcome
         self.pubs: dict[str, Any] = {}
+        for topic in (contract.COMMAND, contract.MEASUREMENT, contract.ESTIMATE, contract.REFERENCE, contract.APPLIED):
+            self.pub(topic)  # matched long before t = 0 (a writer made at the fault would miss its first samples)
         self.node.subscribe(contract.MEASUREMENT, self._on_meas)
         self.node.subscribe(contract.ESTIMATE, lambda m: setattr(self, "est", m))
         self.node.subscribe(contract.REFERENCE, lambda m: setattr(self, "ref", m))
@@ -322,22 +324,49 @@ def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
     from .runmetrics import load_run
 
     out: dict[str, Any] = {"diagnostics": [], "problems": []}
+    undecodable: dict[str, int] = {}
+
+    def decoded(r: BagReader, topic: str, type_name: str) -> list[tuple[int, Any]]:
+        """(log time, message) of every sample of ``topic`` that decodes; the others are counted."""
+        from ..transport import TransportError, deserialize
+
+        if topic not in r.topics:
+            return []
+        got = []
+        for _, log_ns, _, data in r.raw_messages([topic]):
+            try:
+                got.append((log_ns, deserialize(type_name, bytes(data), transport="dds")))
+            except TransportError:  # the strict decoder's CdrError (type, field, offset)
+                undecodable[topic] = undecodable.get(topic, 0) + 1
+        return got
+
+    def arrays(msgs: list[tuple[int, Any]]) -> dict[str, np.ndarray] | None:
+        from ..nodes.common import stamp_ns
+
+        rows = [(stamp_ns(m), m.position[0], m.position[1]) for _, m in msgs if len(m.position) >= 2]
+        if not rows:
+            return None
+        a = np.array(rows, dtype=float)
+        return {"stamp_ns": a[:, 0].astype(np.int64), "position": a[:, 1:3]}
+
     with BagReader(bag) as r:
-        truth = r.joint_state_arrays(contract.TRUTH.name) if contract.TRUTH.name in r.topics else None
-        ref = r.joint_state_arrays(contract.REFERENCE.name) if contract.REFERENCE.name in r.topics else None
+        truth = arrays(decoded(r, contract.TRUTH.name, contract.TRUTH.type))
+        ref = arrays(decoded(r, contract.REFERENCE.name, contract.REFERENCE.type))
         loop: dict[str, str] = {}
         epoch = None
         diags = []
-        for _, log_ns, msg in r.messages([contract.DIAGNOSTICS.name]):
+        for log_ns, msg in decoded(r, contract.DIAGNOSTICS.name, contract.DIAGNOSTICS.type):
             for s in msg.status:
                 vals = {kv.key: kv.value for kv in s.values}
                 if s.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
                     loop = vals
-                    if "epoch_ns" in vals and vals["epoch_ns"] not in ("", "None"):
+                    if vals.get("epoch_ns", "").isdigit():
                         epoch = int(vals["epoch_ns"])
                 level = s.level[0] if isinstance(s.level, bytes) else int(s.level)
                 diags.append((log_ns, s.name, level, s.message))
         truncated = r.truncated
+    for topic, n in undecodable.items():
+        out["problems"].append(f"{n} recorded sample(s) of {topic} do not decode (the injected ones, recorded as sent)")
     t_f = (epoch or 0) + round(t_fault_s * 1e9)
     out["fault_ns"] = t_f
     seen: dict[str, int] = {}
@@ -346,7 +375,7 @@ def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
             seen[name] = max(seen.get(name, 0), level)
     out["diagnostics"] = [f"{n} {'WARN' if lv == 1 else 'ERROR'}" for n, lv in sorted(seen.items())]
     pc = cfg["plant_sim"]
-    if truth is None or truth["stamp_ns"].size == 0:
+    if truth is None:
         out.update(outcome="failed", min_gap_mm=None, detail="no plant truth recorded")
         return out
     after = truth["stamp_ns"] >= t_f
@@ -357,7 +386,7 @@ def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
     failed = loop.get("failed", "False") == "True" or gmin <= pc["gap_min"]
     landed = mode in ("LAND", "LANDED") or loop.get("landing", "False") == "True"
     end_err = float("inf")
-    if ref is not None and ref["stamp_ns"].size:
+    if ref is not None:
         ts, i_t, i_r = np.intersect1d(truth["stamp_ns"], ref["stamp_ns"], return_indices=True)
         if ts.size:
             end_err = float(np.max(np.abs(g[i_t[-1]] - ref["position"][i_r[-1], :2])))
@@ -385,6 +414,7 @@ def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
 def run_row(spec: FaultSpec, *, compose: bool, scenario: str, duration: float, at: float, free_run: bool,
             workdir: Path, domain_id: int, sets: list[str]) -> Row:
     """Launch the graph, inject ``spec`` at ``at`` s, judge the bag."""
+    from ..bag import BagError
     from .launcher import GraphError, launch
 
     how = "composed" if compose else "per process"
@@ -392,13 +422,17 @@ def run_row(spec: FaultSpec, *, compose: bool, scenario: str, duration: float, a
     args = _launch_args(scenario, duration, compose, free_run, workdir, domain_id, sets)
     inj = Injector(_n_times(spec.n, spec.act) if spec.act is not None else None, at)
     hook = _kill_hook(spec, inj) if spec.kill else None
+    info: dict[str, Any] = {}
     try:
-        metrics, info = launch(args, quiet=True, supervise=hook)
+        _metrics, info = launch(args, quiet=True, supervise=hook)
     except GraphError as exc:
         return Row(spec.name, how, "failed", None, "", "", False, f"run cut short: {exc}")
+    except BagError as exc:  # the run ended, but its summary could not read the bag: judge it here
+        info = {"recorder": None, "summary_error": str(exc)}
     finally:
         inj.close()
-    bag = Path(info["bag"])
+    bags = sorted(p for p in workdir.iterdir() if p.is_dir() and not p.name.endswith("_logs"))
+    bag = Path(info["bag"]) if info.get("bag") else bags[-1]
     from .launcher import _config_from_args
 
     cfg, _, _ = _config_from_args(args)
@@ -413,6 +447,8 @@ def run_row(spec: FaultSpec, *, compose: bool, scenario: str, duration: float, a
     dropped = sum(v.get("dropped", 0) for v in rec.values()) if rec else None
     lost = [f"{dropped} dropped"] if dropped else []
     lost += j["problems"]
+    if info.get("summary_error"):
+        lost.append(f"dem-ros launch could not summarise the bag: {info['summary_error']}")
     if spec.kill == "recorder" and rec is None:
         lost.append("recorder counters lost with the process")
     data_lost = "; ".join(lost) or "none"
@@ -420,7 +456,6 @@ def run_row(spec: FaultSpec, *, compose: bool, scenario: str, duration: float, a
     # machine: most runs); it counts as a report of the fault only at ERROR (a landing, a failure)
     told = [d for d in j["diagnostics"] if not (d.startswith(contract.LOOP_STATUS) and d.endswith("WARN"))]
     ok = j["outcome"] in spec.allowed and (bool(told) or bool(levels))
-    del metrics
     sent = [f"{v} {k}" for k, v in inj.counts.items()]
     detail = "; ".join([*inj.events, *sent, j.get("detail", "")]).strip("; ")
     return Row(spec.name, how, j["outcome"], j["min_gap_mm"], reported, data_lost, ok, detail, j["diagnostics"])

@@ -24,6 +24,7 @@ import yaml
 
 from dem_ros import typestore
 from dem_ros.contract import QoS
+from dem_ros.core.params import ConfigError, read_yaml
 
 from . import _rosfmt
 from ._mcap import McapFile, Truncation
@@ -280,22 +281,13 @@ def read_metadata_yaml(path: Path) -> dict[str, Any]:
 
     Raises:
         BagError: one line naming the file and what is wrong (unreadable, not
-            UTF-8, not YAML, a field of the wrong type).
+            UTF-8, not YAML, a key repeated, a field of the wrong type).
     """
     try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise BagError(f"cannot read {path}: {exc.strerror}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise _bad(path, f"not UTF-8 text (byte {exc.start}: {raw[exc.start]:#04x}); a binary file?") from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise _bad(path, "not valid YAML (" + " ".join(str(exc).split()) + ")") from None
-    except (ValueError, TypeError, RecursionError) as exc:
-        raise _bad(path, f"not valid YAML ({type(exc).__name__}: {exc})") from None
+        doc = read_yaml(path)
+    except ConfigError as exc:  # unreadable, not UTF-8, not YAML (or a key repeated): "<path>: <what>"
+        reason = str(exc).removeprefix(f"{path}: ")
+        raise (BagError(str(exc)) if reason.startswith("cannot read") else _bad(path, reason)) from None
     if not isinstance(doc, dict) or not isinstance(doc.get("rosbag2_bagfile_information"), dict):
         raise _bad(path, "no 'rosbag2_bagfile_information' mapping at the top")
     info: dict[str, Any] = doc["rosbag2_bagfile_information"]

@@ -213,10 +213,6 @@ class Recorder:
         return {k: TopicCounters(**asdict(v)) for k, v in self._counters.items()}
 
     @property
-    def queue_depth(self) -> int:
-        return len(self._queue)
-
-    @property
     def closed(self) -> bool:
         return self._writer.closed
 

@@ -65,7 +65,6 @@ class _DirectStream:
     def __init__(self, path: Path) -> None:
         self.fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
         self.pos = 0
-        self.writes = 0
 
     def write(self, data: bytes | bytearray | memoryview) -> int:
         view = memoryview(data)
@@ -74,7 +73,6 @@ class _DirectStream:
             k = os.write(self.fd, view)
             view = view[k:]
         self.pos += n
-        self.writes += 1
         return n
 
     def tell(self) -> int:

@@ -291,6 +291,23 @@ SAFETY_SPECS = (
 _SAFETY_DEFAULTS = {p.name: p.default for p in SAFETY_SPECS}
 
 
+# The command source lock of the nodes that drive the coils (plant_sim, hw_driver): they take /dem/command
+# only from the writers of this node (docs/manual/topics.md "Command source lock").
+COMMAND_SOURCE = ParamSpec(
+    "command_source", str, "controller", "",
+    "accept /dem/command only from this node's writers (a node name in this node's namespace, or /ns/name); others are dropped, counted and reported",
+    read_only=True,  # the parameter services are open to any process: no redirecting the lock at run time
+)
+_NODE_NAME = re.compile(r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
+
+
+def _check_command_source(v: Mapping[str, Any]) -> str | None:
+    if not _NODE_NAME.match(v["command_source"]):
+        return (f"command_source = {v['command_source']!r} is not a ROS node name (e.g. controller or "
+                "/rig1/controller)")
+    return None
+
+
 def _check_safety(v: Mapping[str, Any]) -> str | None:
     if not v["trip_gap_min"] < v["landing_gap"] <= v["trip_gap_max"]:
         return (f"need trip_gap_min < landing_gap <= trip_gap_max; got {v['trip_gap_min']:g}, "
@@ -349,6 +366,7 @@ SCHEMA = Schema(
             ParamSpec("preroll", float, 1.0, "s", "graph: levitate in closed loop this long before t = 0 (frame_id dem/preroll)", 0.0, 600.0),
             ParamSpec("start_delay", float, 3.0, "s", "graph: wait at least this long after start-up before t = 0 (discovery)", 0.0, 600.0),
             ParamSpec("min_subscribers", int, 2, "", "graph: wait (up to 30 s) until this many readers match /dem/measurement (estimator, reference)", 0, 100),
+            COMMAND_SOURCE,
         )
         + SAFETY_SPECS,
         "reference": (
@@ -449,6 +467,7 @@ SCHEMA = Schema(
             # i_max or a measured gap outside [trip_gap_min, trip_gap_max] for trip_samples samples trips
             # (the board lands); no controller command for hold_timeout (steady clock) -> fault, LAND
             *SAFETY_SPECS,
+            COMMAND_SOURCE,
             ParamSpec("trip_samples", int, 3, "samples", "consecutive out-of-limit samples that trip (a single spike is counted, not tripped on)", 1, 1000),
             ParamSpec("link_timeout", float, 0.05, "s", "no sensor frame this long while armed or active -> fault (the board's own watchdog lands it)", 1e-3, 10.0),
             ParamSpec("late_threshold", float, 1e-3, "s", "a sensor frame received later than this after its sample is counted late", 1e-6, 1.0),
@@ -478,11 +497,11 @@ SCHEMA = Schema(
         ),
     },
     checks={
-        "plant_sim": (_check_plant, _check_safety),
+        "plant_sim": (_check_plant, _check_safety, _check_command_source),
         "reference": (_check_reference,),
         "estimator": (_check_geometry,),
         "controller": (_check_geometry, _check_hurwitz, _check_bounds, _check_controller_safety),
-        "hw_driver": (_check_safety,),
+        "hw_driver": (_check_safety, _check_command_source),
     },
 )
 

@@ -266,15 +266,16 @@ class Diagnostics:
         self._seen = now
         return out
 
-    def status(self) -> tuple[int, str, dict[str, Any]]:
-        """(level, message, values) of a report now (moves the WARN window: one report's worth)."""
+    def status(self, condition: tuple[int, str] | None = None) -> tuple[int, str, dict[str, Any]]:
+        """(level, message, values) of a report now, with ``condition`` (level, message) in place of the
+        standing one when given (moves the WARN window: one report's worth)."""
         errors = self.node.callback_errors
         values: dict[str, Any] = dict(self.values()) if self.values is not None else {}
         values.update(self.counters)
         if errors:
             values["callback_errors"] = sum(errors.values())
         grew = self._increases(values, errors)
-        level, message = self._condition
+        level, message = condition if condition is not None else self._condition
         if self._fault is not None:
             level, message = ERROR, self._fault
         if grew and level < WARN:
@@ -283,15 +284,11 @@ class Diagnostics:
             message = "; ".join(m for m in (message, ", ".join(grew)) if m)
         return level, message or "ok", values
 
-    def publish(self, level: int | None = None, message: str | None = None,
-                values: Mapping[str, Any] | None = None) -> None:
-        """Publish a report now: the computed status, or the ``level`` / ``message`` / ``values`` given
-        (an event such as a landing, reported at once; never below a latched fault)."""
-        lv, msg, vals = self.status()
-        if level is not None:
-            lv = max(int(level), ERROR if self._fault is not None else OK)
-        if message is not None:
-            msg = message
+    def publish(self, level: int | None = None, message: str = "", values: Mapping[str, Any] | None = None) -> None:
+        """Publish a report now: with the standing condition, or with ``level`` and ``message`` in its place
+        (an event such as a landing, reported at once; a latched fault and grown counters still count);
+        ``values`` are published first, then the counters and ``values()`` not among them."""
+        lv, msg, vals = self.status(None if level is None else (int(level), message))
         if values is not None:
             vals = {**values, **{k: v for k, v in vals.items() if k not in values}}
         self.reports += 1

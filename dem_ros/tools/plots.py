@@ -187,9 +187,19 @@ def _finish(fig: Any, ax: Sequence[Any], sig: RunSignals, what: str, path: Path,
 
 # -- the figures of a run --------------------------------------------------------------------------------------
 
-def plot_signals(sig: RunSignals, out: Path) -> list[Path]:
-    """Every figure ``sig`` has the signals for, into ``out``; returns the files written."""
-    out = Path(out)
+def plot_signals(sig: RunSignals, out: Path, prefix: str = "dem-ros") -> list[Path]:
+    """Every figure ``sig`` has the signals for, into ``out``; returns the files written.
+
+    Drawing takes seconds per figure on a busy machine: progress goes to stderr as ``prefix: ...``.
+    """
+    from .progress import Progress
+
+    with Progress(prefix, None) as bar:
+        bar.stage(f"drawing the figures into {out}")
+        return _plot_signals(sig, Path(out))
+
+
+def _plot_signals(sig: RunSignals, out: Path) -> list[Path]:
     files = []
     src = "measured" if sig.gap_source == "measured" else "true"
     fig, ax = figure(2, 1)
@@ -292,6 +302,6 @@ def run_signals(res: Any) -> RunSignals:
     )
 
 
-def plot_run(res: Any, out: Path) -> list[Path]:
+def plot_run(res: Any, out: Path, prefix: str = "dem-ros sim") -> list[Path]:
     """All standard figures of a :class:`~dem_ros.core.simulate.SimResult` into ``out``."""
-    return plot_signals(run_signals(res), Path(out))
+    return plot_signals(run_signals(res), Path(out), prefix)

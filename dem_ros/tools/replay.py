@@ -86,7 +86,7 @@ def plot_replay(series: dict[str, Any], m: RunMetrics, out: Path) -> list[Path]:
     """The run's figures (:func:`.plots.plot_signals`, the same as ``dem-ros sim --plot``) into ``out``."""
     from .plots import plot_signals
 
-    return plot_signals(replay_signals(series, m), out)
+    return plot_signals(replay_signals(series, m), out, "dem-ros replay")
 
 
 def plot_what_if(res: dict[str, Any], out: Path) -> Path:
@@ -264,16 +264,10 @@ def cmd_replay(args: Any) -> int:
             path = plot_what_if(res, Path(args.plot))
             print(f"  figure written to {path}")
         return 0
-    bar = Progress("dem-ros replay", None)
-    bar.stage(f"reading {bag}")
-    try:
+    with Progress("dem-ros replay", None) as bar:
+        bar.stage(f"reading {bag}")
         m, series = analyse(bag)
-        files = []
-        if args.plot:
-            bar.stage(f"drawing the figures into {args.plot}")
-            files = plot_replay(series, m, Path(args.plot))
-    finally:
-        bar.close()
+    files = plot_replay(series, m, Path(args.plot)) if args.plot else []
     print(f"replay of {bag}:")
     m.print()
     if args.json:

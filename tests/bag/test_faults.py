@@ -27,21 +27,6 @@ def _msg(k: int, rng: random.Random) -> bytes:
     return joint_state_cdr(NAMES, [rng.random(), rng.random()], [], [rng.random(), rng.random()], k * 10**6)
 
 
-@pytest.fixture
-def small_disk(tmp_path: Path):
-    """A 192 KiB tmpfs mounted for the test (root only; skipped with the reason otherwise)."""
-    mnt = tmp_path / "disk"
-    mnt.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=192k", "tmpfs", str(mnt)],
-                       capture_output=True, text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a small tmpfs to fill (needs root/CAP_SYS_ADMIN): {r.stderr.strip()}")
-    try:
-        yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
-
-
 def test_full_disk_stops_the_recorder_cleanly_reports_at_once_and_keeps_what_was_written(small_disk: Path):
     reported: list[str] = []
     when = threading.Event()

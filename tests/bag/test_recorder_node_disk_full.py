@@ -11,7 +11,6 @@ import time
 from pathlib import Path
 
 import domains
-import pytest
 
 from dem_ros.bag import check
 
@@ -43,19 +42,6 @@ print("SENT", k, flush=True)
 print("DIAG", seen[0].message if seen else "none", flush=True)
 n.shutdown()
 """
-
-
-@pytest.fixture
-def small_disk(tmp_path: Path):
-    mnt = tmp_path / "disk"
-    mnt.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=192k", "tmpfs", str(mnt)], capture_output=True, text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a small tmpfs to fill (needs root/CAP_SYS_ADMIN): {r.stderr.strip()}")
-    try:
-        yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
 def test_recorder_node_reports_a_full_disk_and_exits_cleanly(small_disk: Path):

@@ -179,3 +179,46 @@ def test_consistent_under_a_resistance_error():
     frozen = {**EC, "voltage_bias_prior": 1e-9, "sigma_voltage_bias": 1e-9}
     out0, _ = replay(res.x, res.u, frozen, measure_velocity=True)
     assert np.abs(out0[-500:, 4:] - res.x[-500:, 4:]).max() > 10 * np.abs(out[-500:, 4:] - res.x[-500:, 4:]).max()
+
+
+def test_false_alarm_rate_matches_the_chosen_probability():
+    """A consistent filter: truth drawn from the filter's own stochastic model (its process noise added each
+    sample, held by a PID on the true state at 8 mm), Gaussian measurement noise of the assumed sigmas. Each
+    gap's NIS is then chi^2(1): with gate_false_alarm = 0.01 the rate of rejected good samples must be 1 %
+    within the binomial spread (+-4.5 sigma over 2 x 20 000 samples)."""
+    from dem_ros.core.controllers import make_controller
+    from dem_ros.core.estimator import _rk4
+    from dem_ros.core.model import IK, IP, IQ, hover_state
+
+    pfa, n, skip = 0.01, 21_000, 1_000
+    cfg = {**EC, "gate_false_alarm": pfa}
+    est = KalmanEstimator(cfg)
+    rng = np.random.default_rng(64)
+    x0, u0 = hover_state(default_config()["plant_sim"], 0.008)
+    ctl = make_controller(default_config()["controller"], "decentralized_pid")
+    ctl.reset(x0.copy(), u0)
+    ref = np.array([0.008, 0.008, 0, 0, 0, 0, 0, 0, 0.008, 0.008])
+    p, T, sd = est.p, est.T, np.sqrt(est.rm)
+    s = np.concatenate([x0, np.zeros(4)])  # the truth, in the filter's state
+    u = u0.copy()
+    rejected = 0
+    for k in range(n):
+        z = s[:6] + rng.normal(0.0, 1.0, 6) * sd
+        before = est.counters()["gap1_innovation"] + est.counters()["gap2_innovation"]
+        est.step(z, u)
+        if k >= skip:
+            rejected += est.counters()["gap1_innovation"] + est.counters()["gap2_innovation"] - before
+        u = ctl.step(s[:6].copy(), ref).copy()
+        _rk4(s, u, p, T)  # the truth moves as the filter's model under u, plus its process noise
+        de = (p[IP] * s[0] + p[IQ] * s[2], p[IQ] * s[0] + p[IP] * s[2])
+        s[[1, 3]] += rng.normal(0.0, cfg["sigma_accel"] * T, 2)
+        s[4:6] += rng.normal(0.0, 1.0, 2) * cfg["sigma_voltage"] * np.array(de) / (2.0 * p[IK]) * T
+        s[6:8] += rng.normal(0.0, cfg["sigma_bias"] * T, 2)
+        s[8:10] += rng.normal(0.0, cfg["sigma_voltage_bias"] * T, 2)
+    tests = 2 * (n - skip)
+    rate = rejected / tests
+    spread = np.sqrt(pfa * (1 - pfa) / tests)
+    print(f"\nfalse alarms: {rejected} of {tests} good gap samples = {rate:.4%} (chosen {pfa:.2%}, binomial sigma"
+          f" {spread:.4%}); threshold NIS > {est.chi2_threshold:.3f}")
+    assert abs(rate - pfa) < 4.5 * spread, (rate, pfa, spread)
+    assert est.chi2_threshold == pytest.approx(6.6349, abs=1e-4)  # chi2.isf(0.01, 1)

@@ -60,7 +60,7 @@ def composed_run(tmp_path_factory, module_domain_id, request):
     # the loop runs at 1 kHz: change a parameter now, through the rcl_interfaces services over DDS
     # (both clients at once: each has the rest of the run to find the node, however slowly a loaded machine starts them)
     calls = {key: subprocess.Popen([sys.executable, "-m", "dem_ros.tools.cli", "param", "set", "controller", *args,
-                                    "--domain-id", str(domain)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                    "--domain-id", str(domain), "--timeout", "120"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for key, args in (("set", ["w", "55"]), ("set_bad", ["k1", "0.5"]))}
     # the remote subscriber takes samples all the while (its history holds only 100 of them)
     end = time.monotonic() + 300

@@ -9,6 +9,11 @@ samples of every reader and runs the callbacks and due timers one at a time.
 Graph visibility: the participant publishes ``ros_discovery_info``
 (rmw_dds_common ParticipantEntitiesInfo: node name, namespace, reader and
 writer GIDs), so ``ros2 node list`` and ``ros2 topic info -v`` see the nodes.
+Sources: :meth:`DdsNode.subscribe_with_source` hands each sample's writer GID (its
+``publication_handle`` looked up among the reader's matched publications, cached per handle) to
+the callback, and :meth:`DdsNode.publisher_gids` joins the live writers of a topic (the
+DCPSPublication built-in topic) with the writer GIDs each node announces in
+``ros_discovery_info`` (as ``rmw_dds_common``'s graph cache does).
 Parameters are served over the six ``rcl_interfaces`` services
 (``rq/<node>/<srv>Request`` / ``rr/<node>/<srv>Reply``) and changes are
 announced on ``/parameter_events``.
@@ -33,7 +38,16 @@ from cyclonedds.topic import Topic as DdsTopic
 from ... import contract
 from ...contract import QoS, Topic
 from .. import paramvalue as pv
-from ..api import CallbackGuard, OnChange, RawCallback, ServiceCallback, TransportError
+from ..api import (
+    CallbackGuard,
+    OnChange,
+    RawCallback,
+    ServiceCallback,
+    SourcedCallback,
+    TransportError,
+    gid16,
+    node_fqn,
+)
 from ..parameters import ParameterStore
 from ..rosargs import RosArgs, initial_parameters, parse_ros_args
 from . import fastcdr, msgs, srvs, wire
@@ -46,6 +60,10 @@ QOS_SERVICES = QoS(reliable=True, transient_local=False, depth=10)
 QOS_ROSOUT = QoS(reliable=True, transient_local=True, depth=1000)
 #: how often an intra-process publisher re-reads its count of remote subscribers
 _REMOTE_CHECK_NS = 100_000_000
+#: writer GIDs cached per publication handle and sourced reader (a graph's writers on one topic: a few)
+_SOURCE_CACHE = 256
+#: at most this many live writers are read from the DCPSPublication built-in topic per query
+_MAX_WRITERS = 100_000
 
 
 def _guid_bytes(entity: Any) -> bytes:
@@ -82,6 +100,9 @@ class Participant:
         self._info_writer = DataWriter(
             self.dp, self.topic("ros_discovery_info", self._PEI), qos=wire.dds_qos(info_qos, ud)
         )
+        self._graph_readers: tuple[Any, Any, Any] | None = None  # made by the first graph query
+        #: participant GID -> {node /ns/name -> writer GIDs}, from ros_discovery_info
+        self._node_writers: dict[bytes, dict[str, set[bytes]]] = {}
 
     # -- process singleton ---------------------------------------------------------
     @classmethod
@@ -141,6 +162,37 @@ class Participant:
         if not self._nodes:
             self.remove_node(None)  # type: ignore[arg-type]
 
+    def _graph(self) -> tuple[Any, Any, Any]:
+        """(ros_discovery_info reader, DCPSPublication reader, its alive-instances condition), made once."""
+        if self._graph_readers is None:
+            from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
+            from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState
+            from cyclonedds.qos import Policy, Qos
+            from cyclonedds.util import duration
+
+            # ros_discovery_info is keyless: keep every sample until taken (each participant's newest wins)
+            qos = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.Durability.TransientLocal,
+                      Policy.History.KeepAll)
+            info = DataReader(self.dp, self.topic("ros_discovery_info", self._PEI), qos=qos)
+            pubs = BuiltinDataReader(self.dp, BuiltinTopicDcpsPublication)
+            alive = ReadCondition(pubs, SampleState.Any | ViewState.Any | InstanceState.Alive)
+            self._graph_readers = (info, pubs, alive)
+        return self._graph_readers
+
+    def publisher_gids(self, dds_topic: str, node: str) -> frozenset[bytes]:
+        """GIDs (16 bytes) of the live writers on ``dds_topic`` that node ``node`` (``/ns/name``) announces."""
+        info, pubs, alive = self._graph()
+        for pei in info.take(N=4096):
+            self._node_writers[gid16(pei.gid.data)] = {
+                node_fqn(n.node_name, n.node_namespace): {gid16(g.data) for g in n.writer_gid_seq}
+                for n in pei.node_entities_info_seq
+            }
+        mine = set().union(*(nodes.get(node, ()) for nodes in self._node_writers.values()))
+        if not mine:
+            return frozenset()
+        live = {gid16(p.key.bytes) for p in pubs.read(N=_MAX_WRITERS, condition=alive) if p.topic_name == dds_topic}
+        return frozenset(mine & live)
+
     def publish_graph(self) -> None:
         """Publish ParticipantEntitiesInfo naming every node and its endpoint GIDs."""
         g = self._Gid
@@ -165,8 +217,9 @@ class DdsPublisher:
     """
 
     def __init__(self, writer: DataWriter, cls: type, local: list[LocalSubscription] | None = None,
-                 queue: Any = None):
+                 queue: Any = None, gid: bytes = b""):
         self.writer = writer
+        self.gid = gid  # this writer's GID (16 bytes), handed to intra-process sourced subscriptions
         self._writer = writer
         self._cls = cls
         self.ref = self._ref = writer._ref
@@ -201,6 +254,8 @@ class DdsPublisher:
                     if data is None:
                         data = self._cdr(msg)
                     queue.append((sub, data))
+                elif sub.__class__ is SourcedLocalSubscription:
+                    queue.append((sub, (msg, self.gid)))
                 else:
                     queue.append((sub, msg))
             if not self._remote_subscribers():
@@ -222,6 +277,12 @@ class DdsPublisher:
     def subscription_count(self) -> int:
         """Matched subscriptions: remote ones plus those of the same executor (intra-process)."""
         return len(self._writer.get_matched_subscriptions()) + len(self._local or ())
+
+
+class SourcedLocalSubscription(LocalSubscription):
+    """An intra-process subscription whose callback takes ``(msg, writer_gid)`` as one tuple."""
+
+    __slots__ = ()
 
 
 class _Logger:
@@ -316,11 +377,12 @@ class DdsNode:
         dds_name = dds_name or wire.topic_name(self.resolve(ros_name))
         ud = wire.user_data_for_endpoint(ros_type, self._p.settings.distro, extra_ud)
         w = DataWriter(self._p.dp, self._p.topic(dds_name, cls), qos=_qos(qos, ud, intra))
-        self._writer_gids.append(self._p.gid_of(w))
+        gid = self._p.gid_of(w)
+        self._writer_gids.append(gid)
         self._p.publish_graph()
         if intra:
-            return DdsPublisher(w, cls, self._ex.local_subscriptions(dds_name), self._ex.queue)
-        return DdsPublisher(w, cls)
+            return DdsPublisher(w, cls, self._ex.local_subscriptions(dds_name), self._ex.queue, gid16(gid))
+        return DdsPublisher(w, cls, gid=gid16(gid))
 
     def _make_reader(self, dds_name: str, ros_type: str, cls: type, qos: QoS,
                      handler: Callable[[bytes, Any], None], extra_ud: str = "", intra: bool = False) -> DataReader:
@@ -361,6 +423,41 @@ class DdsNode:
     def subscribe_raw(self, topic: Topic, callback: RawCallback) -> None:
         """Deliver the CDR bytes as received (no decode): what rosbag2 stores."""
         self._subscribe(topic, callback, raw=True)
+
+    def subscribe_with_source(self, topic: Topic, callback: SourcedCallback) -> None:
+        """``callback(msg, writer_gid)``: the writer's GID from the sample's publication handle (remote)
+        or from the publisher itself (intra-process); ``b""`` for a writer no longer matched."""
+        cls = msgs.message_class(topic.type)
+        resolved = self.resolve(topic.name)
+        dds_name = wire.topic_name(resolved)
+        intra = self._ex.intra_process
+        what = f"subscription {resolved}"
+        if intra:
+            self._ex.local_subscriptions(dds_name).append(
+                SourcedLocalSubscription(self, self._guard.wrap(what, lambda pair: callback(*pair)), False))
+        deser = fastcdr.decoder(cls)
+        gids: dict[int, bytes] = {}
+        box: list[DataReader] = []
+
+        def handler(data: bytes, info: Any) -> None:
+            h = info.publication_handle
+            gid = gids.get(h)
+            if gid is None:
+                try:
+                    gid = gid16(box[0].get_matched_publication_data(h).key.bytes)
+                except Exception:  # unmatched meanwhile (the writer left): no source to vouch for
+                    gid = b""
+                if gid:
+                    if len(gids) >= _SOURCE_CACHE:
+                        gids.clear()
+                    gids[h] = gid
+            callback(deser(data), gid)
+
+        box.append(self._make_reader(dds_name, topic.type, cls, topic.qos, self._guard.wrap(what, handler), intra=intra))
+
+    def publisher_gids(self, topic: Topic, node: str) -> frozenset[bytes]:
+        """GIDs of ``node``'s live writers on ``topic``: DCPSPublication joined with ros_discovery_info."""
+        return self._p.publisher_gids(wire.topic_name(self.resolve(topic.name)), node_fqn(node, self.namespace))
 
     def timer(self, period_s: float, callback: Callable[[], object]) -> DdsTimer:
         t = DdsTimer(period_s, self._guard.wrap(f"timer {period_s:g} s", callback), self)

@@ -489,6 +489,11 @@ def _table(rows: list[Row]) -> str:
     return "\n".join(lines)
 
 
+def _write(args: argparse.Namespace, rows: list[Row]) -> None:
+    write_json(args.json, {"rows": [asdict(r) for r in rows], "scenario": args.scenario, "at_s": args.at,
+                           "duration_s": args.duration, "free_run": args.free_run})
+
+
 def cmd_faults(args: argparse.Namespace) -> int:
     names = {f.name for f in CATALOGUE}
     bad = [n for n in args.only if n not in names]
@@ -512,10 +517,9 @@ def cmd_faults(args: argparse.Namespace) -> int:
             print(f"  -> {row.outcome}, min gap {row.min_gap_mm} mm, {'pass' if row.passed else 'FAIL'}",
                   file=sys.stderr, flush=True)
             rows.append(row)
+            if args.json:  # after every row: a long catalogue run keeps what it measured
+                _write(args, rows)
     print(_table(rows))
-    if args.json:
-        write_json(args.json, {"rows": [asdict(r) for r in rows], "scenario": args.scenario, "at_s": args.at,
-                               "duration_s": args.duration, "free_run": args.free_run})
     failed = [r.fault for r in rows if not r.passed]
     if failed:
         print(f"dem-ros faults: {len(failed)} of {len(rows)} row(s) failed: {', '.join(failed)}", file=sys.stderr)

@@ -6,7 +6,8 @@ fault at t = ``--at`` s of the experiment and reads the outcome back from the ru
 * **outcome**: ``levitating`` (the board still runs the controller's commands at the end and the true
   gap is within 1 mm of the reference), ``landed safely`` (the board landed the plate, never nearer the
   rail than ``trip_gap_min``), or ``failed`` (rail contact, a plant failure, or a run cut short by an
-  unexpected exit). The plant's truth (``/dem/plant/truth``) gives the minimum gap after the fault.
+  unexpected exit). The plant's truth (``/dem/plant/truth``) gives the minimum gap and the largest
+  tracking error (true gap - reference) from the fault on.
 * **reported**: the ``/diagnostics`` statuses at WARN or ERROR after the fault, and the node log lines
   at WARN or ERROR (count per node).
 * **data lost**: what the recorder dropped and what the bag reports about itself (truncated, recording
@@ -256,6 +257,7 @@ class Row:
     processes: str
     outcome: str
     min_gap_mm: float | None
+    max_error_um: float | None
     reported: str
     data_lost: str
     passed: bool
@@ -390,6 +392,9 @@ def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
         ts, i_t, i_r = np.intersect1d(truth["stamp_ns"], ref["stamp_ns"], return_indices=True)
         if ts.size:
             end_err = float(np.max(np.abs(g[i_t[-1]] - ref["position"][i_r[-1], :2])))
+            win = ts >= t_f
+            if win.any():  # the largest tracking error e = true gap - y_d from the fault on
+                out["max_error_um"] = round(float(np.max(np.abs(g[i_t[win]] - ref["position"][i_r[win], :2]))) * 1e6, 1)
     if failed:
         out["outcome"] = "failed"
         out["detail"] = loop.get("fault", "") or f"min gap {gmin * 1e3:.3f} mm"
@@ -426,7 +431,7 @@ def run_row(spec: FaultSpec, *, compose: bool, scenario: str, duration: float, a
     try:
         _metrics, info = launch(args, quiet=True, supervise=hook)
     except GraphError as exc:
-        return Row(spec.name, how, "failed", None, "", "", False, f"run cut short: {exc}")
+        return Row(spec.name, how, "failed", None, None, "", "", False, f"run cut short: {exc}")
     except BagError as exc:  # the run ended, but its summary could not read the bag: judge it here
         info = {"recorder": None, "summary_error": str(exc)}
     finally:
@@ -458,7 +463,8 @@ def run_row(spec: FaultSpec, *, compose: bool, scenario: str, duration: float, a
     ok = j["outcome"] in spec.allowed and (bool(told) or bool(levels))
     sent = [f"{v} {k}" for k, v in inj.counts.items()]
     detail = "; ".join([*inj.events, *sent, j.get("detail", "")]).strip("; ")
-    return Row(spec.name, how, j["outcome"], j["min_gap_mm"], reported, data_lost, ok, detail, j["diagnostics"])
+    return Row(spec.name, how, j["outcome"], j["min_gap_mm"], j.get("max_error_um"), reported, data_lost, ok, detail,
+               j["diagnostics"])
 
 
 # -- the command -------------------------------------------------------------------------------------------
@@ -478,9 +484,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _table(rows: list[Row]) -> str:
-    head = ("fault", "processes", "outcome", "min gap [mm]", "reported", "data lost", "pass")
+    head = ("fault", "processes", "outcome", "min gap [mm]", "max error [um]", "reported", "data lost", "pass")
     body = [(r.fault, r.processes, r.outcome + (f" ({r.detail})" if r.detail else ""),
-             "-" if r.min_gap_mm is None else f"{r.min_gap_mm:.3f}", r.reported, r.data_lost,
+             "-" if r.min_gap_mm is None else f"{r.min_gap_mm:.3f}",
+             "-" if r.max_error_um is None else f"{r.max_error_um:.1f}", r.reported, r.data_lost,
              "yes" if r.passed else "NO") for r in rows]
     w = [max(len(h), *(len(b[i]) for b in body)) if body else len(h) for i, h in enumerate(head)]
     lines = ["| " + " | ".join(h.ljust(w[i]) for i, h in enumerate(head)) + " |",

@@ -399,8 +399,10 @@ def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
         out["outcome"] = "failed"
         out["detail"] = loop.get("fault", "") or f"min gap {gmin * 1e3:.3f} mm"
     elif landed:
-        out["outcome"] = "landed safely" if gmin > pc["trip_gap_min"] * 0.5 else "failed"
-        out["detail"] = loop.get("landing_reason", "")
+        # safe: the board landed it before the plate came nearer the rail than its own trip gap
+        out["outcome"] = "landed safely" if gmin >= pc["trip_gap_min"] else "failed"
+        out["detail"] = loop.get("landing_reason", "") + ("" if gmin >= pc["trip_gap_min"] else
+                                                          f"; within {gmin * 1e3:.3f} mm of the rail first")
     elif end_err < 1e-3:
         out["outcome"] = "levitating"
     else:

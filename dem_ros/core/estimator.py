@@ -44,6 +44,7 @@ them. Innovation, gain and covariance are kept for inspection.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -51,7 +52,7 @@ from numba import njit
 from .model import IK, IP, IQ, dynamics, plant_vector
 from .params import SCHEMA
 
-__all__ = ["KalmanEstimator", "PassThrough", "make_estimator"]
+__all__ = ["Estimator", "KalmanEstimator", "PassThrough", "make_estimator"]
 
 NS = 10
 
@@ -103,7 +104,8 @@ def jacobian(s: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def ekf_step(s, P, z, mask, u_prev, p, T, qc, rm, out) -> None:
+def ekf_step(s: np.ndarray, P: np.ndarray, z: np.ndarray, mask: np.ndarray, u_prev: np.ndarray, p: np.ndarray,
+             T: float, qc: np.ndarray, rm: np.ndarray, out: np.ndarray) -> None:
     """One predict + update. ``z`` (6,) measured [d1, d1', d2, d2', i1, i2]; ``mask`` (6,) 1 = measured.
 
     ``qc`` = (sigma_accel^2, sigma_voltage^2, sigma_bias^2, sigma_voltage_bias^2), ``rm`` (6,) measurement variances.
@@ -159,11 +161,11 @@ class KalmanEstimator:
 
     name = "kf"
 
-    def __init__(self, cfg: Mapping, measure_velocity: bool = True):
+    def __init__(self, cfg: Mapping[str, Any], measure_velocity: bool = True):
         self.cfg = SCHEMA.validate_group("estimator", dict(cfg))
         c = self.cfg
         self.p = plant_vector(c)
-        self.T = c["dt"]
+        self.T = float(c["dt"])
         self.qc = np.array([c["sigma_accel"] ** 2, c["sigma_voltage"] ** 2, c["sigma_bias"] ** 2,
                             c["sigma_voltage_bias"] ** 2])
         self.rm = np.array([c["sigma_gap"], c["sigma_rate"], c["sigma_gap"], c["sigma_rate"],
@@ -194,7 +196,7 @@ class KalmanEstimator:
                  self.p, self.T, self.qc, self.rm, self.out)
         return self.out
 
-    def kernel_args(self) -> tuple:
+    def kernel_args(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
         return (self.s, self.P, self.mask, self.p, self.T, self.qc, self.rm)
 
 
@@ -215,7 +217,11 @@ class PassThrough:
         return self.out
 
 
-def make_estimator(cfg: Mapping, kind: str | None = None, measure_velocity: bool = True):
+#: what :func:`make_estimator` makes: ``reset(z0)``, ``step(z, u_prev) -> x_hat`` (6,)
+Estimator = KalmanEstimator | PassThrough
+
+
+def make_estimator(cfg: Mapping[str, Any], kind: str | None = None, measure_velocity: bool = True) -> Estimator:
     kind = kind or cfg["type"]
     if kind == "kf":
         return KalmanEstimator(cfg, measure_velocity)

@@ -177,7 +177,8 @@ class PlantSimNode:
         waited = time.monotonic() - self.t_boot
         if waited < c["start_delay"]:
             return False
-        if not self.source_gids and not self._source_writers():
+        if not self.source_gids and (time.monotonic() - self.source_checked < SOURCE_REFRESH_S
+                                     or not self._source_writers()):
             self.diag.set_condition(WARN, f"waiting for {self.source!r}'s /dem/command writer")
             return False  # never start without the controller: its first command would come too late
         self.diag.set_condition(OK)

@@ -10,7 +10,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import random
 import shutil
 import subprocess
 import sys
@@ -18,6 +17,7 @@ import textwrap
 import time
 from pathlib import Path
 
+import domains
 import pytest
 
 from dem_ros.realtime import ENV, REPORT_PREFIX, RtConfig, RtConfigError, StallMonitor, config_from_env
@@ -141,7 +141,7 @@ GRAPH_CHILD = textwrap.dedent("""
 def test_graph_without_rt_permission_warns_once_runs_and_leaves_no_cyclic_garbage(tmp_path):
     """The container as an ordinary user: one warning, the run completes; the loop made no
     reference cycles (automatic collection was off the whole run) and never spun."""
-    env = {"ROS_DOMAIN_ID": str(random.Random(os.getpid()).randint(1, 100)),
+    env = {"ROS_DOMAIN_ID": str(domains.hold()),
            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     r = subprocess.run([*UNPRIVILEGED, sys.executable, "-c", GRAPH_CHILD, str(tmp_path / "params.yaml")],
                        env={**os.environ, "PYTHONPATH": str(ROOT), **env}, capture_output=True, text=True,

@@ -63,3 +63,7 @@ def _warm(say: Callable[[str], None]) -> None:
     plant = DemPlant(cfg["plant_sim"], 0.01)
     plant.measurement()
     plant.advance(plant.u0)
+    say("board supervisor")  # plant_sim's and the rig's board: its landing kernels load on construction
+    from .safety import Supervisor
+
+    Supervisor(cfg["plant_sim"], cfg["plant_sim"]["dt"])

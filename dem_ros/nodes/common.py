@@ -1,9 +1,10 @@
-"""Message <-> array conversion and loop statistics shared by the nodes (no control math)."""
+"""Message <-> array conversion, loop statistics and the per-node ``/diagnostics`` reporter shared by
+the nodes (no control math)."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -11,6 +12,10 @@ import numpy as np
 from ..contract import FRAME, MAGNETS
 
 __all__ = [
+    "ERROR",
+    "OK",
+    "WARN",
+    "Diagnostics",
     "JointStates",
     "LatencyStats",
     "all_finite",
@@ -23,6 +28,9 @@ __all__ = [
     "set_stamp",
     "stamp_ns",
 ]
+
+#: ``diagnostic_msgs/DiagnosticStatus`` levels
+OK, WARN, ERROR = 0, 1, 2
 
 _isfinite = math.isfinite
 _EMPTY: list[float] = []  # shared by messages without that field; never modified
@@ -178,3 +186,110 @@ def diag_array(cls_array: type, cls_status: type, cls_kv: type, t_ns: int, name:
     st.values = kvs
     arr.status = [st]
     return arr
+
+
+class Diagnostics:
+    """One node's status on ``/diagnostics``: its counters, every ``period_s`` (1 Hz) and at once on a fault.
+
+    The one way a node reports its health (``nodes/*`` all use it). The node keeps its counts in
+    :attr:`counters` (name -> int / float / str / bool; :meth:`count` increments one); each report
+    publishes them as key/values, with the transport's per-callback exception counts
+    (``callback_errors``) and, when given, the values of ``values()``.
+
+    Level of a report, the worst of:
+
+    * ``ERROR`` while a fault is latched: :meth:`fault` logs the reason once (ERROR), publishes at once
+      and keeps the node at ERROR until :meth:`clear_fault` (a fault is never reported only once);
+    * the node's own condition, :meth:`set_condition` (e.g. ``WARN`` "converging"; back with ``OK``);
+    * ``WARN`` for the report after any counter named in ``warn_on`` (in :attr:`counters` or ``values()``)
+      or a callback's exception count increased: the message names the counters and their increase since the previous report. A node
+      that recovers goes back to OK; the counters keep the history.
+
+    ``name`` is the status name (default: the node's name); ``hardware_id`` is ``"dem"``.
+    """
+
+    def __init__(self, node: Any, name: str | None = None, *, warn_on: Sequence[str] = (),
+                 values: Callable[[], Mapping[str, Any]] | None = None, period_s: float = 1.0,
+                 timer: bool = True):
+        from ..contract import DIAGNOSTICS
+
+        self.node = node
+        self.name = name or node.name
+        self.counters: dict[str, Any] = {}
+        self.warn_on = tuple(warn_on)
+        self.values = values
+        self._pub = node.publisher(DIAGNOSTICS)
+        self._cls = (node.msg("diagnostic_msgs/msg/DiagnosticArray"), node.msg("diagnostic_msgs/msg/DiagnosticStatus"),
+                     node.msg("diagnostic_msgs/msg/KeyValue"))
+        self._fault: str | None = None
+        self._condition: tuple[int, str] = (OK, "")
+        self._seen: dict[str, Any] = {}  # the warn_on counters and callback errors at the previous report
+        self.reports = 0
+        self.timer = node.timer(period_s, self.publish) if timer else None
+
+    def count(self, key: str, n: int = 1) -> int:
+        """Add ``n`` to counter ``key`` (created at 0); its new value."""
+        v = self.counters.get(key, 0) + n
+        self.counters[key] = v
+        return v
+
+    @property
+    def faulted(self) -> str | None:
+        """The latched fault's reason, None when there is none."""
+        return self._fault
+
+    def fault(self, reason: str) -> None:
+        """Latch ERROR with ``reason``: logged (once per latch) and published at once."""
+        if self._fault is None:
+            self._fault = reason
+            self.node.logger.error(f"fault: {reason}")
+            self.publish()
+
+    def clear_fault(self) -> None:
+        """Release the latched fault (an explicit reset, e.g. a re-arm); logged."""
+        if self._fault is not None:
+            self.node.logger.info(f"fault cleared: {self._fault}")
+            self._fault = None
+
+    def set_condition(self, level: int, message: str = "") -> None:
+        """The node's standing condition (OK / WARN / ERROR and why) until it sets another."""
+        self._condition = (int(level), message)
+
+    def _increases(self, values: Mapping[str, Any], errors: Mapping[str, int]) -> list[str]:
+        now = {k: values.get(k, 0) for k in self.warn_on}
+        now.update({f"callback errors: {k}": v for k, v in errors.items()})
+        out = []
+        for k, v in now.items():
+            d = v - self._seen.get(k, 0)
+            if isinstance(d, (int, float)) and d > 0:
+                out.append(f"{k} +{d:g}")
+        self._seen = now
+        return out
+
+    def status(self, condition: tuple[int, str] | None = None) -> tuple[int, str, dict[str, Any]]:
+        """(level, message, values) of a report now, with ``condition`` (level, message) in place of the
+        standing one when given (moves the WARN window: one report's worth)."""
+        errors = self.node.callback_errors
+        values: dict[str, Any] = dict(self.values()) if self.values is not None else {}
+        values.update(self.counters)
+        if errors:
+            values["callback_errors"] = sum(errors.values())
+        grew = self._increases(values, errors)
+        level, message = condition if condition is not None else self._condition
+        if self._fault is not None:
+            level, message = ERROR, self._fault
+        if grew and level < WARN:
+            level = WARN
+        if grew:
+            message = "; ".join(m for m in (message, ", ".join(grew)) if m)
+        return level, message or "ok", values
+
+    def publish(self, level: int | None = None, message: str = "", values: Mapping[str, Any] | None = None) -> None:
+        """Publish a report now: with the standing condition, or with ``level`` and ``message`` in its place
+        (an event such as a landing, reported at once; a latched fault and grown counters still count);
+        ``values`` are published first, then the counters and ``values()`` not among them."""
+        lv, msg, vals = self.status(None if level is None else (int(level), message))
+        if values is not None:
+            vals = {**values, **{k: v for k, v in vals.items() if k not in values}}
+        self.reports += 1
+        self._pub.publish(diag_array(*self._cls, self.node.now_ns(), self.name, lv, msg, vals))

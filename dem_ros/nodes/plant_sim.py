@@ -32,6 +32,18 @@ Before t = 0 the plant levitates in closed loop for ``preroll`` seconds
 (the simulated plate starts in exact equilibrium, so that costs nothing); from
 then on a missing command is held at most ``hold_timeout``: a graph that cannot
 keep up lands the plate.
+Command source lock: ``/dem/command`` is taken only from the writers that the ROS graph
+attributes to the node ``command_source`` (default ``controller``; read-only), by each sample's
+writer GID (:meth:`~dem_ros.transport.api.Node.subscribe_with_source`). A command from any other
+writer is dropped, counted (``commands_foreign``), logged once per writer and reported (WARN) on
+``/diagnostics``. A writer not yet known (a restarted controller whose graph information trails its
+first samples) is looked up again at most every ``SOURCE_REFRESH_S``. The run does not start
+(either timing mode) before that node's ``/dem/command`` writer is on the graph: until then the
+plant waits, reporting WARN "waiting for ...". What the lock protects against: a second controller,
+a test or replay publisher, a stray tool on the same domain. What it does not: without DDS-Security
+(the PyPI cyclonedds wheel has none) any process can forge a GID or announce itself as the
+controller; only DDS-Security (authenticated participants, signed discovery) would close that.
+
 Latency = receive time of a command - publish time of the measurement it
 answers. A hardware driver replaces this node by honouring the same topics.
 """
@@ -50,7 +62,7 @@ from ..core.plant import DemPlant
 from ..core.safety import SAFETY_KEYS, Mode, Supervisor
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import JointStates, LatencyStats, all_finite, diag_array, stamp_ns
+from .common import ERROR, OK, WARN, Diagnostics, JointStates, LatencyStats, all_finite, stamp_ns
 
 __all__ = ["PlantSimNode", "main"]
 
@@ -59,6 +71,8 @@ RING = 256  # commands / publish times kept by sample index
 # this many samples. The simulated plate starts in exact equilibrium; with the voltage held, rounding
 # errors (~1e-18 m) grow by e^(62 rad/s * 0.3 s) ~ 1e8 in 300 ms: still far below 1 nm.
 START_GRACE_SAMPLES = 300
+#: a command from a writer not (yet) known as the command source's looks the graph up again at most this often
+SOURCE_REFRESH_S = 0.1
 
 
 class PlantSimNode:
@@ -77,10 +91,15 @@ class PlantSimNode:
         self.pub_meas = node.publisher(contract.MEASUREMENT)
         self.pub_truth = node.publisher(contract.TRUTH)
         self.pub_applied = node.publisher(contract.APPLIED)
-        self.pub_diag = node.publisher(contract.DIAGNOSTICS)
-        self.D = (node.msg("diagnostic_msgs/msg/DiagnosticArray"), node.msg("diagnostic_msgs/msg/DiagnosticStatus"),
-                  node.msg("diagnostic_msgs/msg/KeyValue"))
-        node.subscribe(contract.COMMAND, self.on_command)
+        # /diagnostics "plant_sim: loop": published by status() once a second and at once on board events
+        self.diag = Diagnostics(node, contract.LOOP_STATUS, warn_on=("commands_foreign",), values=self.stats,
+                                timer=False)
+        self.source = c["command_source"]
+        self.source_gids: frozenset[bytes] = frozenset()  # the command source's /dem/command writers
+        self.source_checked = -math.inf  # monotonic time of the last graph look-up (s)
+        self.foreign_seen: set[bytes] = set()  # writers already logged as foreign
+        self.diag.counters.update(commands_foreign=0, command_writers=0)
+        node.subscribe_with_source(contract.COMMAND, self.on_command)
         self.cmd_stamp = np.full(RING, -1, dtype=np.int64)  # stamp of the command held in each slot
         self.cmd_u = np.zeros((RING, 2))
         self.pub_wall = np.zeros(RING, dtype=np.int64)  # when each sample was published (wall clock, ns)
@@ -117,8 +136,28 @@ class PlantSimNode:
         self.plant.pc.update(values)  # disturbances and noise act from the next sample
         return None
 
-    def on_command(self, msg) -> None:
-        if not self.started or len(msg.effort) < 2:
+    def _source_writers(self) -> frozenset[bytes]:
+        """The command source's /dem/command writers, looked up on the graph now."""
+        self.source_checked = time.monotonic()
+        self.source_gids = self.node.publisher_gids(contract.COMMAND, self.source)
+        self.diag.counters["command_writers"] = len(self.source_gids)
+        return self.source_gids
+
+    def _from_source(self, gid: bytes) -> bool:
+        """True for a writer of the command source; a foreign one is counted and logged once."""
+        if gid in self.source_gids:
+            return True
+        if time.monotonic() - self.source_checked >= SOURCE_REFRESH_S and gid in self._source_writers():
+            return True
+        self.diag.count("commands_foreign")
+        if gid not in self.foreign_seen and len(self.foreign_seen) < 64:
+            self.foreign_seen.add(gid)
+            self.node.logger.warn(f"/dem/command from writer {gid.hex() or '(unknown)'}, not {self.source!r}'s:"
+                                  " dropped (further samples are counted)")
+        return False
+
+    def on_command(self, msg, gid: bytes) -> None:
+        if not self._from_source(gid) or not self.started or len(msg.effort) < 2:
             return
         u = msg.effort[:2]
         if not all_finite(u):
@@ -138,6 +177,11 @@ class PlantSimNode:
         waited = time.monotonic() - self.t_boot
         if waited < c["start_delay"]:
             return False
+        if not self.source_gids and (time.monotonic() - self.source_checked < SOURCE_REFRESH_S
+                                     or not self._source_writers()):
+            self.diag.set_condition(WARN, f"waiting for {self.source!r}'s /dem/command writer")
+            return False  # never start without the controller: its first command would come too late
+        self.diag.set_condition(OK)
         count = self.pub_meas.subscription_count
         return not (count < c["min_subscribers"] and waited < c["start_delay"] + 30.0)
 
@@ -249,7 +293,7 @@ class PlantSimNode:
             x = self.plant.x
             (log.error if b.fault else log.warn)(f"{when}: safe landing from gaps {x[0] * 1e3:.3f} / {x[2] * 1e3:.3f} mm to"
                       f" {self.cfg['landing_gap'] * 1e3:g} mm at <= {self.cfg['landing_speed'] * 1e3:g} mm/s: {b.reason}")
-            self.publish_diag(2 if b.fault else 1, f"landing: {b.reason}")
+            self.diag.publish(ERROR if b.fault else WARN, f"landing: {b.reason}")
         elif b.mode == Mode.LANDED:
             self.finish(f"landed safely at {when}"
                         f" (gaps {self.plant.x[0] * 1e3:.3f} / {self.plant.x[2] * 1e3:.3f} mm): {b.reason}",
@@ -300,12 +344,11 @@ class PlantSimNode:
             "board_fault": b.fault, "lockstep_timeouts": self.lockstep_landing,
         }
 
-    def publish_diag(self, level: int, message: str, stats: dict | None = None) -> None:
-        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), contract.LOOP_STATUS, level, message,
-                                         stats if stats is not None else self.stats()))
-
     def status(self) -> None:
-        if not self.started or self.finished:
+        if self.finished:
+            return
+        if not self.started:
+            self.diag.publish()  # waiting for the command source (or discovery)
             return
         s = self.stats()
         x = self.plant.x
@@ -315,14 +358,14 @@ class PlantSimNode:
         print(f"t = {s['t_sim_s']:7.1f} s  gaps {x[0] * 1e3:6.3f} / {x[2] * 1e3:6.3f} mm  {late} {s['deadline_misses']}"
               f"  holds {s['holds']}  board {s['board_mode']}{lat}  x{s['realtime_factor']:.2f} real time",
               flush=True)
-        level = 0 if s["deadline_misses"] == 0 and s["holds"] == 0 else 1
-        self.publish_diag(2 if s["landing"] else level, "landing" if s["landing"] else "running", s)
+        level = ERROR if s["landing"] else OK if s["deadline_misses"] == 0 and s["holds"] == 0 else WARN
+        self.diag.publish(level, "landing" if s["landing"] else "running", s)
 
     def finish(self, message: str, level: int) -> None:
         self.finished = True
         log = self.node.logger
         (log.error if level >= 2 else log.warn if level == 1 else log.info)(message)
-        self.publish_diag(level, "finished: " + message)
+        self.diag.publish(level, "finished: " + message)
         # give the last samples time to reach subscribers, then stop the node
         self.node.timer(0.3, self.node.shutdown)
 

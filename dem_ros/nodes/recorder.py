@@ -23,7 +23,7 @@ from .. import __version__, contract
 from ..bag import Recorder
 from ..realtime import ENV as RT_ENV
 from ..transport import Node, run_node, serialize
-from .common import diag_array
+from .common import Diagnostics
 
 __all__ = ["RecorderNode", "main", "parse_recorder_args"]
 
@@ -44,11 +44,11 @@ class RecorderNode:
         # a deeper reader history than the contract's: a recorder stalled for a while (a busy host)
         # must not lose a burst of samples that its history would otherwise overwrite
         deep = [replace(t, qos=replace(t.qos, depth=max(t.qos.depth, RECORDER_DEPTH))) for t in topics]
-        # a write failure (disk full) stops recording: logged at once from the writer thread,
-        # published on /diagnostics (ERROR) by a timer on the node's own thread within 0.1 s, then every 1 s
+        # /diagnostics (status "recorder") once a second: received / written / dropped, WARN when samples
+        # were dropped. A write failure (disk full) stops recording: logged at once from the writer thread,
+        # latched as ERROR and published by a timer on the node's own thread within 0.1 s
         self._failure: str | None = None
-        self._failure_sent_ns = 0
-        self._pub_diag = node.publisher(contract.DIAGNOSTICS)
+        self.diag = Diagnostics(node, "recorder", warn_on=("dropped",), values=self._totals)
         node.timer(0.1, self._report_failure)
         # the controller's state is the last message of a loop cycle: write while the loop sleeps
         self.rec = Recorder(bag, topics, meta, kick_on=contract.CONTROLLER_STATE.name, on_error=self._on_error)
@@ -74,19 +74,14 @@ class RecorderNode:
         self._failure = reason
         self.node.logger.error(f"recording stopped: {reason}")
 
+    def _totals(self) -> dict[str, int]:
+        counts = self.rec.counters().values()
+        return {"received": sum(c.received for c in counts), "written": sum(c.written for c in counts),
+                "dropped": sum(c.dropped for c in counts)}
+
     def _report_failure(self) -> None:
-        if self._failure is None:
-            return
-        now = self.node.now_ns()
-        if self._failure_sent_ns and now - self._failure_sent_ns < 1_000_000_000:
-            return
-        self._failure_sent_ns = now
-        n = self.node.msg
-        counts = self.rec.counters()
-        values = {"written": sum(c.written for c in counts.values()), "dropped": sum(c.dropped for c in counts.values())}
-        self._pub_diag.publish(diag_array(n("diagnostic_msgs/msg/DiagnosticArray"), n("diagnostic_msgs/msg/DiagnosticStatus"),
-                                          n("diagnostic_msgs/msg/KeyValue"), now, "recorder", 2,
-                                          f"recording stopped: {self._failure}", values))
+        if self._failure is not None:
+            self.diag.fault(f"recording stopped: {self._failure}")
 
     def close(self) -> dict:
         """Finalise the bag; per-topic counters, also printed as a ``RECORDER {json}`` line."""

@@ -17,7 +17,6 @@ import contextlib
 import json
 import math
 import os
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import IO, Any
@@ -186,41 +185,22 @@ def write_json(path: Path | str, obj: Any) -> Path:
 def warm_kernels(prefix: str, stream: IO[str] | None = None) -> float:
     """Compile (first run) or load numba's cache of every kernel here, with progress on ``stream``.
 
-    Nothing is printed when the cache loads within a second; otherwise a line names what
-    compiles and a new line follows at least every 5 s, so a first run is never silent.
-    Returns the seconds it took.
+    Reported through :class:`.progress.Progress`: nothing when the cache loads within a second;
+    otherwise a line says whether the kernels compile (an empty cache: the first run after an
+    install or an edit of ``dem_ros/core``) or load, names what, and a new line follows at least
+    every 5 s, so a first run is never silent. Returns the seconds it took.
     """
-    import threading
-    import time
-
+    from ..core.numba_cache import configure
     from ..core.warmup import warm_up
+    from .progress import Progress
 
-    out = stream if stream is not None else sys.stderr
-    t0 = time.monotonic()
-    state = {"what": "numba kernels", "said": 0.0}
-    done = threading.Event()
-
-    def beat() -> None:
-        while not done.wait(1.0 if state["said"] == 0.0 else 5.0):
-            dt = time.monotonic() - t0
-            if state["said"] == 0.0:
-                print(f"{prefix}: compiling numba kernels (first run only; cached for later runs): {state['what']} ...",
-                      file=out, flush=True)
-            else:
-                print(f"{prefix}:   ... {state['what']} ({dt:.0f} s)", file=out, flush=True)
-            state["said"] = dt
-
-    def progress(what: str) -> None:
-        state["what"] = what
-
-    th = threading.Thread(target=beat, name="warm-up progress", daemon=True)
-    th.start()
+    cache = Path(configure())
+    cold = not (cache.is_dir() and any(cache.rglob("*.nbi")))
+    doing = ("compiling numba kernels (first run only; cached for later runs)" if cold
+             else "loading the compiled numba kernels")
+    bar = Progress(prefix, stream=stream)
     try:
-        warm_up(progress)
+        warm_up(lambda what: bar.stage(f"{doing}: {what}"))
     finally:
-        done.set()
-        th.join()
-    dt = time.monotonic() - t0
-    if state["said"]:
-        print(f"{prefix}: kernels ready in {dt:.0f} s", file=out, flush=True)
+        dt = bar.close(f"{prefix}: kernels ready in {bar.elapsed:.0f} s")
     return dt

@@ -30,6 +30,7 @@ from .. import __version__
 from ..core.params import SCHEMA
 from ..core.scenarios import Scenario
 from .common import UsageError, env_domain_id, fmt_pair, load_config, warm_kernels, write_json, yaml_scalar
+from .progress import Progress
 from .runmetrics import RunMetrics
 
 __all__ = ["GraphError", "StartupError", "cmd_launch", "launch", "run_graph", "write_params_file"]
@@ -146,6 +147,8 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     names = ["container"] if compose else [n if n != "plant_sim" else plant_node for n in NODES if n != "recorder" or bag is not None]
     if compose and hardware is not None:  # the loop's nodes composed, the driver beside them (it owns the link)
         names = ["container", "hw_driver"]
+    boot = Progress("dem-ros launch", None, enabled=status)  # never silent while the nodes start (a first run: minutes)
+    boot.stage(f"starting {', '.join(names)}; the plant starts the clock once all are ready")
     t0 = time.monotonic()
     try:
         for name in names:
@@ -189,6 +192,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
                 buf = lines[-1]
                 for line in lines[:-1]:
                     if line.startswith("t =") and cpu_start is None:  # the run (t >= 0) has begun
+                        boot.close(f"dem-ros launch: the nodes were ready in {boot.elapsed:.0f} s")
                         cpu_start = {n: _cpu_seconds(p.pid) for n, p in procs.items()}
                         started = {n: time.monotonic() for n in procs}
                     if status and line.startswith("t ="):
@@ -204,9 +208,12 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
             plant_log.write(rest)
         plant_log.close()
     finally:
+        boot.close()
         wall = time.monotonic() - t0
         for name, p in procs.items():
             cpu[name] = _cpu_seconds(p.pid)
+        halt = Progress("dem-ros launch", None, enabled=status)
+        halt.stage("stopping the nodes (the recorder last, so the bag is complete)")
         # stop: plant (if still running) and controllers first, recorder last
         for name in ("container", "plant_sim", "hw_driver", "controller", "estimator", "reference", "recorder"):
             p = procs.get(name)
@@ -221,6 +228,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
                 p.kill()
                 p.wait()
         rig_summary = _stop_rig(rig)
+        halt.close()
         for s, h in old.items():
             signal.signal(s, h)
     elapsed = {n: (time.monotonic() - started[n]) for n in procs}
@@ -361,7 +369,9 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
         facts = run_graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id,
                           status=not quiet, workdir=(bag.parent / (bag.name + "_logs")) if record else None,
                           compose=compose, hardware=hardware, faults=getattr(args, "fault", None) or ())
-        metrics = RunMetrics.from_bag(bag)
+        with Progress("dem-ros launch", None, enabled=not quiet) as bar:
+            bar.stage(f"reading the bag for the metrics ({bag.name})")
+            metrics = RunMetrics.from_bag(bag)
     except StartupError:
         if record:  # nothing ran: no partial bag (the node logs stay, the error names them)
             shutil.rmtree(bag, ignore_errors=True)
@@ -378,8 +388,10 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
     ran = duration
     if facts["interrupted"]:  # compare like with like: the offline run over the time the graph ran
         ran = metrics.samples * cfg["plant_sim"]["dt"]
-    offline = simulate(cfg, controller=cfg["controller"]["type"], estimator=cfg["estimator"]["type"], duration=ran,
-                       scenario=sc.name).metrics() if ran > 0 else {"rms_error_um": None}
+    with Progress("dem-ros launch", None, enabled=not quiet) as bar:
+        bar.stage(f"the offline run to compare with ({ran:g} s, same configuration and timing)")
+        offline = simulate(cfg, controller=cfg["controller"]["type"], estimator=cfg["estimator"]["type"], duration=ran,
+                           scenario=sc.name).metrics() if ran > 0 else {"rms_error_um": None}
     info = {"composed": compose, "offline_rms_error_um": offline["rms_error_um"], "offline_duration_s": ran, "bag": str(bag) if record else None,
             "hardware": hardware, "rig": facts.get("rig"),
             "recorder": facts["recorder"], "interrupted": facts["interrupted"]}

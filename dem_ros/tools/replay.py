@@ -17,13 +17,17 @@ from __future__ import annotations
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .. import contract
 from .common import write_json
+from .progress import Progress
 from .runmetrics import RunMetrics, load_run
+
+if TYPE_CHECKING:
+    from .plots import RunSignals
 
 __all__ = ["analyse", "cmd_bag", "cmd_replay", "what_if"]
 
@@ -39,61 +43,88 @@ def _arrays(reader: Any, topic: str) -> dict[str, Any] | None:
     return reader.joint_state_arrays(topic)
 
 
-def plot_replay(series: dict, out: Path, title: str) -> list[Path]:
-    from .plots import figure, overlay, save
+def replay_signals(series: dict[str, Any], m: RunMetrics) -> RunSignals:
+    """The figures' signals of a recorded run (``series`` of :func:`.runmetrics.load_run`), experiment clock.
 
-    out.mkdir(parents=True, exist_ok=True)
-    files = []
-    t = series["t"]
+    Command, latency and estimate samples of the pre-roll (t < 0) are left out: every figure
+    starts where the metrics start, at the scenario's t = 0.
+    """
+    from .plots import CLOCK_NOTE, RunSignals, plant_truth
+
+    def after0(tk: str, *keys: str) -> tuple[np.ndarray | None, ...]:
+        if tk not in series:
+            return (None,) * (1 + len(keys))
+        tt = np.asarray(series[tk], float)
+        keep = tt >= 0.0
+        return (tt[keep], *(np.asarray(series[k])[keep] if series.get(k) is not None else None for k in keys))
+
+    u_t, u, lat = after0("cmd_t", "cmd", "cmd_latency_us")
+    est_t, est = after0("est_t", "est")
+    events = []
+    if m.failed and m.fail_time_s is not None:
+        events.append((m.fail_time_s, f"failure at t = {m.fail_time_s:.3f} s"))
+    if "landing" in series:
+        t_land, why = series["landing"]
+        events.append((t_land, f"board landing the plate by t = {t_land:.0f} s" + (f" ({why})" if why else "")))
+    loop = series.get("loop") or []
+    lockstep = m.loop.lockstep if m.loop is not None else False
+    title = " / ".join(x for x in (m.scenario, m.controller, f"estimator {m.estimator}" if m.estimator else None) if x)
+    return RunSignals(
+        title=f"{title or 'run'} (recorded)", t=series["t"], gaps=series["gaps"], ref=series["ref"],
+        gap_source="measured" if m.error_source == "measurement" else "true",
+        u_t=u_t, u=u, current=series.get("current"), est_t=est_t, est=est, mass=series.get("mass"),
+        latency_t=u_t, latency_us=lat,
+        loop_t=np.array([x[0] for x in loop], float) if loop else None,
+        loop_misses=np.array([x[1] for x in loop], float) if loop else None,
+        lockstep=lockstep, events=events, notes=[CLOCK_NOTE],
+        truth=plant_truth(m_cfg["plant_sim"]) if (m_cfg := series.get("config")) and "plant_sim" in m_cfg
+        and m.error_source == "truth" else None,
+    )
+
+
+def plot_replay(series: dict[str, Any], m: RunMetrics, out: Path) -> list[Path]:
+    """The run's figures (:func:`.plots.plot_signals`, the same as ``dem-ros sim --plot``) into ``out``."""
+    from .plots import plot_signals
+
+    return plot_signals(replay_signals(series, m), out, "dem-ros replay")
+
+
+def plot_what_if(res: dict[str, Any], out: Path) -> Path:
+    """``what_if.png``: the recorded commands and the re-run law's, per coil [V]."""
+    from .plots import figure, save
+
     fig, ax = figure(2, 1)
+    t = np.array(res["t"])
     for j in range(2):
-        overlay(ax[j], t, [(f"d{j + 1}", series["gaps"][:, j]), (f"y_m{j + 1}", series["ref"][:, j])], 1e3)
-        ax[j].set_ylabel("mm")
-    ax[0].set_title(f"{title}: tracking")
-    ax[-1].set_xlabel("t [s]")
-    files.append(save(fig, out / "tracking.png"))
-    fig, ax = figure(1, 1)
-    overlay(ax[0], t, [("e1", series["e"][:, 0]), ("e2", series["e"][:, 1])], 1e6)
-    ax[0].set_ylabel("e [um]")
-    ax[0].set_xlabel("t [s]")
-    ax[0].set_title(f"{title}: tracking error")
-    files.append(save(fig, out / "error.png"))
-    if "cmd" in series:
-        fig, ax = figure(2, 1)
-        overlay(ax[0], series["cmd_t"], [("u1", series["cmd"][:, 0]), ("u2", series["cmd"][:, 1])])
-        ax[0].set_ylabel("u [V]")
-        if series.get("current") is not None:
-            overlay(ax[1], t, [("i1", series["current"][:, 0]), ("i2", series["current"][:, 1])])
-        ax[1].set_ylabel("i [A]")
-        ax[1].set_xlabel("t [s]")
-        ax[0].set_title(f"{title}: voltages and currents")
-        files.append(save(fig, out / "inputs.png"))
-        fig, ax = figure(2, 1)
-        ax[0].plot(series["cmd_t"], series["cmd_latency_us"], ".", ms=1)
-        ax[0].set_ylabel("command latency [us]")
-        ax[0].set_yscale("log")
-        if series.get("loop"):
-            lt = [x[0] for x in series["loop"]]
-            ax[1].plot(lt, [x[1] for x in series["loop"]], "o-")
-        ax[1].set_ylabel("deadline misses (cum.)")
-        ax[1].set_xlabel("t [s]")
-        ax[0].set_title(f"{title}: loop timing")
-        files.append(save(fig, out / "loop.png"))
-    if "est" in series and np.isfinite(series["est"]).any():
-        fig, ax = figure(3, 1, 2.2)
-        for j, lab in enumerate(["m_hat [kg]", "R_hat [ohm]", "K_hat"]):
-            ax[j].plot(series["est_t"], series["est"][:, j])
-            ax[j].set_ylabel(lab)
-        if series.get("mass") is not None:
-            ax[0].plot(t, series["mass"], "k:", label="true m")
-            ax[0].legend()
-        ax[0].set_title(f"{title}: parameter estimates")
-        files.append(save(fig, out / "estimates.png"))
-    return files
+        ax[j].plot(t, np.array(res["u_recorded"])[:, j], lw=0.8, label=f"recorded ({res['recorded_law']})")
+        ax[j].plot(t, np.array(res["u_replayed"])[:, j], "--", lw=0.8, label=f"re-run: {res['law']}")
+        ax[j].set_ylabel(f"u{j + 1} [V]")
+        ax[j].legend(loc="upper right", fontsize=8)
+    ax[-1].set_xlabel("t [s] (0: start of the scenario; t < 0: the closed-loop pre-roll)")
+    changes = ", ".join(res["changes"]) or "no parameter changes"
+    ax[0].set_title(f"what-if replay: {res['law']} ({changes}) on the recorded inputs")
+    return save(fig, out / "what_if.png")
 
 
-def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = None) -> dict:
-    """Re-run a law on the recorded controller inputs; compare with the recorded commands."""
+def _epoch_ns(reader: Any) -> int | None:
+    """t = 0 of the recorded experiment (the plant's loop status ``epoch_ns``), or None (no status recorded)."""
+    for _, _, msg in reader.messages([contract.DIAGNOSTICS.name]):
+        for st in msg.status:
+            if st.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
+                epoch = next((kv.value for kv in st.values if kv.key == "epoch_ns"), None)
+                if epoch:
+                    return int(epoch)
+    return None
+
+
+def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = None,
+            progress: bool = False) -> dict:
+    """Re-run a law on the recorded controller inputs; compare with the recorded commands.
+
+    Returns the comparison (``max_abs_diff_v``, ``rms_diff_v`` [V], ``reproduces_recording``) and the
+    series ``t`` [s] (experiment clock: t = 0 at the scenario's start, negative in the pre-roll),
+    ``u_replayed``, ``u_recorded`` (K, 2) [V]. ``progress``: report on stderr (a long bag takes a while).
+    """
     from ..bag import BagError, BagReader
     from ..core.controllers import make_controller
     from ..core.params import SCHEMA, apply_overrides, default_config, parse_assignment
@@ -135,7 +166,10 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     ctrl = make_controller(ccfg, name)
     started = False
     u_new, u_old, stamps = [], [], []
+    bar = Progress("dem-ros replay", len(est["stamp_ns"]), "samples", enabled=progress)
+    bar.stage(f"re-running {name}")
     for i, t in enumerate(est["stamp_ns"]):
+        bar.step()
         t = int(t)
         if t not in cmd_by:  # the node did not act on this sample (stale / invalid): neither do we
             continue
@@ -157,28 +191,39 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
         u_new.append(np.clip(u, -ccfg["voltage_limit"], ccfg["voltage_limit"]))
         u_old.append(cmd["effort"][cmd_by[t], :2])
         stamps.append(t)
+    bar.close()
     if not stamps:
         raise BagError(f"{bag}: no sample on which the controller acted")
+    epoch = _epoch_ns(r)
+    t0 = epoch if epoch is not None else stamps[0]
     new, old = np.array(u_new), np.array(u_old)
     d = np.abs(new - old)
     return {
         "law": name, "recorded_law": recorded_law, "changes": sets or [], "samples": len(stamps),
         "max_abs_diff_v": float(d.max()), "rms_diff_v": float(np.sqrt(np.mean(d**2))),
         "reproduces_recording": bool(d.max() <= 1e-9 * max(1.0, float(np.abs(old).max()))),
-        "t": ((np.array(stamps) - stamps[0]) * 1e-9).tolist(), "u_replayed": new.tolist(), "u_recorded": old.tolist(),
+        "t": ((np.array(stamps) - t0) * 1e-9).tolist(), "u_replayed": new.tolist(), "u_recorded": old.tolist(),
     }
 
 
-def publish(bag: Path, rate: float = 1.0) -> dict:
-    """Play the bag onto the DDS graph at its recorded timing (raw CDR, contract QoS)."""
+def publish(bag: Path, rate: float = 1.0, progress: bool = True) -> dict:
+    """Play the bag onto the DDS graph at its recorded timing (raw CDR, contract QoS).
+
+    ``progress``: a line on stderr at least every 5 s (messages sent of the bag's total).
+    """
     from ..bag import BagReader
     from ..transport import make_node
 
     r = BagReader(bag)
     topics = {t.name: t for t in contract.TOPICS}
+    names = [n for n in r.topics if n in topics and n != contract.PARAMETER_EVENTS.name]
+    total = sum(r.topics[n].count for n in names)
     node = make_node("dem_ros_player", transport="dds", args=[])
-    pubs = {n: node.publisher(topics[n]) for n in r.topics if n in topics and n != contract.PARAMETER_EVENTS.name}
+    pubs = {n: node.publisher(topics[n]) for n in names}
+    bar = Progress("dem-ros replay --publish", total, "messages", enabled=progress, quiet=0.0)
+    bar.stage("waiting 1 s for subscribers to discover the player")
     time.sleep(1.0)  # discovery
+    bar.stage(f"playing {len(pubs)} topics at the recorded rate")
     sent = 0
     start = None
     t_wall0 = time.monotonic_ns()
@@ -192,47 +237,43 @@ def publish(bag: Path, rate: float = 1.0) -> dict:
                 time.sleep((due - now) * 1e-9)
             pubs[topic].publish_raw(bytes(data))
             sent += 1
+            bar.step()
     finally:
+        bar.close()
         node.shutdown()
     return {"published": sent, "topics": list(pubs)}
 
 
-def cmd_replay(args) -> int:
+def cmd_replay(args: Any) -> int:
+    """``dem-ros replay``: metrics and figures of a bag, a what-if re-run, or a playback (``--publish``)."""
     bag = Path(args.bag)
     if args.publish:
         res = publish(bag)
         print(f"replay: published {res['published']} messages on {len(res['topics'])} topics")
         return 0
     if args.controller or args.set:
-        res = what_if(bag, args.controller, args.set)
+        res = what_if(bag, args.controller, args.set, progress=True)
         verdict = "reproduces the recorded commands" if res["reproduces_recording"] else "differs from the recording"
         print(f"what-if replay of {bag}: law {res['law']} (recorded: {res['recorded_law']}), changes {res['changes'] or 'none'}")
         print(f"  {res['samples']} samples; max |u_replayed - u_recorded| = {res['max_abs_diff_v']:.3e} V,"
               f" RMS {res['rms_diff_v']:.3e} V: {verdict}")
         if args.json:
             write_json(args.json, {k: v for k, v in res.items() if k not in ("t", "u_replayed", "u_recorded")})
+            print(f"  comparison written to {args.json}")
         if args.plot:
-            from .plots import figure, save
-
-            fig, ax = figure(2, 1)
-            t = np.array(res["t"])
-            for j in range(2):
-                ax[j].plot(t, np.array(res["u_recorded"])[:, j], label="recorded")
-                ax[j].plot(t, np.array(res["u_replayed"])[:, j], "--", label=res["law"])
-                ax[j].set_ylabel(f"u{j + 1} [V]")
-                ax[j].legend()
-            ax[-1].set_xlabel("t [s]")
-            ax[0].set_title("what-if replay: commands")
-            save(fig, Path(args.plot) / "what_if.png")
+            path = plot_what_if(res, Path(args.plot))
+            print(f"  figure written to {path}")
         return 0
-    m, series = analyse(bag)
+    with Progress("dem-ros replay", None) as bar:
+        bar.stage(f"reading {bag}")
+        m, series = analyse(bag)
+    files = plot_replay(series, m, Path(args.plot)) if args.plot else []
     print(f"replay of {bag}:")
     m.print()
     if args.json:
         write_json(args.json, m.to_dict())
         print(f"  metrics written to {args.json}")
     if args.plot:
-        files = plot_replay(series, Path(args.plot), f"{m.scenario} / {m.controller}")
         print(f"  {len(files)} figures written to {args.plot}")
     if m.failed or m.problems:
         why = (["the run failed"] if m.failed else []) + m.problems

@@ -18,13 +18,14 @@ import numpy as np
 
 from ..core.scenarios import load_scenarios
 from ..core.simulate import simulate
-from .common import write_json
+from .common import CONTROLLER_TYPES, warm_kernels, write_json
 from .plots import figure, overlay, save
+from .progress import Progress
 from .study import report_section
 
 __all__ = ["make_report", "run_matrix"]
 
-ORDER = ["adaptive", "adaptive_enhanced", "paper", "paper_fixed", "nonlinear_decoupling", "decentralized_pid"]
+ORDER = list(CONTROLLER_TYPES)  # the schema's controller.type choices, in its order
 ESTIMATORS = ["none", "kf"]
 
 
@@ -40,16 +41,13 @@ def run_matrix(duration: float | None = None, jobs: int | None = None, progress=
     scenarios = load_scenarios()
     work = [(s, c, e, duration) for s in scenarios for c in ORDER for e in ESTIMATORS]
     out = []
-    t0 = time.perf_counter()
     jobs = jobs or os.cpu_count() or 1
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        for i, m in enumerate(pool.map(_one, work, chunksize=2), 1):
+    with Progress("dem-ros report", len(work), "runs", enabled=progress) as bar, \
+            ProcessPoolExecutor(max_workers=jobs) as pool:
+        bar.stage("controller x scenario x estimator matrix")
+        for m in pool.map(_one, work, chunksize=2):
             out.append(m)
-            if progress:
-                bar = "#" * int(30 * i / len(work))
-                print(f"\r  [{bar:<30}] {i}/{len(work)} runs, {time.perf_counter() - t0:5.0f} s", end="", file=sys.stderr, flush=True)
-    if progress:
-        print(file=sys.stderr)
+            bar.step(failed=int(bool(m["failed"])))
     return out
 
 
@@ -75,10 +73,14 @@ def _paper_figures(out: Path, duration: float | None) -> dict[str, str]:
     """Figures equivalent to the paper's Figs 4-24 (re-runs of the runs they show)."""
     sc = load_scenarios()
     figs: dict[str, str] = {}
+    bar = Progress("dem-ros report", 18, "runs for the figures")  # the run() calls below
 
     def run(name, ctl, est="none"):
         s = sc[name]
-        return simulate(s.config(), controller=ctl, estimator=est, duration=duration or s.duration, scenario=name)
+        bar.stage(f"{name} {ctl}")
+        res = simulate(s.config(), controller=ctl, estimator=est, duration=duration or s.duration, scenario=name)
+        bar.step()
+        return res
 
     s1 = run("S1", "adaptive")
     t = s1.t
@@ -150,6 +152,7 @@ def _paper_figures(out: Path, duration: float | None) -> dict[str, str]:
         ax[0].set_title(f"Fig. {figno}: {name} ({text}), all with the Kalman estimator")
         fname = f"fig{figno}_{name}.png"
         save(fig, out / fname); figs[fname] = f"{name}: {text} (paper Fig. {figno} and neighbours)"
+    bar.close()
     return figs
 
 
@@ -231,10 +234,11 @@ def _fmt(v):
 def make_report(out: Path, duration: float | None = None, jobs: int | None = None) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    print(f"running {len(load_scenarios()) * len(ORDER) * len(ESTIMATORS)} closed-loop runs ...", file=sys.stderr)
+    warm_kernels("dem-ros report")  # once, here, with progress: the worker processes then load the cache
+    print(f"dem-ros report: {len(load_scenarios()) * len(ORDER) * len(ESTIMATORS)} closed-loop runs ...", file=sys.stderr)
     results = run_matrix(duration, jobs)
     write_json(out / "results.json", results)
-    print("figures ...", file=sys.stderr)
+    print("dem-ros report: the figures ...", file=sys.stderr)
     figs = _paper_figures(out, duration)
     scen = list(load_scenarios())
     descs = {n: s.description for n, s in load_scenarios().items()}

@@ -257,7 +257,7 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     )
     if len(laws) == 1:
         m.controller = laws[0]
-    series: dict[str, Any] = {"t": t, "gaps": gaps, "ref": ref["position"][i_r, :2], "e": e}
+    series: dict[str, Any] = {"t": t, "gaps": gaps, "ref": ref["position"][i_r, :2], "e": e, "config": run.get("config")}
     cmd = arrays(contract.COMMAND.name)
     if cmd is not None and cmd["effort"].size:
         m.peak_voltage_v = float(np.nanmax(np.abs(cmd["effort"])))
@@ -276,9 +276,12 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
         m.final_estimates = _final_estimates(list(st["name"]), st["position"][-1])
         series["est_t"] = (st["stamp_ns"] - t0) * 1e-9
         series["est"] = st["position"][:, :3]
-    if loop_hist:
-        series["loop"] = [((ln - loop_hist[0][0]) * 1e-9, int(v.get("deadline_misses", 0)), int(v.get("cycles", 0)))
-                          for ln, v in loop_hist]
+    if loop_hist:  # on the experiment clock (t_sim_s), as every other series; not the recorder's arrival times
+        series["loop"] = [(float(v.get("t_sim_s", "nan")), int(v.get("deadline_misses", 0)), int(v.get("cycles", 0)))
+                          for _, v in loop_hist]
+        landing = next((v for _, v in loop_hist if v.get("landing") == "True"), None)
+        if landing is not None:
+            series["landing"] = (float(landing.get("t_sim_s", "nan")), landing.get("landing_reason", ""))
     epoch = loop.epoch_ns if loop is not None and loop.epoch_ns is not None else None
     m.problems = run_problems(r, src["stamp_ns"], ref["stamp_ns"], epoch, ts, m.duration_s)
     return m, series

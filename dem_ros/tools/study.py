@@ -68,7 +68,6 @@ import json
 import math
 import os
 import re
-import sys
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -79,6 +78,7 @@ import numpy as np
 
 from ..core.params import SCHEMA, ConfigError, ParamSpec, apply_overrides
 from .common import CONTROLLER_TYPES, ESTIMATOR_TYPES, json_text, load_config
+from .progress import Progress
 
 __all__ = [
     "Axis",
@@ -434,33 +434,6 @@ def load_results(path: Path, header: list[str] | None = None) -> dict[str, dict[
 _SCHED_RE = re.compile(r"tcp://[A-Za-z0-9_.\-]+:\d{1,5}|tcp://\[[0-9a-fA-F:]+\]:\d{1,5}")
 
 
-class _Progress:
-    def __init__(self, total: int, done: int, enabled: bool, stream=None):
-        self.total, self.done, self.enabled = total, done, enabled
-        self.stream = stream or sys.stderr
-        self.t0 = time.perf_counter()
-        self.new = 0
-        self.failed = 0
-
-    def update(self, rows: Sequence[Mapping[str, Any]]) -> None:
-        self.done += len(rows)
-        self.new += len(rows)
-        self.failed += sum(int(r["failed"]) for r in rows)
-        if not self.enabled:
-            return
-        dt = time.perf_counter() - self.t0
-        frac = self.done / max(self.total, 1)
-        bar = "#" * int(30 * frac)
-        rate = self.new / dt if dt > 0 else 0.0
-        eta = (self.total - self.done) / rate if rate > 0 else float("nan")
-        print(f"\r  [{bar:<30}] {self.done}/{self.total} runs, {dt:5.0f} s, {rate:5.2f} runs/s, "
-              f"ETA {eta:5.0f} s, {self.failed} failed", end="", file=self.stream, flush=True)
-
-    def close(self) -> None:
-        if self.enabled:
-            print(file=self.stream, flush=True)
-
-
 def _open_client(scheduler: str | None, workers: int, timeout: float):
     import logging
 
@@ -499,6 +472,8 @@ def run_study(spec: StudySpec, out: Path, *, workers: int = 1, scheduler: str | 
         with path.open("w", newline="") as f:
             csv.writer(f).writerow(header)
     t_start = time.perf_counter()
+    bar = Progress("dem-ros study", len(jobs), "runs", done=len(jobs) - len(todo), enabled=progress)
+    bar.stage("starting the Dask workers")
     client, cluster = _open_client(scheduler, workers, timeout)
     try:
         from distributed import KilledWorker, as_completed
@@ -508,6 +483,7 @@ def run_study(spec: StudySpec, out: Path, *, workers: int = 1, scheduler: str | 
         # every worker loads (or compiles: minutes on a busy machine) its kernels before the clock
         # starts; as tasks, so that the worker's event loop keeps answering the scheduler meanwhile
         # (client.run would execute in that loop and block it)
+        bar.stage("the workers load the compiled kernels (on a first run: compile them, minutes)")
         try:
             client.gather([client.submit(_warm_worker, workers=[a], allow_other_workers=False, pure=False) for a in addrs])
         except (OSError, KilledWorker) as exc:
@@ -516,7 +492,7 @@ def run_study(spec: StudySpec, out: Path, *, workers: int = 1, scheduler: str | 
         size = chunk or max(1, min(16, len(todo) // (8 * max(n_workers, 1))))
         chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
         by_id = {j["run_id"]: j for j in todo}
-        bar = _Progress(len(jobs), len(jobs) - len(todo), progress)
+        bar.stage("")
         futures = [client.submit(run_chunk, c, pure=False) for c in chunks]
         with path.open("a", newline="") as f:
             w = csv.DictWriter(f, fieldnames=header)
@@ -534,13 +510,13 @@ def run_study(spec: StudySpec, out: Path, *, workers: int = 1, scheduler: str | 
                         w.writerow({"run_id": j["run_id"], "controller": j["controller"], "estimator": j["estimator"],
                                     "seed": j["seed"], "duration_s": j["duration"], **j["values"], **r})
                     f.flush()
-                    bar.update(rows)
+                    bar.step(len(rows), failed=sum(int(r["failed"]) for r in rows))
             finally:
-                bar.close()
                 for fut in futures:
                     fut.cancel()
         t_end = time.perf_counter()
     finally:
+        bar.close()
         client.close()
         if cluster is not None:
             cluster.close()

@@ -282,9 +282,9 @@ def serialize(msg: Any) -> bytes:
     Works for the DDS message classes and for rclpy messages.
     """
     if hasattr(msg, "__idl__"):
-        from .dds.fastcdr import ENCODERS
+        from .dds.fastcdr import encoder
 
-        enc = ENCODERS.get(type(msg))
+        enc = encoder(type(msg))
         return enc(msg) if enc is not None else bytes(msg.serialize())
     from rclpy.serialization import serialize_message
 
@@ -298,11 +298,10 @@ def deserialize(type_name: str, data: bytes, *, transport: str = "auto") -> Any:
         from rosidl_runtime_py.utilities import get_message
 
         return deserialize_message(bytes(data), get_message(type_name))
-    from .dds.fastcdr import DECODERS
+    from .dds.fastcdr import decoder
     from .dds.msgs import message_class
 
-    cls = message_class(type_name)
-    return DECODERS.get(cls, cls.deserialize)(bytes(data))
+    return decoder(message_class(type_name))(bytes(data))
 
 
 def param_set(node_name: str, name: str, value: Any, *, domain_id: int | None = None,

@@ -28,10 +28,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture
-def graph(tmp_path, monkeypatch):
-    domain = 1 + (os.getpid() * 13) % 101
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+def graph(tmp_path, monkeypatch, domain_id):
     monkeypatch.setenv("DEM_ROS_RT", "0")
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))

@@ -30,7 +30,6 @@ arguments, params files, :class:`~dem_ros.transport.parameters.ParameterStore`);
 
 from __future__ import annotations
 
-import sys
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -47,6 +46,7 @@ from .api import (
     TransportError,
     node_fqn,
 )
+from .logger import NodeLogger
 from .parameters import ParameterStore
 from .rosargs import initial_parameters, parse_ros_args
 
@@ -102,27 +102,6 @@ class MemoryPublisher:
         return len(self._bus.subscriptions.get(self.topic, ()))
 
 
-class _Logger:
-    def __init__(self, node: MemoryNode):
-        self._node = node
-
-    def _log(self, level: str, text: str) -> None:
-        self._node.bus.log.append((level, self._node.fully_qualified_name, text))
-        if self._node.bus.echo:
-            sys.stderr.write(f"[{level}] [{self._node.fully_qualified_name}]: {text}\n")
-
-    def info(self, msg: str) -> None:
-        self._log("INFO", msg)
-
-    def warn(self, msg: str) -> None:
-        self._log("WARN", msg)
-
-    warning = warn
-
-    def error(self, msg: str) -> None:
-        self._log("ERROR", msg)
-
-
 class MemoryNode:
     """A node on a :class:`MemoryBus` (make it with :meth:`MemoryBus.node`)."""
 
@@ -136,7 +115,9 @@ class MemoryNode:
         self.name = self._ros_args.name_for(name)
         self.namespace = self._ros_args.namespace_for(name)
         self._ignore_undeclared = ignore_undeclared
-        self.logger = _Logger(self)
+        self.logger = NodeLogger(lambda: self.fully_qualified_name,
+                                 sink=lambda level, name, text, _t: bus.log.append((level, name, text)),
+                                 echo=lambda: bus.echo)
         self._guard = CallbackGuard(lambda: self.logger)
         self._params: ParameterStore | None = None
         self._shutdown = False

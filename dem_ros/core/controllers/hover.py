@@ -107,7 +107,7 @@ def window_means(Z: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return Z.mean(axis=0), U.mean(axis=0)
 
 
-def hover_residuals(phi: np.ndarray, Z: np.ndarray, U: np.ndarray, geo: dict) -> tuple[np.ndarray, np.ndarray]:
+def hover_residuals(phi: np.ndarray, Z: np.ndarray, U: np.ndarray, geo: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
     """(r, J): the hover equations per row of Z (n, 6), U (n, 2) -> r (n, 4) = [c1, c2, f1, f2]; J = dr/dphi (n, 4, 4).
 
     ``geo``: P, Q, cA, cC, N1, N2, g, floor (gap floor of the law, m).
@@ -142,7 +142,7 @@ def solve_hover(
     P0: np.ndarray,
     Z: np.ndarray,
     U: np.ndarray,
-    geo: dict,
+    geo: dict[str, float],
     lo: np.ndarray,
     hi: np.ndarray,
     iterations: int = 6,

@@ -21,12 +21,10 @@ announced on ``/parameter_events``.
 
 from __future__ import annotations
 
-import contextlib
-import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
-from typing import Any, ClassVar
+from typing import Any
 
 from cyclonedds._clayer import ddspy_write
 from cyclonedds.core import ReadCondition
@@ -48,6 +46,7 @@ from ..api import (
     gid16,
     node_fqn,
 )
+from ..logger import NodeLogger
 from ..parameters import ParameterStore
 from ..rosargs import RosArgs, initial_parameters, parse_ros_args
 from . import fastcdr, msgs, srvs, wire
@@ -285,39 +284,6 @@ class SourcedLocalSubscription(LocalSubscription):
     __slots__ = ()
 
 
-class _Logger:
-    _LEVELS: ClassVar[dict[str, int]] = {"DEBUG": 10, "INFO": 20, "WARN": 30, "ERROR": 40, "FATAL": 50}
-
-    def __init__(self, node: DdsNode):
-        self._node = node
-        self._rosout: DdsPublisher | None = None
-
-    def _log(self, level: str, text: str) -> None:
-        t = time.time_ns()
-        sys.stderr.write(f"[{level}] [{t // 10**9}.{t % 10**9:09d}] [{self._node.logger_name}]: {text}\n")
-        sys.stderr.flush()
-        if self._rosout is not None:
-            with contextlib.suppress(Exception):  # logging must never raise
-                self._rosout.publish(msgs.Log(
-                    stamp=msgs.Time(sec=t // 10**9, nanosec=t % 10**9), level=self._LEVELS[level],
-                    name=self._node.logger_name, msg=text, file="", function="", line=0,
-                ))
-
-    def debug(self, msg: str) -> None:
-        pass
-
-    def info(self, msg: str) -> None:
-        self._log("INFO", msg)
-
-    def warn(self, msg: str) -> None:
-        self._log("WARN", msg)
-
-    warning = warn
-
-    def error(self, msg: str) -> None:
-        self._log("ERROR", msg)
-
-
 class DdsNode:
     """A ROS 2 node on plain Cyclone DDS. Create it with :func:`dem_ros.transport.make_node`."""
 
@@ -346,12 +312,18 @@ class DdsNode:
         self._params: ParameterStore | None = None
         self._guard = CallbackGuard(lambda: self.logger)
         self._p.add_node(self)
-        self.logger = _Logger(self)
+        self.logger = NodeLogger(lambda: self.logger_name)
         self._p.publish_graph()
         self._rosout_pub = self._make_writer("/rosout", "rcl_interfaces/msg/Log", QOS_ROSOUT)
-        self.logger._rosout = self._rosout_pub
+        self.logger.sink = self._rosout
         self._events_pub = self.publisher(contract.PARAMETER_EVENTS)
         self._csid = 0
+
+    def _rosout(self, level: str, name: str, text: str, t_ns: int) -> None:
+        """One log record on /rosout (rcl_interfaces/msg/Log, as rcl publishes it)."""
+        self._rosout_pub.publish(msgs.Log(
+            stamp=msgs.Time(sec=t_ns // 10**9, nanosec=t_ns % 10**9), level=NodeLogger.LEVELS[level],
+            name=name, msg=text, file="", function="", line=0))
 
     # -- names -----------------------------------------------------------------------
     @property

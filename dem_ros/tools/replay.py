@@ -125,6 +125,14 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     series ``t`` [s] (experiment clock: t = 0 at the scenario's start, negative in the pre-roll),
     ``u_replayed``, ``u_recorded`` (K, 2) [V]. ``progress``: report on stderr (a long bag takes a while).
     """
+    bar = Progress("dem-ros replay", None, "samples", stage=f"reading the recorded inputs of {bag}", enabled=progress)
+    try:
+        return _what_if(bag, controller, sets, bar)
+    finally:
+        bar.close()
+
+
+def _what_if(bag: Path, controller: str | None, sets: list[str] | None, bar: Progress) -> dict:
     from ..bag import BagError, BagReader
     from ..core.controllers import make_controller
     from ..core.params import SCHEMA, apply_overrides, default_config, parse_assignment
@@ -166,7 +174,7 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     ctrl = make_controller(ccfg, name)
     started = False
     u_new, u_old, stamps = [], [], []
-    bar = Progress("dem-ros replay", len(est["stamp_ns"]), "samples", enabled=progress)
+    bar.total = len(est["stamp_ns"])
     bar.stage(f"re-running {name}")
     for i, t in enumerate(est["stamp_ns"]):
         bar.step()
@@ -191,7 +199,6 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
         u_new.append(np.clip(u, -ccfg["voltage_limit"], ccfg["voltage_limit"]))
         u_old.append(cmd["effort"][cmd_by[t], :2])
         stamps.append(t)
-    bar.close()
     if not stamps:
         raise BagError(f"{bag}: no sample on which the controller acted")
     epoch = _epoch_ns(r)
@@ -220,8 +227,8 @@ def publish(bag: Path, rate: float = 1.0, progress: bool = True) -> dict:
     total = sum(r.topics[n].count for n in names)
     node = make_node("dem_ros_player", transport="dds", args=[])
     pubs = {n: node.publisher(topics[n]) for n in names}
-    bar = Progress("dem-ros replay --publish", total, "messages", enabled=progress, quiet=0.0)
-    bar.stage("waiting 1 s for subscribers to discover the player")
+    bar = Progress("dem-ros replay --publish", total, "messages", stage="waiting 1 s for subscribers to discover the player",
+                   enabled=progress, quiet=0.0)
     time.sleep(1.0)  # discovery
     bar.stage(f"playing {len(pubs)} topics at the recorded rate")
     sent = 0

@@ -31,7 +31,18 @@ What each setting is for (a Python loop on a stock, non-RT Linux kernel):
 
 The loop never spins: the executor sleeps until its next deadline or sample (a FIFO thread that
 spins would starve every normal thread of its core; the kernel's RT throttling,
-``sched_rt_runtime_us``, would then cut in).
+``sched_rt_runtime_us``, would then cut in: once the real-time threads on a CPU have run 950 ms
+of a second, *every* real-time thread on that CPU, any process's, stops for the remaining 50 ms,
+measured here). Two guards keep a process of ours from being that thread:
+
+* **RT budget** (``RLIMIT_RTTIME``, :data:`RT_BUDGET_MS`): a real-time thread of the process that
+  runs that long without sleeping gets ``SIGXCPU``; the handler puts the whole process back to
+  normal scheduling and says so in one line (a healthy loop sleeps every period; a catch-up
+  after a long stall runs a few tens of ms);
+* **leaving the loop** (:func:`leave_loop`): when the loop ends, the process's threads go back to
+  normal scheduling before the shutdown work (finalising a bag: hundreds of ms of compression
+  and writing), which at SCHED_FIFO would hold the CPU against every other process's loop of
+  the same priority.
 
 Settings come from the environment, so that one switch reaches every node process and the
 container alike (``dem-ros launch/bench --rt/--no-rt`` set it for their children):
@@ -43,15 +54,37 @@ variable                    default        meaning
 ``DEM_ROS_RT_PRIORITY``     ``50``         SCHED_FIFO priority (1..99)
 ``DEM_ROS_RT_LOCK_MEMORY``  ``1``          ``0``: no mlockall
 ``DEM_ROS_RT_CPUS``         (none)         e.g. ``1`` or ``0,1``: pin the loop's threads
+``DEM_ROS_RT_STALL_MS``     ``5``          report loop stalls longer than this (ms)
 ==========================  =============  ============================================
 
 Where a setting is not permitted (no ``CAP_SYS_NICE`` and ``RLIMIT_RTPRIO`` 0, a small
 ``RLIMIT_MEMLOCK``) the process prints ONE warning line that names what is missing and how to
 grant it, and runs on without it.
+
+**Stalls, and whose they are** (:class:`StallMonitor`). The executor tells the monitor when each
+dispatch round was due and when it ended; a round that ends more than ``stall_ms`` after it was
+due is a stall. The kernel's own accounting of the loop's thread over the stall
+(``/proc/thread-self/schedstat``: time on a CPU, time runnable but waiting for one) and the
+hypervisor's steal (``/proc/stat``) say where the time went:
+
+* ``running``: the thread itself was computing (our code: a long callback, a collection);
+* ``runnable``: ready but not given a CPU: a higher- or equal-priority real-time thread held it,
+  the kernel's RT throttling (``sched_rt_runtime_us``: real-time threads together may use at
+  most that share of each CPU per ``sched_rt_period_us``) or the host ran another guest;
+* ``stolen``: neither, while the hypervisor's steal over the same stretch covers at least half
+  of it: the host did not run this vCPU (the guest counts that time nowhere for the thread);
+* ``blocked``: neither, without that steal: asleep past its deadline: the thread waited for the
+  GIL, a page fault or I/O, or the timer fired late.
+
+Each stall is one ``STALL {json}`` line on stderr (at most :data:`STALL_LINES_PER_S` a second);
+at exit the process prints ``STALLS {json}`` on stdout: how many, how long in total and the
+longest, per cause, with the steal and the RT throttling settings beside them.
 """
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import ctypes
 import ctypes.util
 import errno
@@ -61,16 +94,19 @@ import os
 import resource
 import sys
 import threading
-from collections.abc import Mapping
+import time
+from collections.abc import Iterator, Mapping
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 from .core.params import ConfigError
 
-__all__ = ["ENV", "REPORT_PREFIX", "Granted", "RtConfig", "RtConfigError", "apply", "config_from_env", "enter_loop", "granted"]
+__all__ = ["ENV", "REPORT_PREFIX", "STALLS_PREFIX", "Granted", "RtConfig", "RtConfigError", "StallMonitor", "apply",
+           "config_from_env", "enter_loop", "granted", "leave_loop", "loop_monitor", "tty_workers_fifo"]
 
 #: environment variables read by :func:`config_from_env`
 ENV = {"enabled": "DEM_ROS_RT", "priority": "DEM_ROS_RT_PRIORITY", "lock_memory": "DEM_ROS_RT_LOCK_MEMORY",
-       "cpus": "DEM_ROS_RT_CPUS"}
+       "cpus": "DEM_ROS_RT_CPUS", "stall_ms": "DEM_ROS_RT_STALL_MS"}
 
 _PR_SET_TIMERSLACK = 29
 _MCL_CURRENT, _MCL_FUTURE, _MCL_ONFAULT = 1, 2, 4
@@ -81,6 +117,12 @@ _DDS_PATH_THREADS = ("recv", "dq.")
 _DDS_SERVICE_THREADS = ("tev", "gc")
 #: start of the line that reports what a process was granted (JSON follows; the launcher reads it)
 REPORT_PREFIX = "REALTIME "
+#: start of the line with the loop's stall summary, printed at exit (JSON follows)
+STALLS_PREFIX = "STALLS "
+#: at most this many ``STALL`` lines a second (the rest are counted in the summary)
+STALL_LINES_PER_S = 5
+#: a real-time thread that runs this long without sleeping puts the process back to normal scheduling
+RT_BUDGET_MS = 200
 #: how to grant what is missing (one line)
 HOW_TO_GRANT = ("grant it with '@realtime - rtprio 99' and '@realtime - memlock unlimited' in "
                 "/etc/security/limits.conf (user in group realtime), or in a container "
@@ -100,8 +142,11 @@ class RtConfig:
     lock_memory: bool = True
     cpus: tuple[int, ...] = ()
     timer_slack_ns: int = 1000
+    stall_ms: float = 5.0
 
     def __post_init__(self) -> None:
+        if not self.stall_ms > 0:
+            raise RtConfigError(f"stall threshold must be > 0 ms, got {self.stall_ms}")
         if not 1 <= self.priority <= 99:
             raise RtConfigError(f"SCHED_FIFO priority must be 1..99, got {self.priority}")
         if self.timer_slack_ns < 1:
@@ -124,6 +169,7 @@ class Granted:
         timer_slack_ns: the loop thread's timer slack (ns), or None if not set.
         cpus: cores the loop's threads are pinned to, or None.
         gc_frozen: objects moved to the permanent generation; automatic collection disabled.
+        rt_budget_ms: the RT budget (``RLIMIT_RTTIME``) armed, or None.
         missing: what was asked for and refused, one short phrase each.
     """
 
@@ -134,6 +180,7 @@ class Granted:
     timer_slack_ns: int | None = None
     cpus: list[int] | None = None
     gc_frozen: bool = False
+    rt_budget_ms: int | None = None
     missing: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
@@ -141,6 +188,7 @@ class Granted:
 
 
 _GRANTED: Granted | None = None
+_MONITOR: StallMonitor | None = None
 
 
 def granted() -> Granted | None:
@@ -175,8 +223,13 @@ def config_from_env(env: Mapping[str, str] | None = None) -> RtConfig:
         cpus = tuple(int(x) for x in c.split(",") if x.strip()) if c else ()
     except ValueError:
         raise RtConfigError(f"{ENV['cpus']}={c!r}: use core numbers separated by commas, e.g. 1 or 0,1") from None
+    m = env.get(ENV["stall_ms"], "").strip()
     try:
-        return RtConfig(enabled=enabled, priority=priority, lock_memory=lock, cpus=cpus)
+        stall_ms = float(m) if m else 5.0
+    except ValueError:
+        raise RtConfigError(f"{ENV['stall_ms']}={m!r}: not a number of milliseconds") from None
+    try:
+        return RtConfig(enabled=enabled, priority=priority, lock_memory=lock, cpus=cpus, stall_ms=stall_ms)
     except RtConfigError as exc:
         raise RtConfigError(f"{exc} (from the {', '.join(ENV.values())} environment)") from None
 
@@ -258,6 +311,46 @@ def _lock_memory(libc: ctypes.CDLL, g: Granted) -> None:
     g.missing.append(f"mlockall ({why})")
 
 
+def _arm_rt_budget(ms: int) -> int | None:
+    """``RLIMIT_RTTIME`` soft limit ``ms`` with a SIGXCPU handler that leaves real time (see the
+    module docstring); None where it cannot be armed (not the main thread, no such limit)."""
+    import signal
+
+    def over_budget(signum: int, frame: Any) -> None:
+        n = leave_loop()
+        with contextlib.suppress(Exception):
+            sys.stderr.write(f"error: dem_ros real time: a real-time thread of this process ran {ms} ms without"
+                             f" sleeping; {n} thread(s) back to normal scheduling (RT throttling would otherwise"
+                             " stop every real-time thread on its CPU)\n")
+            sys.stderr.flush()
+
+    try:
+        signal.signal(signal.SIGXCPU, over_budget)
+        hard = resource.getrlimit(resource.RLIMIT_RTTIME)[1]
+        soft = ms * 1000 if hard == resource.RLIM_INFINITY else min(ms * 1000, hard)
+        resource.setrlimit(resource.RLIMIT_RTTIME, (soft, hard))
+    except (ValueError, OSError, AttributeError):  # not the main thread; no RLIMIT_RTTIME here
+        return None
+    return ms
+
+
+def leave_loop() -> int:
+    """Put every real-time thread of this process back to normal scheduling; how many there were.
+
+    Called when the loop ends (the shutdown work that follows must not hold a CPU at real-time
+    priority) and by the RT budget's SIGXCPU handler. Idempotent.
+    """
+    n = 0
+    for tid, _ in _threads():
+        try:
+            if os.sched_getscheduler(tid) in (os.SCHED_FIFO, os.SCHED_RR):
+                os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+                n += 1
+        except OSError:  # the thread has ended
+            pass
+    return n
+
+
 def apply(cfg: RtConfig, *, warn=None) -> Granted:
     """Apply ``cfg`` to this process (the calling thread is the loop's); return what was granted.
 
@@ -283,6 +376,8 @@ def apply(cfg: RtConfig, *, warn=None) -> Granted:
     if cfg.lock_memory:
         _lock_memory(libc, g)
     _set_fifo(cfg.priority, threads, g)
+    if g.fifo_priority is not None:
+        g.rt_budget_ms = _arm_rt_budget(RT_BUDGET_MS)
     if g.missing:
         line = (f"warning: dem_ros real time: running without {', '.join(g.missing)}; {HOW_TO_GRANT}")
         (warn or (lambda s: (sys.stderr.write(s + "\n"), sys.stderr.flush())))(line)
@@ -300,8 +395,11 @@ def enter_loop(cfg: RtConfig | None = None, *, warn=None, report: bool = True) -
     Raises:
         RtConfigError: a ``DEM_ROS_RT*`` variable has a bad value.
     """
-    global _GRANTED
+    global _GRANTED, _MONITOR
     cfg = config_from_env() if cfg is None else cfg
+    if _MONITOR is None:
+        _MONITOR = StallMonitor(cfg.stall_ms)
+        atexit.register(_MONITOR.report)
     gc.collect()
     gc.freeze()
     if cfg.enabled:
@@ -313,3 +411,211 @@ def enter_loop(cfg: RtConfig | None = None, *, warn=None, report: bool = True) -
         sys.stdout.write(REPORT_PREFIX + json.dumps(g.as_dict()) + "\n")
         sys.stdout.flush()
     return g
+
+
+def loop_monitor() -> StallMonitor | None:
+    """The :class:`StallMonitor` of this process's loop, if the calling thread is the loop's
+    (the one that called :func:`enter_loop`); else None."""
+    m = _MONITOR
+    return m if m is not None and m.tid == threading.get_native_id() else None
+
+
+def _read_int(path: str) -> int | None:
+    try:
+        with open(path) as f:
+            return int(f.read().strip())
+    except (OSError, ValueError):
+        return None
+
+
+class StallMonitor:
+    """The loop thread's stalls, and where the kernel says their time went (see the module docstring).
+
+    Bound to the thread that creates it. The executor calls :meth:`round` once per dispatch
+    round with the time the round was due (its timer deadline, or when its data arrived) and
+    the time it ended (ns, ``time.monotonic_ns``). That costs a comparison and a read of the
+    thread's CPU clock (< 1 us); every :data:`SNAPSHOT_NS` the monitor also reads the thread's
+    ``schedstat`` (a few us) and every 10th time ``/proc/stat`` (steal). Times in the reports are ms.
+
+    ``running`` is the thread's CPU time since the end of the previous round (exact);
+    ``runnable`` and ``steal`` also cover the stretch since the last snapshot (< ``SNAPSHOT_NS``
+    and 10 x that), in which a healthy loop waits for a CPU ~0 % of the time.
+    """
+
+    SNAPSHOT_NS = 20_000_000
+    CAUSES = ("running", "runnable", "stolen", "blocked")
+
+    def __init__(self, stall_ms: float = 5.0, *, write: Any = None) -> None:
+        self.stall_ns = int(stall_ms * 1e6)
+        self.tid = threading.get_native_id()
+        self._write = write or (lambda s: (sys.stderr.write(s + "\n"), sys.stderr.flush()))
+        try:  # /proc/thread-self resolves now, to the calling thread
+            self._fd: int | None = os.open("/proc/thread-self/schedstat", os.O_RDONLY)
+        except OSError:  # no schedstat (CONFIG_SCHED_INFO off): stalls are still timed
+            self._fd = None
+        self._tick_ms = 1000.0 / (os.sysconf("SC_CLK_TCK") or 100)
+        self.rounds = 0
+        self._snaps = 0
+        self._cpu = time.thread_time_ns()  # the thread's CPU time at the end of the last round
+        self.stalls = 0
+        self.by_cause = {c: {"n": 0, "total_ms": 0.0, "max_ms": 0.0} for c in self.CAUSES}
+        self.longest: dict[str, Any] | None = None
+        self.steal_ms = 0.0
+        self.lines_dropped = 0
+        self._line_second = -1
+        self._lines = 0
+        now = time.monotonic_ns()
+        self._snap_at, self._snap = now, self._sched()
+        self._steal_at, self._steal = now, self._steal_now()
+
+    def _sched(self) -> tuple[int, int]:
+        """(time on a CPU, time runnable waiting for one) of the loop's thread so far (ns)."""
+        if self._fd is None:
+            return 0, 0
+        try:
+            run, wait = os.pread(self._fd, 64, 0).split()[:2]
+            return int(run), int(wait)
+        except (OSError, ValueError):
+            return 0, 0
+
+    def _steal_now(self) -> float:
+        """CPU time the hypervisor has stolen from this VM so far, all CPUs (ms; 10 ms resolution)."""
+        try:
+            with open("/proc/stat", "rb") as f:
+                v = f.readline().split()
+            return int(v[8]) * self._tick_ms if len(v) > 8 else 0.0
+        except (OSError, ValueError):
+            return 0.0
+
+    def round(self, due_ns: int, end_ns: int) -> None:
+        """One dispatch round that was due at ``due_ns`` ended at ``end_ns`` (ns)."""
+        self.rounds += 1
+        cpu, self._cpu = self._cpu, time.thread_time_ns()
+        if end_ns - due_ns > self.stall_ns:
+            self._stall(end_ns - due_ns, end_ns, (self._cpu - cpu) / 1e6)
+        elif end_ns - self._snap_at >= self.SNAPSHOT_NS:
+            self._snap_at, self._snap = end_ns, self._sched()
+            self._snaps += 1
+            if self._snaps % 10 == 0:  # /proc/stat every 0.2 s: the steal before a stall
+                self._steal_at, self._steal = end_ns, self._steal_now()
+
+    def _stall(self, length_ns: int, end_ns: int, running: float) -> None:
+        wait = self._sched()[1]
+        steal = self._steal_now()
+        ms = length_ns / 1e6
+        runnable = (wait - self._snap[1]) / 1e6
+        blocked = max(0.0, ms - running - runnable)
+        parts = {"running": running, "runnable": runnable, "blocked": blocked}
+        cause = max(parts, key=parts.__getitem__) if self._fd is not None else "blocked"
+        stolen = steal - self._steal
+        if cause == "blocked" and stolen >= 0.5 * blocked:
+            cause = "stolen"
+        e = {"t_s": round(end_ns / 1e9, 3), "ms": round(ms, 2), "cause": cause,
+             **{f"{k}_ms": round(v, 2) for k, v in parts.items()},
+             "steal_ms": round(stolen, 1), "steal_window_ms": round((end_ns - self._steal_at) / 1e6, 1)}
+        self.stalls += 1
+        self.steal_ms += stolen
+        c = self.by_cause[cause]
+        c["n"] += 1
+        c["total_ms"] = round(c["total_ms"] + ms, 2)
+        c["max_ms"] = max(c["max_ms"], round(ms, 2))
+        if self.longest is None or ms > self.longest["ms"]:
+            self.longest = e
+        second = end_ns // 1_000_000_000
+        if second != self._line_second:
+            self._line_second, self._lines = second, 0
+        if self._lines < STALL_LINES_PER_S:
+            self._lines += 1
+            self._write("STALL " + json.dumps(e))
+        else:
+            self.lines_dropped += 1
+        now = time.monotonic_ns()  # the next stall's figures start here
+        self._snap_at, self._snap = now, self._sched()
+        self._steal_at, self._steal = now, self._steal_now()
+
+    def summary(self) -> dict[str, Any]:
+        """Stalls so far: count, per cause (n, total and longest ms), the longest one, the steal
+        seen across them, and the kernel's RT throttling settings."""
+        return {"threshold_ms": self.stall_ns / 1e6, "rounds": self.rounds, "stalls": self.stalls,
+                "by_cause": self.by_cause, "longest": self.longest, "steal_ms": round(self.steal_ms, 1),
+                "sched_rt_runtime_us": _read_int("/proc/sys/kernel/sched_rt_runtime_us"),
+                "sched_rt_period_us": _read_int("/proc/sys/kernel/sched_rt_period_us"),
+                "lines_dropped": self.lines_dropped}
+
+    def report(self) -> None:
+        """Print :meth:`summary` as one ``STALLS {json}`` line on stdout (at exit)."""
+        if self.rounds:
+            with contextlib.suppress(Exception):  # at exit: stdout may be gone
+                sys.stdout.write(STALLS_PREFIX + json.dumps(self.summary()) + "\n")
+                sys.stdout.flush()
+
+
+#: kernel threads of the unbound workqueue: the tty layer pushes every byte a serial port or a pty
+#: receives to its reader from one of them (``tty_flip_buffer_push`` -> ``system_unbound_wq``)
+TTY_WORKERS_PREFIX = "kworker/u"
+
+
+@contextlib.contextmanager
+def tty_workers_fifo(priority: int) -> Iterator[list[int]]:
+    """Run the unbound workqueue's kernel workers at SCHED_FIFO ``priority`` meanwhile (root only).
+
+    Why: a byte written to a serial port or a pty reaches the reading process only after a
+    kernel worker (``kworker/u*``, normal priority) has pushed it through the tty layer. On a
+    loaded machine that worker waits behind every busy normal-priority process and every
+    real-time thread, and the serial link's round trip grows from ~0.2 ms to several ms (see
+    ``docs/hardware-link.md``, "Serial latency"). UDP does not take this detour.
+
+    This changes kernel threads that the whole machine shares, so it is never done implicitly:
+    ``linkbench --tty-workers-fifo N`` uses it. Workers that exist on entry get FIFO ``priority``
+    and their previous policy back on exit; workers the kernel starts meanwhile are not touched.
+    Yields the thread ids changed (empty where not permitted).
+    """
+    changed: list[tuple[int, int, int]] = []
+    try:
+        for pid in os.listdir("/proc"):
+            if not pid.isdigit():
+                continue
+            try:
+                with open(f"/proc/{pid}/comm") as f:
+                    if not f.read().startswith(TTY_WORKERS_PREFIX):
+                        continue
+                tid = int(pid)
+                policy, prio = os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+                changed.append((tid, policy, prio))
+            except OSError:  # gone, or not permitted
+                continue
+        yield [t for t, _, _ in changed]
+    finally:
+        for tid, policy, prio in changed:
+            with contextlib.suppress(OSError):
+                os.sched_setscheduler(tid, policy, os.sched_param(prio))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m dem_ros.realtime --tty-workers-fifo N -- COMMAND ...``: run COMMAND with the
+    kernel's tty workers at SCHED_FIFO N (:func:`tty_workers_fifo`), restored when it ends; e.g.
+    ``... -- dem-ros launch --hardware rig-serial --compose --scenario S1``."""
+    import argparse
+    import subprocess
+
+    p = argparse.ArgumentParser(prog="python -m dem_ros.realtime", description=main.__doc__.splitlines()[0]
+                                if main.__doc__ else None)
+    p.add_argument("--tty-workers-fifo", type=int, required=True, metavar="N", help="SCHED_FIFO priority 1..99")
+    p.add_argument("command", nargs=argparse.REMAINDER, help="-- COMMAND [ARGS...]")
+    a = p.parse_args(argv)
+    cmd = a.command[1:] if a.command[:1] == ["--"] else a.command
+    if not cmd or not 1 <= a.tty_workers_fifo <= 99:
+        p.error("give --tty-workers-fifo 1..99 and a command after --")
+    with tty_workers_fifo(a.tty_workers_fifo) as changed:
+        print(f"tty workers: {len(changed)} kworker/u thread(s) at SCHED_FIFO {a.tty_workers_fifo}" if changed
+              else "tty workers: not permitted (needs root / CAP_SYS_NICE); running the command anyway", file=sys.stderr)
+        try:
+            return subprocess.call(cmd)
+        except OSError as exc:
+            print(f"error: {cmd[0]}: {exc.strerror}", file=sys.stderr)
+            return 127
+
+
+if __name__ == "__main__":
+    sys.exit(main())

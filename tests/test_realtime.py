@@ -7,18 +7,20 @@ The fallback is tested for real: a child process runs without CAP_SYS_NICE / CAP
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
-import random
 import shutil
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
+import domains
 import pytest
 
-from dem_ros.realtime import ENV, REPORT_PREFIX, RtConfig, RtConfigError, config_from_env
+from dem_ros.realtime import ENV, REPORT_PREFIX, RtConfig, RtConfigError, StallMonitor, config_from_env
 
 ROOT = Path(__file__).resolve().parents[1]
 #: as an ordinary user: no CAP_SYS_NICE / CAP_IPC_LOCK, RLIMIT_RTPRIO 0, RLIMIT_MEMLOCK 64 KiB
@@ -139,7 +141,7 @@ GRAPH_CHILD = textwrap.dedent("""
 def test_graph_without_rt_permission_warns_once_runs_and_leaves_no_cyclic_garbage(tmp_path):
     """The container as an ordinary user: one warning, the run completes; the loop made no
     reference cycles (automatic collection was off the whole run) and never spun."""
-    env = {"ROS_DOMAIN_ID": str(random.Random(os.getpid()).randint(1, 100)),
+    env = {"ROS_DOMAIN_ID": str(domains.hold()),
            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     r = subprocess.run([*UNPRIVILEGED, sys.executable, "-c", GRAPH_CHILD, str(tmp_path / "params.yaml")],
                        env={**os.environ, "PYTHONPATH": str(ROOT), **env}, capture_output=True, text=True,
@@ -154,3 +156,143 @@ def test_graph_without_rt_permission_warns_once_runs_and_leaves_no_cyclic_garbag
     # ~2200 loop cycles: a cycle per sample would leave thousands of objects; shutdown leaves a few
     assert child["cyclic_garbage"] < 500, child
     assert child["cpu_share"] < 0.9, child  # the loop sleeps between samples
+
+
+def _stall(monitor, work) -> dict:
+    """One dispatch round due now that does ``work()`` before it ends; the STALL line it reported."""
+    lines: list[str] = []
+    monitor._write = lines.append
+    due = time.monotonic_ns()
+    work()
+    monitor.round(due, time.monotonic_ns())
+    assert len(lines) == 1 and lines[0].startswith("STALL "), lines
+    return json.loads(lines[0][6:])
+
+
+def test_a_stall_is_split_into_computing_and_asleep_as_the_kernel_counted_it():
+    """Robust on a loaded machine: the monitor's ``running`` is the thread's own CPU time over
+    the stall (whatever share of it a busy neighbour took, which goes to ``runnable``), and a
+    thread asleep is ``blocked`` for its sleep."""
+    m = StallMonitor(stall_ms=5.0)
+    m.round(time.monotonic_ns(), time.monotonic_ns())  # an ordinary round: no report
+    assert m.stalls == 0
+    cpu0 = time.thread_time_ns()
+    e = _stall(m, lambda: _spin_for(0.03))
+    cpu_ms = (time.thread_time_ns() - cpu0) / 1e6
+    assert e["ms"] >= 30 and abs(e["running_ms"] - cpu_ms) < 5.0, (e, cpu_ms)
+    assert e["running_ms"] + e["runnable_ms"] + e["blocked_ms"] >= e["ms"] - 0.1, e
+    e = _stall(m, lambda: time.sleep(0.03))
+    # asleep: "blocked", or "stolen" if the host took this vCPU for half of it meanwhile (a busy VM)
+    assert e["cause"] in ("blocked", "stolen") and e["blocked_ms"] >= 25 and e["running_ms"] < 5, e
+    s = m.summary()
+    assert s["stalls"] == 2 and s["longest"]["ms"] >= 30
+    assert s["sched_rt_period_us"] > 0
+
+
+def _spin_for(seconds: float) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        pass
+
+
+#: a loop thread at SCHED_FIFO 10 on CPU 0 computes 15 ms while a FIFO 20 process spins 40 ms on the same CPU
+RUNNABLE_CHILD = textwrap.dedent("""
+    import json, os, subprocess, sys, time
+    from dem_ros.realtime import StallMonitor
+    os.sched_setaffinity(0, {0})
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
+    hog = subprocess.Popen([sys.executable, "-c", "import os, sys, time; os.sched_setaffinity(0, {0});"
+                            " os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(20)); print('ready', flush=True);"
+                            " sys.stdin.read(1); end = time.monotonic() + 0.04\\nwhile time.monotonic() < end: pass"],
+                           stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    assert hog.stdout.readline() == b"ready\\n"  # FIFO 20 on CPU 0, asleep on its stdin
+    lines = []
+    m = StallMonitor(5.0, write=lines.append)
+    due = time.monotonic_ns()
+    hog.stdin.write(b"x"); hog.stdin.flush()  # it wakes and takes CPU 0 for 40 ms
+    end = time.thread_time() + 0.015  # 15 ms of our own CPU time, and whatever the hog takes
+    while time.thread_time() < end:
+        pass
+    m.round(due, time.monotonic_ns())
+    hog.wait()
+    print("CHILD " + lines[0][6:])
+""")
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="SCHED_FIFO for the test's processes needs root (CAP_SYS_NICE)")
+def test_a_stall_spent_preempted_by_a_higher_priority_thread_is_runnable():
+    r = _run_child(RUNNABLE_CHILD)
+    assert r.returncode == 0, r.stderr[-2000:]
+    e = _line(r.stdout, "CHILD ")
+    assert e["cause"] == "runnable" and e["runnable_ms"] >= 30 and e["running_ms"] < 25, e
+
+
+#: a loop thread that spins at SCHED_FIFO instead of sleeping, then reports its scheduling
+SPIN_CHILD = textwrap.dedent("""
+    import json, os, time
+    from dem_ros.realtime import enter_loop
+    g = enter_loop(report=False)
+    end = time.monotonic() + 0.6  # 600 ms without sleeping: three times the RT budget
+    while time.monotonic() < end:
+        pass
+    print("CHILD " + json.dumps({"budget": g.rt_budget_ms, "fifo": g.fifo_priority,
+                                 "policy_after": os.sched_getscheduler(0)}))
+""")
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="SCHED_FIFO for the test's process needs root (CAP_SYS_NICE)")
+def test_a_real_time_thread_that_stops_sleeping_is_put_back_to_normal_scheduling():
+    """RLIMIT_RTTIME: the SIGXCPU handler leaves real time (one error line) and the process runs on,
+    instead of spinning at SCHED_FIFO into the kernel's RT throttling."""
+    r = _run_child(SPIN_CHILD)
+    assert r.returncode == 0, r.stderr[-2000:]
+    child = _line(r.stdout, "CHILD ")
+    assert child["fifo"] == 50 and child["budget"] == 200
+    assert child["policy_after"] == os.SCHED_OTHER, child
+    lines = [ln for ln in r.stderr.splitlines() if "ran 200 ms without sleeping" in ln]
+    assert len(lines) == 1, r.stderr
+
+
+def test_leave_loop_is_idempotent_and_counts_what_it_changed():
+    code = textwrap.dedent("""
+        import os
+        from dem_ros.realtime import enter_loop, leave_loop
+        g = enter_loop(report=False)
+        print("CHILD", g.fifo_priority is not None and leave_loop() >= 1, leave_loop(), os.sched_getscheduler(0))
+    """)
+    r = _run_child(code)
+    assert r.returncode == 0, r.stderr
+    line = next(ln for ln in r.stdout.splitlines() if ln.startswith("CHILD")).split()
+    assert line[1] == ("True" if os.geteuid() == 0 else "False") and line[2] == "0" and int(line[3]) == os.SCHED_OTHER
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="changing kernel threads' scheduling needs root (CAP_SYS_NICE)")
+def test_tty_workers_run_at_fifo_meanwhile_and_get_their_policy_back():
+    from dem_ros.realtime import TTY_WORKERS_PREFIX, tty_workers_fifo
+
+    def workers() -> dict[int, int]:
+        out = {}
+        for pid in os.listdir("/proc"):
+            with contextlib.suppress(OSError):
+                if pid.isdigit() and Path(f"/proc/{pid}/comm").read_text().startswith(TTY_WORKERS_PREFIX):
+                    out[int(pid)] = os.sched_getscheduler(int(pid))
+        return out
+
+    pre = workers()
+    with tty_workers_fifo(1) as changed:
+        during = workers()
+    if not changed:
+        pytest.skip("this kernel has no kworker/u threads right now")
+    assert all(during[t] == os.SCHED_FIFO for t in changed if t in during), during
+    post = workers()
+    assert {t: post[t] for t in changed if t in post and t in pre} == {t: pre[t] for t in changed if t in post and t in pre}
+
+
+def test_the_tty_workers_wrapper_runs_the_command_and_passes_its_exit_code():
+    r = subprocess.run([sys.executable, "-m", "dem_ros.realtime", "--tty-workers-fifo", "1", "--", sys.executable, "-c",
+                        "raise SystemExit(7)"], env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True,
+                       text=True, timeout=120, cwd=ROOT)
+    assert r.returncode == 7 and "tty workers:" in r.stderr, r.stderr
+    r = subprocess.run([sys.executable, "-m", "dem_ros.realtime", "--tty-workers-fifo", "1"],
+                       env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert r.returncode == 2 and "a command after --" in r.stderr and "Traceback" not in r.stderr

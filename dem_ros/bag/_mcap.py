@@ -22,7 +22,7 @@ from pathlib import Path
 
 from .errors import BagError
 
-__all__ = ["MAGIC", "Channel", "ChunkInfo", "McapFile", "Schema", "Truncation"]
+__all__ = ["MAGIC", "Channel", "ChunkInfo", "McapFile", "Schema", "Statistics", "Truncation"]
 
 MAGIC = b"\x89MCAP0\r\n"
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 5, 6
@@ -53,6 +53,21 @@ class Channel:
     topic: str
     message_encoding: str
     metadata: dict[str, str]
+
+
+@dataclass(frozen=True)
+class Statistics:
+    """The MCAP Statistics record: counts, and the log-time range [ns] of the messages."""
+
+    message_count: int
+    schema_count: int
+    channel_count: int
+    attachment_count: int
+    metadata_count: int
+    chunk_count: int
+    message_start_time: int
+    message_end_time: int
+    channel_message_counts: dict[int, int]  # channel id -> messages
 
 
 @dataclass
@@ -152,13 +167,15 @@ def decompress(compression: str, data: bytes | memoryview, size: int) -> bytes |
             import zstandard
         except ImportError:  # pragma: no cover - zstandard is a dependency
             raise BagError("chunk is zstd-compressed but the 'zstandard' package is missing") from None
-        return zstandard.ZstdDecompressor().decompress(bytes(data), max_output_size=size)
+        out: bytes = zstandard.ZstdDecompressor().decompress(bytes(data), max_output_size=size)
+        return out
     if compression == "lz4":
         try:
             import lz4.frame
         except ImportError:  # pragma: no cover
             raise BagError("chunk is lz4-compressed but the 'lz4' package is missing") from None
-        return lz4.frame.decompress(bytes(data))
+        raw: bytes = lz4.frame.decompress(bytes(data))
+        return raw
     raise BagError(f"unsupported chunk compression {compression!r}")
 
 
@@ -168,7 +185,7 @@ class McapFile:
     Attributes after opening: ``profile``, ``library``, ``schemas`` (id ->
     :class:`Schema`), ``channels`` (id -> :class:`Channel`), ``chunks`` (in
     file order), ``metadata`` (list of (name, dict) in file order),
-    ``statistics`` (dict or None), ``has_summary``, ``truncation`` (None for a
+    ``statistics`` (:class:`Statistics` or None), ``has_summary``, ``truncation`` (None for a
     complete file), ``loose_messages`` (offsets of Message records outside
     chunks).
     """
@@ -195,7 +212,7 @@ class McapFile:
         self.channels: dict[int, Channel] = {}
         self.chunks: list[ChunkInfo] = []
         self.metadata: list[tuple[str, dict[str, str]]] = []
-        self.statistics: dict[str, object] | None = None
+        self.statistics: Statistics | None = None
         self.has_summary = False
         self.truncation: Truncation | None = None
         self.loose_messages: list[int] = []
@@ -267,11 +284,11 @@ class McapFile:
                 c = _Buf(b)
                 meta_index.append((c.u64(), c.u64()))
             pos = e
-        if not chunk_index and self.statistics and self.statistics["message_count"]:
+        if not chunk_index and self.statistics and self.statistics.message_count:
             return False  # unchunked file: messages must be found by scanning
         self.chunks = sorted(chunk_index, key=lambda ch: ch.offset)
-        for i, ch in enumerate(self.chunks):
-            ch.index = i
+        for i, chunk in enumerate(self.chunks):
+            chunk.index = i
         for off, _ln in meta_index:
             op, s, e = self._record(off)
             if op == OP_METADATA:
@@ -280,7 +297,7 @@ class McapFile:
         return True
 
     @staticmethod
-    def _parse_stats(b: memoryview) -> dict[str, object]:
+    def _parse_stats(b: memoryview) -> Statistics:
         (msgs, n_schema, n_chan, n_att, n_meta, n_chunk, t0, t1) = _STATS.unpack_from(b, 0)
         c = _Buf(b, _STATS.size)
         n = c.u32()
@@ -289,9 +306,9 @@ class McapFile:
         while c.p < end:
             cid = c.u16()
             counts[cid] = c.u64()
-        return dict(message_count=msgs, schema_count=n_schema, channel_count=n_chan,
-                    attachment_count=n_att, metadata_count=n_meta, chunk_count=n_chunk,
-                    message_start_time=t0, message_end_time=t1, channel_message_counts=counts)
+        return Statistics(message_count=msgs, schema_count=n_schema, channel_count=n_chan,
+                          attachment_count=n_att, metadata_count=n_meta, chunk_count=n_chunk,
+                          message_start_time=t0, message_end_time=t1, channel_message_counts=counts)
 
     def _scan(self) -> None:
         """Walk the data section record by record (file without usable summary)."""

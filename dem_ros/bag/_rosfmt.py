@@ -19,18 +19,18 @@ jazzy):
 * Schema data (``ros2msg``) is the ``.msg`` text followed, for each
   dependency, by a line of 80 ``=`` and ``MSG: pkg/Type``
   (``rosbag2_cpp/message_definitions/local_message_definition_source.cpp``);
-  we take the text from rosbags' typestore (``generate_msgdef``), which uses
-  the same layout.
+  we take the text from the one typestore (:mod:`dem_ros.typestore`,
+  rosbags' ``generate_msgdef``), which uses the same layout.
 """
 
 from __future__ import annotations
 
-import functools
 import os
 from typing import Any
 
 import yaml
 
+from dem_ros import typestore
 from dem_ros.contract import QoS
 
 from .errors import BagError
@@ -44,7 +44,6 @@ __all__ = [
     "qos_from_string",
     "qos_to_v8_string",
     "type_hash",
-    "typestore",
 ]
 
 METADATA_VERSION = 8
@@ -116,34 +115,24 @@ def qos_from_string(text: str | list[Any]) -> list[QoS]:
     return out
 
 
-@functools.lru_cache(maxsize=1)
-def typestore() -> Any:
-    """The rosbags typestore used to generate definitions and decode messages (Jazzy)."""
-    from rosbags.typesys import Stores, get_typestore
-
-    return get_typestore(Stores.ROS2_JAZZY)
-
-
 def _check_type(type_name: str) -> None:
-    if type_name not in typestore().fielddefs:
+    if not typestore.known(type_name):
         raise BagError(
             f"message type {type_name!r} is unknown to the rosbags typestore (ROS2_JAZZY); "
             "use a standard ROS 2 type in 'pkg/msg/Name' form"
         )
 
 
-@functools.cache
 def msgdef(type_name: str) -> str:
     """``ros2msg`` schema text for ``type_name`` (with ``MSG:`` dependency sections)."""
     _check_type(type_name)
-    return str(typestore().generate_msgdef(type_name, ros_version=2)[0])
+    return typestore.msgdef(type_name)
 
 
-@functools.cache
 def type_hash(type_name: str) -> str:
     """RIHS01 type description hash, as Jazzy stores in ``type_description_hash``."""
     _check_type(type_name)
-    return str(typestore().hash_rihs01(type_name))
+    return typestore.rihs01(type_name)
 
 
 def metadata_dict(

@@ -19,34 +19,18 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from dem_ros.contract import QOS_STREAM, Topic
+from dem_ros.transport.dds.fastcdr import joint_state_bytes  # middleware-free: the one JointState codec
 
-from . import _rosfmt
 from .recorder import Recorder
 from .writer import BagWriter
 
-__all__ = ["bench_record", "joint_state_cdr"]
-
-
-def joint_state_cdr(names: list[str], position: list[float], velocity: list[float],
-                    effort: list[float], stamp_ns: int = 0) -> bytes:
-    """A ``sensor_msgs/JointState`` serialized with rosbags' typestore."""
-    ts = _rosfmt.typestore()
-    t = ts.types
-    msg = t["sensor_msgs/msg/JointState"](
-        header=t["std_msgs/msg/Header"](
-            stamp=t["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9),
-            frame_id=""),
-        name=list(names), position=np.asarray(position, float), velocity=np.asarray(velocity, float),
-        effort=np.asarray(effort, float))
-    return bytes(ts.serialize_cdr(msg, "sensor_msgs/msg/JointState"))
+__all__ = ["bench_record"]
 
 
 def _payloads(topics: int) -> list[bytearray]:
     names = ["magnet_1", "magnet_2", "y_1", "y_2", "dy_1", "dy_2"]
-    return [bytearray(joint_state_cdr(names, [0.01 * i] * 6, [0.0] * 2, [1.0] * 2)) for i in range(topics)]
+    return [bytearray(joint_state_bytes(0, 0, "", names, [0.01 * i] * 6, [0.0] * 2, [1.0] * 2)) for i in range(topics)]
 
 
 def bench_record(seconds: float = 5.0, *, topics: int = 7, rate_hz: float = 1000.0,

@@ -128,7 +128,7 @@ def check(path: Path | str) -> CheckReport:
         md = r.metadata_yaml
         if md is not None:
             cd0 = md.get("custom_data") or {}
-            status = cd0.get("dem_ros.status")
+            status = str(cd0.get("dem_ros.status"))
             rep.metadata_yaml = {"recording": "provisional (writer did not close)",
                                  "failed": "final, recording FAILED"}.get(status, "complete")
             if status == "recording":

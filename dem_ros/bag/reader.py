@@ -17,16 +17,21 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
 
+from dem_ros import typestore
 from dem_ros.contract import QoS
+from dem_ros.core.params import ConfigError, read_yaml
 
 from . import _rosfmt
 from ._mcap import McapFile, Truncation
 from .errors import BagError
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Typestore
 
 __all__ = ["JOINT_STATE", "BagReader", "TopicInfo", "read_metadata_yaml"]
 
@@ -75,7 +80,7 @@ class BagReader:
                     f"{m.path} is an MCAP file but not a ROS 2 one "
                     f"(profile {m.profile!r}, no 'cdr' channels)"
                 )
-        self._store: Any = None
+        self._store: Typestore | None = None
 
     def _files_of_dir(self) -> list[Path]:
         meta = self.path / "metadata.yaml"
@@ -123,7 +128,7 @@ class BagReader:
     @staticmethod
     def _counts(m: McapFile) -> dict[int, int]:
         if m.statistics is not None:
-            return dict(m.statistics["channel_message_counts"])  # type: ignore[arg-type]
+            return dict(m.statistics.channel_message_counts)
         counts: dict[int, int] = {}
         for ch in m.chunks:
             for cid, n in ch.counts.items():
@@ -177,32 +182,13 @@ class BagReader:
                                f"at t={lt} ns: {exc}") from None
             yield topic, lt, msg
 
-    def _typestore(self) -> Any:
-        """Jazzy typestore plus any type defined only in this bag's schemas."""
-        if self._store is not None:
-            return self._store
-        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
-        store = get_typestore(Stores.ROS2_JAZZY)
-        for m in self._mcaps:
-            for sc in m.schemas.values():
-                if sc.name in store.fielddefs or sc.encoding != "ros2msg":
-                    continue
-                types: dict[str, Any] = {}
-                sections = sc.data.decode("utf-8").split("=" * 80 + "\n")
-                for i, sec in enumerate(sections):
-                    if i == 0:
-                        name, text = sc.name, sec
-                    else:
-                        head, _, text = sec.partition("\n")
-                        name = head.removeprefix("MSG: ").strip()
-                        pkg, _, typ = name.partition("/")
-                        name = f"{pkg}/msg/{typ}" if "/msg/" not in name else name
-                    if name not in store.fielddefs:
-                        types.update(get_types_from_msg(text, name))
-                store.register(types)
-        self._store = store
-        return store
+    def _typestore(self) -> Typestore:
+        """The one typestore's types plus any type defined only in this bag's ``ros2msg`` schemas."""
+        if self._store is None:
+            self._store = typestore.extended(
+                (sc.name, sc.data.decode("utf-8")) for m in self._mcaps for sc in m.schemas.values()
+                if sc.encoding == "ros2msg")
+        return self._store
 
     # -- run metadata ----------------------------------------------------
     def run_metadata(self) -> dict[str, Any] | None:
@@ -295,25 +281,16 @@ def read_metadata_yaml(path: Path) -> dict[str, Any]:
 
     Raises:
         BagError: one line naming the file and what is wrong (unreadable, not
-            UTF-8, not YAML, a field of the wrong type).
+            UTF-8, not YAML, a key repeated, a field of the wrong type).
     """
     try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise BagError(f"cannot read {path}: {exc.strerror}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise _bad(path, f"not UTF-8 text (byte {exc.start}: {raw[exc.start]:#04x}); a binary file?") from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise _bad(path, "not valid YAML (" + " ".join(str(exc).split()) + ")") from None
-    except (ValueError, TypeError, RecursionError) as exc:
-        raise _bad(path, f"not valid YAML ({type(exc).__name__}: {exc})") from None
+        doc = read_yaml(path)
+    except ConfigError as exc:  # unreadable, not UTF-8, not YAML (or a key repeated): "<path>: <what>"
+        reason = str(exc).removeprefix(f"{path}: ")
+        raise (BagError(str(exc)) if reason.startswith("cannot read") else _bad(path, reason)) from None
     if not isinstance(doc, dict) or not isinstance(doc.get("rosbag2_bagfile_information"), dict):
         raise _bad(path, "no 'rosbag2_bagfile_information' mapping at the top")
-    info = doc["rosbag2_bagfile_information"]
+    info: dict[str, Any] = doc["rosbag2_bagfile_information"]
     checks: list[tuple[str, Any, tuple[type, ...]]] = [
         ("storage_identifier", info.get("storage_identifier"), (str,)),
         ("relative_file_paths", info.get("relative_file_paths", []), (list,)),

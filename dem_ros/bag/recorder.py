@@ -109,7 +109,7 @@ class Recorder:
         self.failure: str | None = None
         self._wake = threading.Event()
         self._counters = {t.name: TopicCounters() for t in self.topics}
-        self._queue: deque[tuple[str, int, bytes]] = deque()
+        self._queue: deque[tuple[str, int, bytes | _Deferred]] = deque()
         self.max_queue_depth = 0
         self.error: BaseException | None = None
         self.serialize_errors = 0
@@ -127,6 +127,16 @@ class Recorder:
         Raises:
             BagError: ``topic_name`` is not one of the recorded topics.
         """
+        return self._put(topic_name, recv_time_ns, cdr_bytes)
+
+    def on_object(self, topic_name: str, recv_time_ns: int, msg: Any, serialize: Callable[[Any], bytes]) -> bool:
+        """Like :meth:`on_message`, with ``serialize(msg)`` (CDR bytes) called on the writer thread.
+
+        ``msg`` must not change after this call (published messages do not).
+        """
+        return self._put(topic_name, recv_time_ns, _Deferred(msg, serialize))
+
+    def _put(self, topic_name: str, recv_time_ns: int, data: bytes | _Deferred) -> bool:
         c = self._counters.get(topic_name)
         if c is None:
             raise BagError(f"Recorder got a message on {topic_name!r}, which it does not record")
@@ -135,17 +145,10 @@ class Recorder:
         if self._closing or self.error is not None or len(q) >= self.queue_size:
             c.dropped += 1
             return False
-        q.append((topic_name, recv_time_ns, cdr_bytes))
+        q.append((topic_name, recv_time_ns, data))
         if topic_name == self.kick_on:
             self._wake.set()
         return True
-
-    def on_object(self, topic_name: str, recv_time_ns: int, msg: Any, serialize: Callable[[Any], bytes]) -> bool:
-        """Like :meth:`on_message`, with ``serialize(msg)`` (CDR bytes) called on the writer thread.
-
-        ``msg`` must not change after this call (published messages do not).
-        """
-        return self.on_message(topic_name, recv_time_ns, _Deferred(msg, serialize))  # type: ignore[arg-type]
 
     # -- writer thread ---------------------------------------------------
     def _run(self) -> None:
@@ -163,7 +166,7 @@ class Recorder:
             try:
                 for _ in range(depth):
                     topic, t, data = q.popleft()
-                    if type(data) is _Deferred:
+                    if isinstance(data, _Deferred):
                         try:
                             data = data.serialize(data.msg)
                         except Exception as exc:  # one unencodable message: drop it, keep recording
@@ -208,10 +211,6 @@ class Recorder:
     def counters(self) -> dict[str, TopicCounters]:
         """Snapshot of the per-topic counters."""
         return {k: TopicCounters(**asdict(v)) for k, v in self._counters.items()}
-
-    @property
-    def queue_depth(self) -> int:
-        return len(self._queue)
 
     @property
     def closed(self) -> bool:

@@ -39,6 +39,7 @@ import os
 import struct
 import time
 import zlib
+from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -64,7 +65,6 @@ class _DirectStream:
     def __init__(self, path: Path) -> None:
         self.fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
         self.pos = 0
-        self.writes = 0
 
     def write(self, data: bytes | bytearray | memoryview) -> int:
         view = memoryview(data)
@@ -73,7 +73,6 @@ class _DirectStream:
             k = os.write(self.fd, view)
             view = view[k:]
         self.pos += n
-        self.writes += 1
         return n
 
     def tell(self) -> int:
@@ -133,6 +132,7 @@ class _McapWriter:
     def __init__(self, stream: _DirectStream, compression: str, chunk_size: int, library: str) -> None:
         self.s = stream
         self.compression = "" if compression == "none" else compression
+        self._compress: Callable[[bytes], bytes]
         if compression == "zstd":
             import zstandard
 
@@ -180,7 +180,7 @@ class _McapWriter:
         self.s.write(rec)
         self.metadata_indexes.append(index)
 
-    def add_message(self, cid: int, log_time: int, data: bytes, publish_time: int) -> bool:
+    def add_message(self, cid: int, log_time: int, data: bytes | bytearray | memoryview, publish_time: int) -> bool:
         """Append to the current chunk; True if that completed and wrote a chunk."""
         buf = self._buf
         idx = self._index.get(cid)
@@ -416,7 +416,8 @@ class BagWriter:
         self.custom_data[key] = value
 
     # -- messages --------------------------------------------------------
-    def write(self, topic: str, log_time_ns: int, cdr_bytes: bytes, publish_time_ns: int | None = None) -> None:
+    def write(self, topic: str, log_time_ns: int, cdr_bytes: bytes | bytearray | memoryview,
+              publish_time_ns: int | None = None) -> None:
         """Append one message.
 
         Args:

@@ -15,6 +15,8 @@ augmented matrix [[A, B], [0, 0]] T).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numba import njit
 from scipy.linalg import expm
@@ -56,7 +58,7 @@ class AllPoleFilter:
         c, gain: denominator coefficients (constant first) and numerator gain.
     """
 
-    def __init__(self, coeffs, gain: float, T: float):
+    def __init__(self, coeffs: np.ndarray | Sequence[float], gain: float, T: float) -> None:
         self.c = np.asarray(coeffs, dtype=float)
         self.gain = float(gain)
         self.T = float(T)
@@ -65,7 +67,7 @@ class AllPoleFilter:
 
     @property
     def dc_gain(self) -> float:
-        return self.gain / self.c[0]
+        return self.gain / float(self.c[0])
 
 
 @njit(cache=True)

@@ -6,11 +6,38 @@ micrometres; voltages in V, currents in A.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
-__all__ = ["error_metrics", "tracking_metrics"]
+__all__ = ["Run", "error_metrics", "tracking_metrics"]
+
+
+class Run(Protocol):
+    """What :func:`tracking_metrics` reads of a run: a :class:`~dem_ros.core.simulate.SimResult`."""
+
+    @property
+    def scenario(self) -> str: ...
+    @property
+    def controller(self) -> str: ...
+    @property
+    def estimator(self) -> str: ...
+    @property
+    def failed(self) -> bool: ...
+    @property
+    def fail_time(self) -> float | None: ...  # s
+    @property
+    def t(self) -> np.ndarray: ...  # (N,) s
+    @property
+    def error(self) -> np.ndarray: ...  # (N, 2) m
+    @property
+    def u(self) -> np.ndarray: ...  # (N, 2) V
+    @property
+    def x(self) -> np.ndarray: ...  # (N, 6) m, m/s, A
+    @property
+    def extra(self) -> dict[str, Any]: ...
+    @property
+    def wall_time(self) -> float: ...  # s
 
 
 def error_metrics(t: np.ndarray, e: np.ndarray, after: float = 40.0) -> dict[str, list[float]]:
@@ -30,7 +57,7 @@ def error_metrics(t: np.ndarray, e: np.ndarray, after: float = 40.0) -> dict[str
     }
 
 
-def tracking_metrics(res) -> dict[str, Any]:
+def tracking_metrics(res: Run) -> dict[str, Any]:
     """The metrics dict of a :class:`~dem_ros.core.simulate.SimResult` (keys of ``dem-ros sim --json``)."""
     out: dict[str, Any] = {
         "scenario": res.scenario,

@@ -39,12 +39,12 @@ called from the simulators and from the controller classes alike.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 from numba import njit
 
 __all__ = [
-    "PlantParams",
     "apply_schedule",
     "derived",
     "dynamics",
@@ -83,29 +83,18 @@ def derived(L: float, l: float, m: float, I: float) -> tuple[float, float, float
     )
 
 
-def coil_resistances(cfg: Mapping) -> tuple[float, float]:
+def coil_resistances(cfg: Mapping[str, Any]) -> tuple[float, float]:
     """(R1, R2) at t = 0 (ohm): ``R1``/``R2`` when set (non-zero), else ``R`` for both."""
     R = cfg["R"]
     return (cfg.get("R1") or R, cfg.get("R2") or R)
 
 
-def plant_vector(cfg: Mapping, m: float | None = None) -> np.ndarray:
+def plant_vector(cfg: Mapping[str, Any], m: float | None = None) -> np.ndarray:
     """Kernel parameter vector from a ``plant_sim``-like dict (L, l, I, m, K, R [, R1, R2], N1, N2, g)."""
     mass = cfg["m"] if m is None else m
     P, Q, A, B, C, D = derived(cfg["L"], cfg["l"], mass, cfg["I"])
     R1, R2 = coil_resistances(cfg)
     return np.array([P, Q, A, B, C, D, cfg["K"], R1, cfg["N1"], cfg["N2"], cfg["g"], R2])
-
-
-class PlantParams:
-    """Convenience wrapper: named physical parameters and their kernel vector."""
-
-    def __init__(self, cfg: dict):
-        self.cfg = dict(cfg)
-        self.vector = plant_vector(cfg)
-
-    def with_mass(self, m: float) -> np.ndarray:
-        return plant_vector(self.cfg, m)
 
 
 @njit(cache=True)
@@ -262,7 +251,7 @@ def regressors(ab: np.ndarray, u: np.ndarray, N1: float, N2: float, W3: np.ndarr
 
 
 
-def hover_forces(cfg: Mapping, m: float | None = None) -> tuple[float, float]:
+def hover_forces(cfg: Mapping[str, Any], m: float | None = None) -> tuple[float, float]:
     """Magnet forces (F1, F2) (N) that hold the plate at rest, at any gaps (level or tilted).
 
     With d'' = 0 in Eq. 3: the sum of Eqs. 3a, 3b gives F1 + F2 = N1 + N2 + m g (A + B = C + D = 2/m)
@@ -281,7 +270,7 @@ def hover_forces(cfg: Mapping, m: float | None = None) -> tuple[float, float]:
     return F1, F2
 
 
-def equilibrium(cfg: Mapping, d1: float, d2: float, R: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+def equilibrium(cfg: Mapping[str, Any], d1: float, d2: float, R: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(x0, u0): the exact equilibrium with gaps (d1, d2) (m) and the voltages (V) that hold it.
 
     Currents i_j = delta_j sqrt(F_j / K) with F_j of :func:`hover_forces` and delta_j of Eq. 6;
@@ -295,14 +284,14 @@ def equilibrium(cfg: Mapping, d1: float, d2: float, R: tuple[float, float] | Non
     return np.array([d1, 0.0, d2, 0.0, i1, i2]), np.array([R1 * i1, R2 * i2])
 
 
-def initial_state(pc: Mapping) -> tuple[np.ndarray, np.ndarray]:
+def initial_state(pc: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     """(x0, u0) of a ``plant_sim`` group: the equilibrium at (d1_0, d2_0) (0: gap0) with R1, R2 at t = 0."""
     d1 = pc.get("d1_0") or pc["gap0"]
     d2 = pc.get("d2_0") or pc["gap0"]
     return equilibrium(pc, d1, d2)
 
 
-def hover_current(cfg: dict, gap: float, m: float | None = None) -> float:
+def hover_current(cfg: Mapping[str, Any], gap: float, m: float | None = None) -> float:
     """Coil current that holds a symmetric hover at ``gap``: K i^2/gap^2 = N + m g/2."""
     mass = cfg["m"] if m is None else m
     if abs(cfg["N1"] - cfg["N2"]) > 1e-12:
@@ -311,6 +300,6 @@ def hover_current(cfg: dict, gap: float, m: float | None = None) -> float:
     return float(gap * np.sqrt(F0 / cfg["K"]))
 
 
-def hover_state(cfg: Mapping, gap: float) -> tuple[np.ndarray, np.ndarray]:
+def hover_state(cfg: Mapping[str, Any], gap: float) -> tuple[np.ndarray, np.ndarray]:
     """(x0, u0): exact level equilibrium at ``gap`` (both magnets) and the voltages that hold it."""
     return equilibrium(cfg, gap, gap)

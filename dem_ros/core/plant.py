@@ -9,6 +9,7 @@ the same scenario see identical disturbances.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -29,7 +30,7 @@ class DemPlant:
         mass: true mass now (kg).
     """
 
-    def __init__(self, pc: Mapping, duration: float = 0.0):
+    def __init__(self, pc: Mapping[str, Any], duration: float = 0.0):
         self.pc = dict(pc)
         self.dt = pc["dt"]
         self.p = plant_vector(pc)
@@ -46,37 +47,40 @@ class DemPlant:
 
     def _noise_k(self) -> np.ndarray:
         if self.n and self.k < self.n:
-            return self._dist.noise[self.k]
+            row: np.ndarray = self._dist.noise[self.k]
+            return row
         if self.pc["noise_scale"] == 0:
             return np.zeros(6)
-        z = self.rng.uniform(-1.0, 1.0, 6) * self.pc["noise_scale"] * NOISE_UNIT
+        z: np.ndarray = self.rng.uniform(-1.0, 1.0, 6) * self.pc["noise_scale"] * NOISE_UNIT
         if not self.pc["measure_velocity"]:
             z[[1, 3]] = 0.0
         return z
 
     def _pert_k(self) -> np.ndarray:
-        if self.n and self.k < self.n:
-            return self._dist.pert[self.k]
-        return perturbation_samples(self.pc, np.array([self.k * self.dt]), self.rng)[0]
+        row: np.ndarray = (self._dist.pert[self.k] if self.n and self.k < self.n
+                           else perturbation_samples(self.pc, np.array([self.k * self.dt]), self.rng)[0])
+        return row
 
     def _schedule_k(self) -> np.ndarray:
-        if self.n and self.k < self.n:
-            return self._dist.schedule[self.k]
-        return plant_schedule(self.pc, np.array([self.k * self.dt]))[0]
+        row: np.ndarray = (self._dist.schedule[self.k] if self.n and self.k < self.n
+                           else plant_schedule(self.pc, np.array([self.k * self.dt]))[0])
+        return row
 
     def sense(self) -> np.ndarray:
         """The sensors' view of the true state, without noise: G x + b."""
-        return self.G * self.x + self.b
+        z: np.ndarray = self.G * self.x + self.b
+        return z
 
     def measurement(self) -> np.ndarray:
         """z_k = G x_k + b + noise_k (velocities included; the node drops them if not measured)."""
-        return self.sense() + self._noise_k()
+        z: np.ndarray = self.sense() + self._noise_k()
+        return z
 
     def measurement_preroll(self) -> np.ndarray:
         """Measurement before t = 0: noise from a separate stream, so the run's sequences stay the offline ones."""
         if self.pc["noise_scale"] == 0:
             return self.sense()
-        z = self.sense() + self.rng.uniform(-1.0, 1.0, 6) * self.pc["noise_scale"] * NOISE_UNIT
+        z: np.ndarray = self.sense() + self.rng.uniform(-1.0, 1.0, 6) * self.pc["noise_scale"] * NOISE_UNIT
         if not self.pc["measure_velocity"]:
             z[[1, 3]] = 0.0
         return z
@@ -109,7 +113,8 @@ NOT_FINITE, RAIL_CONTACT, DROPPED = 1, 2, 3
 
 
 @njit(cache=True)
-def _advance(x, u, pert, p, row, L, l, T, n, gap_min, gap_max):
+def _advance(x: np.ndarray, u: np.ndarray, pert: np.ndarray, p: np.ndarray, row: np.ndarray, L: float, l: float,
+             T: float, n: int, gap_min: float, gap_max: float) -> int:
     """One plant sample in one compiled call (the 1 kHz loop's cost is in Python calls).
 
     Sets the truth of ``p`` from schedule ``row``, integrates ``x`` (6,) in place over ``T``

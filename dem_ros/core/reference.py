@@ -14,6 +14,7 @@ Output layout (shape (8,)): ``[y1, y2, y1', y2', y1'', y2'', y1''', y2''']``
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -23,7 +24,7 @@ from .lti import AllPoleFilter
 __all__ = ["ReferenceModel", "command", "hover_start", "reference_trajectory"]
 
 
-def command(cfg: Mapping, t: np.ndarray | float) -> np.ndarray:
+def command(cfg: Mapping[str, Any], t: np.ndarray | float) -> np.ndarray:
     """Command r(t) (m), shape (..., 2): staggered steps of the ``reference`` group."""
     if isinstance(t, float):  # one sample (the 1 kHz node): no array machinery
         return np.array([cfg["target_1"] if t >= cfg["step_time_1"] else cfg["initial"],
@@ -59,7 +60,7 @@ def _ref_run(z: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, c: np.ndarray, b0: f
 class ReferenceModel:
     """Two reference models M(s) started in steady state at ``cfg['initial']`` (or where the plate hovers)."""
 
-    def __init__(self, cfg: Mapping):
+    def __init__(self, cfg: Mapping[str, Any]):
         self.cfg = dict(cfg)
         self.filter = AllPoleFilter([cfg["a0"], cfg["a1"], cfg["a2"]], cfg["b0"], cfg["dt"])
         self.reset()
@@ -103,14 +104,15 @@ class ReferenceModel:
         return out
 
 
-def reference_trajectory(cfg: Mapping, n: int, start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def reference_trajectory(cfg: Mapping[str, Any], n: int, start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(r, yd): command (n, 2) and reference (n, 8) at t_k = k dt, k = 0..n-1; the model rests at ``start`` (2,) first."""
     t = np.arange(n) * cfg["dt"]
     r = command(cfg, t)
     model = ReferenceModel(cfg)
     if start is not None:
         model.reset(start)
-    return r, model.run(r)
+    yd: np.ndarray = model.run(r)
+    return r, yd
 
 
 def hover_start(gaps: np.ndarray) -> np.ndarray:
@@ -119,5 +121,6 @@ def hover_start(gaps: np.ndarray) -> np.ndarray:
     The median: robust to outliers, and exact for a noiseless hover (a level hover at 8 mm starts the
     model at exactly 8 mm, as the schedule's ``initial``).
     """
-    return np.median(np.atleast_2d(np.asarray(gaps, float)), axis=0)
+    start: np.ndarray = np.median(np.atleast_2d(np.asarray(gaps, float)), axis=0)
+    return start
 

@@ -106,12 +106,13 @@ def _ramp(t: np.ndarray, t0: float, t1: float) -> np.ndarray:
     return (t >= t0).astype(float)
 
 
-def mass_profile(pc: Mapping, t: np.ndarray) -> np.ndarray:
+def mass_profile(pc: Mapping[str, Any], t: np.ndarray) -> np.ndarray:
     """m(t) = m + dm clip((t - t0)/(t1 - t0), 0, 1) (kg): the added mass ramped in."""
-    return pc["m"] + pc["mass_delta"] * _ramp(np.asarray(t, float), pc["mass_ramp_start"], pc["mass_ramp_end"])
+    m: np.ndarray = pc["m"] + pc["mass_delta"] * _ramp(np.asarray(t, float), pc["mass_ramp_start"], pc["mass_ramp_end"])
+    return m
 
 
-def plant_schedule(pc: Mapping, t: np.ndarray) -> np.ndarray:
+def plant_schedule(pc: Mapping[str, Any], t: np.ndarray) -> np.ndarray:
     """The time-varying truth at times ``t`` (s): shape (n, NSCHED), columns m, I, N1, N2, R1, R2 (module docstring)."""
     t = np.asarray(t, float)
     out = np.empty((t.size, NSCHED))
@@ -128,7 +129,7 @@ def plant_schedule(pc: Mapping, t: np.ndarray) -> np.ndarray:
     return out
 
 
-def sensor_model(pc: Mapping) -> tuple[np.ndarray, np.ndarray]:
+def sensor_model(pc: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     """(G, b), each (6,): the sensors read z = G x + b (+ noise); module docstring."""
     s1, s2 = pc.get("gap_scale_1", 1.0), pc.get("gap_scale_2", 1.0)
     G = np.array([s1, s1, s2, s2, 1.0, 1.0])
@@ -151,7 +152,7 @@ class Disturbances:
     pert: np.ndarray
 
 
-def disturbances(pc: Mapping, n: int, seed: int | None = None) -> Disturbances:
+def disturbances(pc: Mapping[str, Any], n: int, seed: int | None = None) -> Disturbances:
     """The seeded disturbances of a run (one generator: noise first, then perturbation)."""
     t = np.arange(n) * pc["dt"]
     rng = np.random.default_rng(pc["seed"] if seed is None else seed)
@@ -165,15 +166,16 @@ def disturbances(pc: Mapping, n: int, seed: int | None = None) -> Disturbances:
 NOISE_UNIT = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-2, 1e-2])  # paper Eq. 47 for X = 1
 
 
-def noise_samples(pc: Mapping, n: int, rng: np.random.Generator) -> np.ndarray:
+def noise_samples(pc: Mapping[str, Any], n: int, rng: np.random.Generator) -> np.ndarray:
     """Uniform measurement noise +-X [1e-3 m, 1e-3 m/s, ..., 1e-2 A], i.i.d. per sample (n, 6)."""
     a = pc["noise_scale"] * NOISE_UNIT
     if pc["noise_scale"] == 0.0:
         return np.zeros((n, 6))
-    return rng.uniform(-1.0, 1.0, size=(n, 6)) * a
+    z: np.ndarray = rng.uniform(-1.0, 1.0, size=(n, 6)) * a
+    return z
 
 
-def perturbation_samples(pc: Mapping, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+def perturbation_samples(pc: Mapping[str, Any], t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Additive input perturbation d (n, 2) in V."""
     kind, amp = pc["perturbation"], pc["perturbation_amplitude"]
     if kind == "none" or amp == 0.0:
@@ -181,4 +183,5 @@ def perturbation_samples(pc: Mapping, t: np.ndarray, rng: np.random.Generator) -
     if kind == "uniform":
         return rng.uniform(-amp, amp, size=(t.size, 2))
     w = 2 * np.pi * pc["perturbation_frequency"]
-    return amp * np.sin(w * t[:, None] + np.array([0.0, np.pi / 2]))
+    d: np.ndarray = amp * np.sin(w * t[:, None] + np.array([0.0, np.pi / 2]))
+    return d

@@ -11,7 +11,14 @@ more time, as a real board's timer interrupt would not)::
 
     python -m dem_ros.hardware.linkbench udp    --rate 1000 --duration 5
     python -m dem_ros.hardware.linkbench serial --rate 1000 --duration 5   # a pty pair + pyserial
+    python -m dem_ros.hardware.linkbench serial --tty-workers-fifo 1       # tty workers at SCHED_FIFO 1
     python -m dem_ros.hardware.linkbench codec     # CPU cost of the Python codec per frame
+
+Both processes take the graph's real-time settings (:mod:`dem_ros.realtime`, from the
+``DEM_ROS_RT*`` environment): the PC at the nodes' SCHED_FIFO priority, the board 10 above it
+(as ``dem-ros rig``). ``--tty-workers-fifo N`` also runs the kernel's tty workers at SCHED_FIFO
+N for the run (:func:`dem_ros.realtime.tty_workers_fifo`): the serial link's latency on a
+loaded machine is theirs (``docs/hardware-link.md``, "Serial latency").
 
 Reports round-trip percentiles, the share of commands that reached the board
 before its next sample (on time), late and lost commands, the board's wake-up
@@ -30,13 +37,24 @@ from multiprocessing.connection import Connection
 
 import numpy as np
 
+from ..realtime import apply, config_from_env, tty_workers_fifo
 from .channel import ChannelError, open_channel
 from .link import HELLO_REQUEST, CommandFrame, Hello, LinkError, Mode, SensorFrame, decode, encode
 
 __all__ = ["main", "run"]
 
 
+def _realtime(above: int) -> str:
+    """This process under the graph's real-time settings, ``above`` the nodes' priority; what it got."""
+    import dataclasses
+
+    cfg = config_from_env()
+    g = apply(dataclasses.replace(cfg, priority=min(cfg.priority + above, 99)), warn=lambda _line: None)
+    return f"SCHED_FIFO {g.fifo_priority}" if g.fifo_priority else "normal priority"
+
+
 def _board(url: str, rate: float, n: int, conn: Connection) -> None:
+    scheduling = _realtime(10)
     ch = open_channel(url, "board")
     conn.send(getattr(ch, "peer_url", None) or f"udp://127.0.0.1:{ch.local_address[1]}")  # type: ignore[union-attr]
     deadline = time.monotonic() + 30.0
@@ -94,7 +112,19 @@ def _board(url: str, rate: float, n: int, conn: Connection) -> None:
             on_time[c.seq] = c.seq == n - 1 and rtt[c.seq] <= period_ns
     stats = dict(ch.stats)
     ch.close()
-    conn.send({"rtt": rtt, "on_time": on_time, "wake_late": wake_late, "rejected": rejected, "stats": stats})
+    conn.send({"rtt": rtt, "on_time": on_time, "wake_late": wake_late, "rejected": rejected, "stats": stats,
+               "scheduling": scheduling})
+
+
+def _pc_process(url: str, n: int, conn: Connection) -> None:
+    """The PC side in a process of its own (its real-time settings stay out of the caller's)."""
+    scheduling = _realtime(0)
+    try:
+        answered, stats = _pc(url, n)
+    except (ChannelError, LinkError) as e:
+        conn.send({"error": str(e)})
+        return
+    conn.send({"answered": answered, "stats": stats, "scheduling": scheduling})
 
 
 def _pc(url: str, n: int) -> tuple[int, dict[str, int]]:
@@ -121,8 +151,16 @@ def _pc(url: str, n: int) -> tuple[int, dict[str, int]]:
         ch.close()
 
 
-def run(transport: str, rate: float, duration: float) -> dict[str, object]:
-    """Run the board and PC processes; return the figures (µs where timed)."""
+def run(transport: str, rate: float, duration: float, tty_workers: int = 0) -> dict[str, object]:
+    """Run the board and PC processes; return the figures (µs where timed).
+
+    ``tty_workers``: > 0 runs the kernel's tty workers at that SCHED_FIFO priority meanwhile.
+    """
+    if tty_workers > 0:
+        with tty_workers_fifo(tty_workers) as changed:
+            r = run(transport, rate, duration)
+        r["tty_workers"] = f"SCHED_FIFO {tty_workers} ({len(changed)} kworker/u threads)" if changed else "not permitted"
+        return r
     n = int(rate * duration)
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe()
@@ -130,14 +168,21 @@ def run(transport: str, rate: float, duration: float) -> dict[str, object]:
     board = ctx.Process(target=_board, args=(url, rate, n, child), daemon=True)
     board.start()
     pc_url = parent.recv()
-    answered, pc_stats = _pc(pc_url, n)
-    if not parent.poll(30.0):
+    pc_parent, pc_child = ctx.Pipe()
+    pc = ctx.Process(target=_pc_process, args=(pc_url, n, pc_child), daemon=True)
+    pc.start()
+    wait_s = 60.0 + 2.0 * duration
+    if not pc_parent.poll(wait_s) or not parent.poll(wait_s):
         board.kill()
-        raise RuntimeError("the board process did not report")
-    res = parent.recv()
+        pc.kill()
+        raise RuntimeError("the board or PC process did not report")
+    pc_res, res = pc_parent.recv(), parent.recv()
     board.join(5.0)
-    if "error" in res:
-        raise RuntimeError(res["error"])
+    pc.join(5.0)
+    for r in (pc_res, res):
+        if "error" in r:
+            raise RuntimeError(r["error"])
+    answered, pc_stats, pc_scheduling = pc_res["answered"], pc_res["stats"], pc_res["scheduling"]
     rtt = res["rtt"]
     ok = rtt >= 0
     us = rtt[ok] / 1e3
@@ -154,6 +199,7 @@ def run(transport: str, rate: float, duration: float) -> dict[str, object]:
         "board_wake_late_p99_us": float(np.percentile(res["wake_late"], 99) / 1e3),
         "load1": load[0], "load5": load[1],
         "board_channel": res["stats"], "pc_channel": pc_stats,
+        "board_scheduling": res["scheduling"], "pc_scheduling": pc_scheduling, "tty_workers": "normal priority",
     }
 
 
@@ -182,7 +228,11 @@ def main(argv: list[str] | None = None) -> int:
                    help="udp on loopback, serial over a pty pair, or codec (CPU cost per frame)")
     p.add_argument("--rate", type=float, default=1000.0, help="board sample rate [Hz] (default 1000)")
     p.add_argument("--duration", type=float, default=5.0, help="seconds (default 5)")
+    p.add_argument("--tty-workers-fifo", type=int, default=0, metavar="N",
+                   help="serial: run the kernel's tty workers (kworker/u*) at SCHED_FIFO N for the run (root; 0: leave them)")
     a = p.parse_args(argv)
+    if not 0 <= a.tty_workers_fifo <= 99:
+        p.error("--tty-workers-fifo must be in [0, 99]")
     if not (1.0 <= a.rate <= 20000.0) or not (0.1 <= a.duration <= 600.0):
         p.error("--rate must be in [1, 20000] Hz and --duration in [0.1, 600] s")
     if a.transport == "codec":
@@ -193,11 +243,12 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {k:28s} {v:6.1f} us")
         return 0
     try:
-        r = run(a.transport, a.rate, a.duration)
+        r = run(a.transport, a.rate, a.duration, a.tty_workers_fifo)
     except (ChannelError, RuntimeError) as e:
         print(f"linkbench: {e}", file=sys.stderr)
         return 1
-    print(f"link {a.transport} at {a.rate:g} Hz for {a.duration:g} s (load average {r['load1']:.2f} {r['load5']:.2f})")
+    print(f"link {a.transport} at {a.rate:g} Hz for {a.duration:g} s (load average {r['load1']:.2f} {r['load5']:.2f});"
+          f" board {r['board_scheduling']}, PC {r['pc_scheduling']}, tty workers {r['tty_workers']}")
     print(f"  samples {r['samples']}, commands back {r['commands_received']} "
           f"(on time {r['on_time_pct']:.2f} %, late {r['late']}, lost {r['lost']}, rejected {r['rejected']})")
     print(f"  round trip board-sample -> command at the board: p50 {r['rtt_p50_us']:.0f} us, "

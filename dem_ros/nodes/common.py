@@ -1,9 +1,11 @@
-"""Message <-> array conversion and loop statistics shared by the nodes (no control math)."""
+"""Message <-> array conversion, loop statistics and the per-node ``/diagnostics`` reporter shared by
+the nodes (no control math)."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -11,6 +13,11 @@ import numpy as np
 from ..contract import FRAME, MAGNETS
 
 __all__ = [
+    "ERROR",
+    "OK",
+    "WARN",
+    "CommandSource",
+    "Diagnostics",
     "JointStates",
     "LatencyStats",
     "all_finite",
@@ -23,6 +30,9 @@ __all__ = [
     "set_stamp",
     "stamp_ns",
 ]
+
+#: ``diagnostic_msgs/DiagnosticStatus`` levels
+OK, WARN, ERROR = 0, 1, 2
 
 _isfinite = math.isfinite
 _EMPTY: list[float] = []  # shared by messages without that field; never modified
@@ -178,3 +188,168 @@ def diag_array(cls_array: type, cls_status: type, cls_kv: type, t_ns: int, name:
     st.values = kvs
     arr.status = [st]
     return arr
+
+
+class Diagnostics:
+    """One node's status on ``/diagnostics``: its counters, every ``period_s`` (1 Hz) and at once on a fault.
+
+    The one way a node reports its health (``nodes/*`` all use it). The node keeps its counts in
+    :attr:`counters` (name -> int / float / str / bool; :meth:`count` increments one); each report
+    publishes them as key/values, with the transport's per-callback exception counts
+    (``callback_errors``) and, when given, the values of ``values()``.
+
+    Level of a report, the worst of:
+
+    * ``ERROR`` while a fault is latched: :meth:`fault` logs the reason once (ERROR), publishes at once
+      and keeps the node at ERROR until :meth:`clear_fault` (a fault is never reported only once);
+    * the node's own condition, :meth:`set_condition` (e.g. ``WARN`` "converging"; back with ``OK``);
+    * ``WARN`` for the report after any counter named in ``warn_on`` (in :attr:`counters` or ``values()``)
+      or a callback's exception count increased: the message names the counters and their increase since the previous report. A node
+      that recovers goes back to OK; the counters keep the history.
+
+    ``name`` is the status name (default: the node's name); ``hardware_id`` is ``"dem"``.
+    """
+
+    def __init__(self, node: Any, name: str | None = None, *, warn_on: Sequence[str] = (),
+                 values: Callable[[], Mapping[str, Any]] | None = None, period_s: float = 1.0,
+                 timer: bool = True):
+        from ..contract import DIAGNOSTICS
+
+        self.node = node
+        self.name = name or node.name
+        self.counters: dict[str, Any] = {}
+        self.warn_on = tuple(warn_on)
+        self.values = values
+        self._pub = node.publisher(DIAGNOSTICS)
+        self._cls = (node.msg("diagnostic_msgs/msg/DiagnosticArray"), node.msg("diagnostic_msgs/msg/DiagnosticStatus"),
+                     node.msg("diagnostic_msgs/msg/KeyValue"))
+        self._fault: str | None = None
+        self._condition: tuple[int, str] = (OK, "")
+        self._seen: dict[str, Any] = {}  # the warn_on counters and callback errors at the previous report
+        self.reports = 0
+        self.timer = node.timer(period_s, self.publish) if timer else None
+
+    def count(self, key: str, n: int = 1) -> int:
+        """Add ``n`` to counter ``key`` (created at 0); its new value."""
+        v = self.counters.get(key, 0) + n
+        self.counters[key] = v
+        return v
+
+    @property
+    def faulted(self) -> str | None:
+        """The latched fault's reason, None when there is none."""
+        return self._fault
+
+    def fault(self, reason: str) -> None:
+        """Latch ERROR with ``reason``: logged (once per latch) and published at once."""
+        if self._fault is None:
+            self._fault = reason
+            self.node.logger.error(f"fault: {reason}")
+            self.publish()
+
+    def clear_fault(self) -> None:
+        """Release the latched fault (an explicit reset, e.g. a re-arm); logged."""
+        if self._fault is not None:
+            self.node.logger.info(f"fault cleared: {self._fault}")
+            self._fault = None
+
+    def set_condition(self, level: int, message: str = "") -> None:
+        """The node's standing condition (OK / WARN / ERROR and why) until it sets another."""
+        self._condition = (int(level), message)
+
+    def _increases(self, values: Mapping[str, Any], errors: Mapping[str, int]) -> list[str]:
+        now = {k: values.get(k, 0) for k in self.warn_on}
+        now.update({f"callback errors: {k}": v for k, v in errors.items()})
+        out = []
+        for k, v in now.items():
+            d = v - self._seen.get(k, 0)
+            if isinstance(d, (int, float)) and d > 0:
+                out.append(f"{k} +{d:g}")
+        self._seen = now
+        return out
+
+    def status(self, condition: tuple[int, str] | None = None) -> tuple[int, str, dict[str, Any]]:
+        """(level, message, values) of a report now, with ``condition`` (level, message) in place of the
+        standing one when given (moves the WARN window: one report's worth)."""
+        errors = self.node.callback_errors
+        values: dict[str, Any] = dict(self.values()) if self.values is not None else {}
+        values.update(self.counters)
+        if errors:
+            values["callback_errors"] = sum(errors.values())
+        grew = self._increases(values, errors)
+        level, message = condition if condition is not None else self._condition
+        if self._fault is not None:
+            level, message = ERROR, self._fault
+        if grew and level < WARN:
+            level = WARN
+        if grew:
+            message = "; ".join(m for m in (message, ", ".join(grew)) if m)
+        return level, message or "ok", values
+
+    def publish(self, level: int | None = None, message: str = "", values: Mapping[str, Any] | None = None) -> None:
+        """Publish a report now: with the standing condition, or with ``level`` and ``message`` in its place
+        (an event such as a landing, reported at once; a latched fault and grown counters still count);
+        ``values`` are published first, then the counters and ``values()`` not among them."""
+        lv, msg, vals = self.status(None if level is None else (int(level), message))
+        if values is not None:
+            vals = {**values, **{k: v for k, v in vals.items() if k not in values}}
+        self.reports += 1
+        self._pub.publish(diag_array(*self._cls, self.node.now_ns(), self.name, lv, msg, vals))
+
+
+class CommandSource:
+    """The command source lock of a node that drives the coils (``plant_sim``, ``hw_driver``).
+
+    ``/dem/command`` counts only from the writers that the ROS graph attributes to the node ``source``
+    (``command_source``: a name in the node's namespace or ``/ns/name``), recognised by each sample's
+    writer GID (:meth:`~dem_ros.transport.api.Node.subscribe_with_source`). :meth:`accepts` answers for
+    one sample; a writer not yet known is looked up again at most every ``refresh_s`` (a restarted
+    controller's graph information can trail its first samples by a few ms); any other writer's sample
+    is counted (``commands_foreign``) and logged once per writer. :attr:`matched` tells whether the
+    source's writer is on the graph (a run must not start before).
+
+    What it protects against: a second controller, a test or replay publisher, a stray tool on the
+    same domain. What it does not: without DDS-Security (the PyPI cyclonedds wheel has none) any
+    process can forge a GID or announce itself under the source's name.
+    """
+
+    def __init__(self, node: Any, source: str, *, refresh_s: float = 0.1, topic: Any = None):
+        from ..contract import COMMAND
+
+        self.node = node
+        self.source = source
+        self.topic = topic or COMMAND
+        self.refresh_s = float(refresh_s)
+        self.gids: frozenset[bytes] = frozenset()  # the source's writers on the topic, as last looked up
+        self.checked = -math.inf  # monotonic time of the last look-up (s)
+        self.foreign = 0
+        self._logged: set[bytes] = set()  # foreign writers already logged (at most 64)
+
+    def values(self) -> dict[str, Any]:
+        """For /diagnostics: ``command_source``, ``command_writers`` (the source's), ``commands_foreign``."""
+        return {"command_source": self.source, "command_writers": len(self.gids), "commands_foreign": self.foreign}
+
+    def _lookup(self) -> frozenset[bytes]:
+        self.checked = time.monotonic()
+        self.gids = self.node.publisher_gids(self.topic, self.source)
+        return self.gids
+
+    @property
+    def matched(self) -> bool:
+        """The source has a writer on the topic (looked up at most every ``refresh_s`` while it has none)."""
+        if not self.gids and time.monotonic() - self.checked >= self.refresh_s:
+            self._lookup()
+        return bool(self.gids)
+
+    def accepts(self, gid: bytes) -> bool:
+        """True for a sample of the source's writers; another writer's is counted (and logged once)."""
+        if gid in self.gids:
+            return True
+        if time.monotonic() - self.checked >= self.refresh_s and gid in self._lookup():
+            return True
+        self.foreign += 1
+        if gid not in self._logged and len(self._logged) < 64:
+            self._logged.add(gid)
+            self.node.logger.warn(f"{self.topic.name} from writer {gid.hex() or '(unknown)'}, not {self.source!r}'s:"
+                                  " dropped (further samples are counted)")
+        return False

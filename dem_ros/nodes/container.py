@@ -54,8 +54,9 @@ def main(args=None) -> int:
     rec: list[RecorderNode] = []
     if a.bag is not None:  # first, so it sees every sample the others publish
         specs.insert(0, ("recorder", lambda node: rec.append(RecorderNode(node, Path(a.bag), meta))))
+    # the recorder is best-effort: its callbacks run after the loop's chain in every round
     code = run_nodes(specs, args=ros_args, transport=a.transport,
-                     stop_with="plant_sim" if "plant_sim" in names else None)
+                     stop_with="plant_sim" if "plant_sim" in names else None, background=("recorder",))
     if rec:
         rec[0].close()
     return code

@@ -16,14 +16,16 @@ import argparse
 import json
 import os
 import sys
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 from .. import __version__, contract
 from ..bag import Recorder
 from ..realtime import ENV as RT_ENV
 from ..transport import Node, run_node, serialize
-from .common import diag_array
+from .common import Diagnostics
 
 __all__ = ["RecorderNode", "main", "parse_recorder_args"]
 
@@ -44,11 +46,11 @@ class RecorderNode:
         # a deeper reader history than the contract's: a recorder stalled for a while (a busy host)
         # must not lose a burst of samples that its history would otherwise overwrite
         deep = [replace(t, qos=replace(t.qos, depth=max(t.qos.depth, RECORDER_DEPTH))) for t in topics]
-        # a write failure (disk full) stops recording: logged at once from the writer thread,
-        # published on /diagnostics (ERROR) by a timer on the node's own thread within 0.1 s, then every 1 s
+        # /diagnostics (status "recorder") once a second: received / written / dropped, WARN when samples
+        # were dropped. A write failure (disk full) stops recording: logged at once from the writer thread,
+        # latched as ERROR and published by a timer on the node's own thread within 0.1 s
         self._failure: str | None = None
-        self._failure_sent_ns = 0
-        self._pub_diag = node.publisher(contract.DIAGNOSTICS)
+        self.diag = Diagnostics(node, "recorder", warn_on=("dropped",), values=self._totals)
         node.timer(0.1, self._report_failure)
         # the controller's state is the last message of a loop cycle: write while the loop sleeps
         self.rec = Recorder(bag, topics, meta, kick_on=contract.CONTROLLER_STATE.name, on_error=self._on_error)
@@ -57,12 +59,20 @@ class RecorderNode:
             # sharing the process with the loop: take the message objects (no copy) and let the
             # writer thread serialize them, so the loop's thread does no recording work
             on_object = self.rec.on_object
+
+            def objects_of(name: str) -> Callable[[Any], object]:
+                return lambda msg: on_object(name, now(), msg, serialize)
+
             for t in deep:
-                node.subscribe(t, lambda msg, name=t.name: on_object(name, now(), msg, serialize))
+                node.subscribe(t, objects_of(t.name))
         else:
             on_message = self.rec.on_message
+
+            def bytes_of(name: str) -> Callable[[bytes], object]:
+                return lambda data: on_message(name, now(), data)
+
             for t in deep:
-                node.subscribe_raw(t, lambda data, name=t.name: on_message(name, now(), data))
+                node.subscribe_raw(t, bytes_of(t.name))
         String = node.msg("std_msgs/msg/String")
         info = String()
         info.data = json.dumps(meta)
@@ -74,19 +84,14 @@ class RecorderNode:
         self._failure = reason
         self.node.logger.error(f"recording stopped: {reason}")
 
+    def _totals(self) -> dict[str, int]:
+        counts = self.rec.counters().values()
+        return {"received": sum(c.received for c in counts), "written": sum(c.written for c in counts),
+                "dropped": sum(c.dropped for c in counts)}
+
     def _report_failure(self) -> None:
-        if self._failure is None:
-            return
-        now = self.node.now_ns()
-        if self._failure_sent_ns and now - self._failure_sent_ns < 1_000_000_000:
-            return
-        self._failure_sent_ns = now
-        n = self.node.msg
-        counts = self.rec.counters()
-        values = {"written": sum(c.written for c in counts.values()), "dropped": sum(c.dropped for c in counts.values())}
-        self._pub_diag.publish(diag_array(n("diagnostic_msgs/msg/DiagnosticArray"), n("diagnostic_msgs/msg/DiagnosticStatus"),
-                                          n("diagnostic_msgs/msg/KeyValue"), now, "recorder", 2,
-                                          f"recording stopped: {self._failure}", values))
+        if self._failure is not None:
+            self.diag.fault(f"recording stopped: {self._failure}")
 
     def close(self) -> dict:
         """Finalise the bag; per-topic counters, also printed as a ``RECORDER {json}`` line."""

@@ -18,6 +18,7 @@ controller) with the speed ratio and the largest trajectory difference.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -31,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from ..realtime import ENV
+from ..realtime import ENV, REPORT_PREFIX, STALLS_PREFIX
 from .common import UsageError
 from .launcher import GraphError, launch
 
@@ -72,27 +73,48 @@ def steal_percent(before: dict | None, after: dict | None) -> float | None:
     return round(100.0 * d["steal"] / total, 2) if total > 0 else None
 
 
-def timer_floor(seconds: float = 5.0, period_s: float = 1e-3) -> dict[str, float]:
-    """How late this machine wakes a bare 1 kHz loop sleeping to absolute deadlines (us).
+def timer_floor(seconds: float = 5.0, period_s: float = 1e-3, command_delay: int = 1) -> dict[str, Any]:
+    """How late this machine wakes a bare 1 kHz loop sleeping to absolute deadlines (us), and
+    the deadline misses that alone would cause.
 
     No middleware, no work: the floor under any node's deadline misses. On a VM
     whose host is busy this alone can exceed a millisecond.
+
+    ``misses_percent`` applies the free-running plant's rule (:mod:`dem_ros.nodes.plant_sim`)
+    to these wake-ups, with a chain that takes no time at all: a wake-up publishes every sample
+    due within half a period; sample k needs the command of sample k-1-d (d =
+    ``command_delay``), which is computed after the wake-up that published that sample, so k
+    misses when both were published by the same (late) wake-up. A graph cannot miss less than
+    this on the same machine. ``stalls``: the bare loop's own stalls (> 5 ms) by cause
+    (:class:`dem_ros.realtime.StallMonitor`): what the machine does to a thread doing nothing.
     """
+    from ..realtime import StallMonitor
 
     period = int(period_s * 1e9)
     n = max(1, int(seconds / period_s))
-    late = np.empty(n)
-    due = time.monotonic_ns() + period
+    wake = np.empty(n, dtype=np.int64)
+    monitor = StallMonitor(5.0, write=lambda _line: None)
+    t0 = due = time.monotonic_ns() + period
     for i in range(n):
         wait = due - time.monotonic_ns()
         if wait > 0:
             time.sleep(wait * 1e-9)
-        late[i] = time.monotonic_ns() - due
+        wake[i] = time.monotonic_ns()
+        monitor.round(due, wake[i])
         due += period
-    late /= 1e3
+    dues = t0 + period * np.arange(n, dtype=np.int64)
+    late = (wake - dues) / 1e3
     p50, p99, p999 = np.percentile(late, [50, 99, 99.9])
+    # the wake-up that publishes each sample: the first one at or after (due - half a period)
+    group = np.searchsorted(wake, dues - period // 2, side="left")
+    src = np.arange(n) - 1 - command_delay
+    ok = (src >= 0) & (group < n)
+    misses = int(np.sum(group[ok] == group[src[ok]]))
+    s = monitor.summary()
     return {"p50_us": round(float(p50), 1), "p99_us": round(float(p99), 1), "p99_9_us": round(float(p999), 1),
-            "max_us": round(float(late.max()), 1), "over_1ms_percent": round(100.0 * float(np.mean(late > 1000)), 3)}
+            "max_us": round(float(late.max()), 1), "over_1ms_percent": round(100.0 * float(np.mean(late > 1000)), 3),
+            "misses_percent": round(100.0 * misses / max(int(ok.sum()), 1), 3), "command_delay": command_delay,
+            "stalls": {"n": s["stalls"], "by_cause": s["by_cause"], "steal_ms": s["steal_ms"]}}
 
 
 def _peer(cfg, duration: float, ref_arrays):
@@ -208,6 +230,8 @@ def _print_sim(r: dict) -> None:
           f" ours is {p['speedup']:.0f}x faster; max |gap difference| {p['max_abs_diff_um']:.2e} um")
 
 
+#: seconds of the machine-floor probe run before the graph
+FLOOR_S = 10.0
 #: a neighbour's load: one busy Python process at normal priority
 _BUSY = "while True: pass"
 
@@ -225,26 +249,31 @@ def _stop(procs: list[subprocess.Popen]) -> None:
         p.wait()
 
 
-def _floor_child(seconds: float, env: dict[str, str]) -> dict[str, float]:
+def _floor_child(seconds: float, env: dict[str, str]) -> dict[str, Any]:
     """:func:`timer_floor` in a child process with the nodes' real-time settings (``env``)."""
     code = ("import json; from dem_ros.realtime import enter_loop; enter_loop(report=False);"
             f" from dem_ros.tools.bench import timer_floor; print('FLOOR ' + json.dumps(timer_floor({seconds!r})))")
-    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60 + 2 * seconds)
+    limit = 300 + 2 * seconds  # a normal-priority child on a loaded machine can take minutes to import numpy
+    try:
+        r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=limit)
+    except subprocess.TimeoutExpired:
+        raise GraphError(f"the timer-floor probe did not finish within {limit:g} s: this machine is too loaded"
+                         " to measure (try --rt)") from None
     for line in r.stdout.splitlines():
         if line.startswith("FLOOR "):
             return json.loads(line[6:])
     raise GraphError(f"the timer-floor probe failed: {(r.stderr or r.stdout).strip()[-500:]}")
 
 
-def _rt_granted(logs: Path) -> dict[str, Any]:
-    """What each node process was granted (its ``REALTIME {json}`` line), by process name."""
-    from ..realtime import REPORT_PREFIX
-
+def _log_reports(logs: Path, prefix: str) -> dict[str, Any]:
+    """Each node process's ``PREFIX {json}`` line (``REALTIME``: what it was granted; ``STALLS``:
+    its loop's stalls), by process name."""
     out: dict[str, Any] = {}
     for log in sorted(logs.glob("*.log")):
         for line in log.read_text(errors="replace").splitlines():
-            if line.startswith(REPORT_PREFIX):
-                out[log.stem] = json.loads(line[len(REPORT_PREFIX):])
+            if line.startswith(prefix):
+                with contextlib.suppress(ValueError):
+                    out[log.stem] = json.loads(line[len(prefix):])
     return out
 
 
@@ -280,7 +309,9 @@ def _one_loop(transport: str, compose: bool, free_run: bool, duration: float) ->
         metrics, info = launch(a, quiet=False)
         bag = Path(info["bag"])
         status = _plant_status(bag)
-        rt = _rt_granted(bag.parent / (bag.name + "_logs"))
+        logs = bag.parent / (bag.name + "_logs")
+        rt = _log_reports(logs, REPORT_PREFIX)
+        stalls = _log_reports(logs, STALLS_PREFIX)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     if metrics.loop is None:
@@ -290,7 +321,7 @@ def _one_loop(transport: str, compose: bool, free_run: bool, duration: float) ->
             "rms_error_um": metrics.rms_error_um, "offline_rms_error_um": info["offline_rms_error_um"],
             "holds": int(holds) if holds is not None else None,
             "landing": status.get("landing") == "True" if "landing" in status else None,
-            "landing_reason": status.get("landing_reason") or None, "rt": rt}
+            "landing_reason": status.get("landing_reason") or None, "rt": rt, "stalls": stalls}
 
 
 def _print_loop(r: dict[str, Any], label: str) -> None:
@@ -315,6 +346,16 @@ def _print_loop(r: dict[str, Any], label: str) -> None:
         extra = ", memory locked" if g["memory_locked"] else ""
         miss = f"; refused: {', '.join(g['missing'])}" if g["missing"] else ""
         print(f"  [{label}] real time {proc}: {got if g['requested'] else 'off (--no-rt)'}{extra if g['requested'] else ''}{miss}")
+    for proc, st in r.get("stalls", {}).items():
+        print(f"  [{label}] loop stalls {proc}: {_stall_text(st)}")
+
+
+def _stall_text(st: dict[str, Any]) -> str:
+    """``n stalls > T ms: cause n (total ms, longest ms), ...; longest ...`` from a stall summary."""
+    causes = ", ".join(f"{c} {v['n']} ({v['total_ms']:.0f} ms, longest {v['max_ms']:.1f})"
+                       for c, v in st["by_cause"].items() if v["n"])
+    text = f"{st.get('stalls', st.get('n'))} > {st.get('threshold_ms', 5):g} ms" + (f": {causes}" if causes else "")
+    return text + f"; steal across them {st['steal_ms']:.0f} ms"
 
 
 def bench_loop(args: argparse.Namespace) -> dict[str, Any]:
@@ -336,7 +377,7 @@ def bench_loop(args: argparse.Namespace) -> dict[str, Any]:
     os.environ[ENV["enabled"]] = "1" if rt else "0"  # the node processes inherit it
     busy = _busy(load)
     try:
-        floor = _floor_child(5.0, dict(os.environ))
+        floor = _floor_child(FLOOR_S, dict(os.environ))
         before = cpu_times()
         up_before = os.getloadavg()
         ours = _one_loop(args.transport, compose, free_run, duration)
@@ -369,9 +410,11 @@ def bench_loop(args: argparse.Namespace) -> dict[str, Any]:
             print(f"  latency p50 rclpy / {args.transport}: {p50:.1f}x")
     if steal is not None:  # a VM whose host is busy loses whole milliseconds: say so next to the figures
         print(f"  CPU stolen by the hypervisor during the run: {steal:.1f} % of this VM's time")
-    print(f"  machine floor (a bare 1 kHz sleep loop with the same real-time settings, 5 s before the run):"
+    print(f"  machine floor (a bare 1 kHz sleep loop with the same real-time settings, {FLOOR_S:g} s before the run):"
           f" late p50 {floor['p50_us']:.0f} us, p99 {floor['p99_us']:.0f} us, p99.9 {floor['p99_9_us']:.0f} us,"
-          f" max {floor['max_us']:.0f} us; {floor['over_1ms_percent']:.3f} % of wake-ups > 1 ms late")
+          f" max {floor['max_us']:.0f} us; {floor['over_1ms_percent']:.3f} % of wake-ups > 1 ms late;"
+          f" deadline misses it alone would cause (command_delay {floor['command_delay']}): {floor['misses_percent']:.3f} %")
+    print(f"  machine floor stalls: {_stall_text(floor['stalls'])}")
     return {**ours, "machine": m, "transport": args.transport, "composed": compose, "free_run": free_run,
             "duration_s": duration, "load_processes": load, "load_average": {"before": up_before[0], "after": up_after[0]},
             "hypervisor_steal_percent": steal, "timer_floor": floor, "peer": peer}
@@ -402,11 +445,12 @@ def codec_comparison(n_cdr: int = 20_000, n_bag: int = 100_000) -> dict[str, Any
     from ..contract import QOS_STREAM
     from ..nodes.common import joint_state
     from ..transport.dds import fastcdr, msgs
+    from ..typestore import typestore
 
     out: dict[str, Any] = {"cdr_messages": n_cdr, "mcap_messages": n_bag}
     msg = joint_state(msgs.JointState, 1_700_000_000_123_456_789, (0.008, 0.0081), (1e-4, -2e-4), (4.0, 4.1))
-    enc = fastcdr.ENCODERS[msgs.JointState]
-    dec = fastcdr.DECODERS[msgs.JointState]
+    enc = fastcdr.encode_joint_state
+    dec = fastcdr.decoder(msgs.JointState)
     data = enc(msg)
     assert bytes(msg.serialize()) == data and dec(data) == msg  # the same bytes and message as the library's
     cdr: dict[str, dict[str, float]] = {
@@ -415,16 +459,11 @@ def codec_comparison(n_cdr: int = 20_000, n_bag: int = 100_000) -> dict[str, Any
         "cyclonedds IdlStruct": {"encode_us": _per_call_us(msg.serialize, n_cdr),
                                  "decode_us": _per_call_us(lambda: msgs.JointState.deserialize(data), n_cdr)},
     }
-    try:
-        from rosbags.typesys import Stores, get_typestore
-
-        ts = get_typestore(Stores.ROS2_JAZZY)
-        rmsg = ts.deserialize_cdr(data, "sensor_msgs/msg/JointState")
-        cdr["rosbags typestore"] = {
-            "encode_us": _per_call_us(lambda: ts.serialize_cdr(rmsg, "sensor_msgs/msg/JointState"), n_cdr),
-            "decode_us": _per_call_us(lambda: ts.deserialize_cdr(data, "sensor_msgs/msg/JointState"), n_cdr)}
-    except ImportError:
-        cdr["rosbags typestore"] = {"missing": True}
+    ts = typestore()  # rosbags (a dependency)
+    rmsg = ts.deserialize_cdr(data, "sensor_msgs/msg/JointState")
+    cdr["rosbags typestore"] = {
+        "encode_us": _per_call_us(lambda: ts.serialize_cdr(rmsg, "sensor_msgs/msg/JointState"), n_cdr),
+        "decode_us": _per_call_us(lambda: ts.deserialize_cdr(data, "sensor_msgs/msg/JointState"), n_cdr)}
     out["cdr"] = cdr
 
     names = [f"/bench/js_{i}" for i in range(7)]

@@ -18,14 +18,14 @@ import numpy as np
 
 from ..core.scenarios import load_scenarios
 from ..core.simulate import simulate
-from .common import warm_kernels, write_json
+from .common import CONTROLLER_TYPES, warm_kernels, write_json
 from .plots import figure, mark_failure, overlay, save
 from .progress import Progress
 from .study import report_section
 
 __all__ = ["make_report", "run_matrix"]
 
-ORDER = ["adaptive", "adaptive_enhanced", "paper", "paper_fixed", "nonlinear_decoupling", "decentralized_pid"]
+ORDER = list(CONTROLLER_TYPES)  # the schema's controller.type choices, in its order
 ESTIMATORS = ["none", "kf"]
 
 

@@ -175,6 +175,7 @@ def run_nodes(
     transport: str = "auto",
     intra_process: bool = True,
     stop_with: str | None = None,
+    background: Sequence[str] = (),
 ) -> int:
     """Run several nodes in this process on one executor (a component container).
 
@@ -186,6 +187,9 @@ def run_nodes(
     subscribers; with rclpy the nodes share a SingleThreadedExecutor and the
     middleware delivers within the process. ``stop_with``: when that node
     shuts itself down (e.g. the plant at the end of its run), all do.
+    ``background``: nodes whose callbacks run after all the others' in each round on the dds
+    executor (the recorder: best-effort, never ahead of the loop's chain; see
+    :meth:`~dem_ros.transport.dds.executor.DdsExecutor.set_background`).
     Errors and signals are handled as in :func:`run_node`.
     """
     made: list[Node] = []
@@ -223,6 +227,8 @@ def run_nodes(
         for name, setup in nodes:
             node = make_node(name, transport=kind, args=args, executor=executor, composed=composed)
             made.append(node)
+            if name in background and kind == "dds" and executor is not None:
+                executor.set_background(node)
             try:
                 setup(node)
             except Exception:
@@ -249,6 +255,10 @@ def run_nodes(
             return 0
         raise
     finally:
+        # the loop is over: the shutdown work (a bag to finalise) must not hold a CPU at real-time priority
+        from ..realtime import leave_loop
+
+        leave_loop()
         for n in made:
             with contextlib.suppress(Exception):
                 n.shutdown()
@@ -272,9 +282,9 @@ def serialize(msg: Any) -> bytes:
     Works for the DDS message classes and for rclpy messages.
     """
     if hasattr(msg, "__idl__"):
-        from .dds.fastcdr import ENCODERS
+        from .dds.fastcdr import encoder
 
-        enc = ENCODERS.get(type(msg))
+        enc = encoder(type(msg))
         return enc(msg) if enc is not None else bytes(msg.serialize())
     from rclpy.serialization import serialize_message
 
@@ -288,11 +298,10 @@ def deserialize(type_name: str, data: bytes, *, transport: str = "auto") -> Any:
         from rosidl_runtime_py.utilities import get_message
 
         return deserialize_message(bytes(data), get_message(type_name))
-    from .dds.fastcdr import DECODERS
+    from .dds.fastcdr import decoder
     from .dds.msgs import message_class
 
-    cls = message_class(type_name)
-    return DECODERS.get(cls, cls.deserialize)(bytes(data))
+    return decoder(message_class(type_name))(bytes(data))
 
 
 def param_set(node_name: str, name: str, value: Any, *, domain_id: int | None = None,

@@ -9,8 +9,9 @@ import sys
 import time
 from pathlib import Path
 
+from bagutil import joint_state_cdr
+
 from dem_ros.bag import BagWriter, Recorder, finalize_on_signals
-from dem_ros.bag.bench import joint_state_cdr
 from dem_ros.contract import MEASUREMENT, RUN_INFO, TOPICS
 
 mode, bag = sys.argv[1], Path(sys.argv[2])

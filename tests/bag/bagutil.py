@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +14,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from dem_ros.bag import BagWriter
 from dem_ros.contract import TOPICS
+from dem_ros.transport.dds.fastcdr import joint_state_bytes
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 T = STORE.types
@@ -33,6 +36,12 @@ def joint_state(k: int, topic_index: int) -> Any:
         velocity=np.array([] if topic_index == 0 else [1e-3 * k, -1e-3 * k]),
         effort=np.array([1.0 + topic_index, 2.0 + k * 1e-4]),
     )
+
+
+def joint_state_cdr(names: list[str], position: list[float], velocity: list[float], effort: list[float],
+                    stamp_ns: int = 0) -> bytes:
+    """CDR bytes of a ``sensor_msgs/msg/JointState`` stamped ``stamp_ns`` [ns], by the package's one codec."""
+    return joint_state_bytes(stamp_ns // 10**9, stamp_ns % 10**9, "", names, position, velocity, effort)
 
 
 def diagnostics(k: int) -> Any:
@@ -83,6 +92,21 @@ def write_bag(path: Path, stream: list[tuple[str, int, Any, str]], **kw: Any) ->
         for topic, lt, msg, typ in stream:
             w.write(topic, lt, bytes(STORE.serialize_cdr(msg, typ)))
     return path
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path) -> Iterator[Path]:
+    """A 192 KiB tmpfs mounted for the test (root only; skipped with the reason otherwise)."""
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=192k", "tmpfs", str(mnt)],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs to fill (needs root/CAP_SYS_ADMIN): {r.stderr.strip()}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
 @pytest.fixture(scope="session")

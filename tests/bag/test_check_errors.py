@@ -9,11 +9,10 @@ from pathlib import Path
 
 import pytest
 import yaml
-from bagutil import STORE, joint_state, write_bag
+from bagutil import STORE, joint_state, joint_state_cdr, write_bag
 from mcap.writer import Writer as McapWriter
 
 from dem_ros.bag import BagError, BagReader, BagWriter, check, main_check
-from dem_ros.bag.bench import joint_state_cdr
 from dem_ros.contract import MEASUREMENT, QOS_STREAM
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -105,7 +104,7 @@ def test_missing_and_foreign_inputs(tmp_path: Path) -> None:
     with pytest.raises(BagError, match="does not exist"):
         BagReader(tmp_path / "nope")
     (tmp_path / "empty").mkdir()
-    with pytest.raises(BagError, match="without metadata.yaml or any .mcap"):
+    with pytest.raises(BagError, match=r"without metadata\.yaml or any \.mcap"):
         BagReader(tmp_path / "empty")
     (tmp_path / "bad").mkdir()
     (tmp_path / "bad" / "metadata.yaml").write_text("just: [a, list\n")
@@ -130,7 +129,7 @@ def test_missing_and_foreign_inputs(tmp_path: Path) -> None:
         w.write("/chatter", 1, bytes(STORE.serialize_cdr(STORE.types["std_msgs/msg/String"](data="hi"), "std_msgs/msg/String")))
     rep = check(tmp_path / "other")
     assert any("none of the dem_ros contract topics" in p for p in rep.problems)
-    with BagReader(tmp_path / "other") as r, pytest.raises(BagError, match="/dem/measurement.*not in"):
+    with BagReader(tmp_path / "other") as r, pytest.raises(BagError, match=r"/dem/measurement.*not in"):
         r.joint_state_arrays("/dem/measurement")
 
 

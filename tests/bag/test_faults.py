@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 import yaml
+from bagutil import joint_state_cdr
 
 from dem_ros.bag import BagError, BagReader, BagWriter, Recorder, check, main_check
-from dem_ros.bag.bench import joint_state_cdr
 from dem_ros.contract import COMMAND, MEASUREMENT
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -25,21 +25,6 @@ NAMES = ["magnet_1", "magnet_2"]
 def _msg(k: int, rng: random.Random) -> bytes:
     """A JointState whose floats do not compress (so the disk fills at a predictable rate)."""
     return joint_state_cdr(NAMES, [rng.random(), rng.random()], [], [rng.random(), rng.random()], k * 10**6)
-
-
-@pytest.fixture
-def small_disk(tmp_path: Path):
-    """A 192 KiB tmpfs mounted for the test (root only; skipped with the reason otherwise)."""
-    mnt = tmp_path / "disk"
-    mnt.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=192k", "tmpfs", str(mnt)],
-                       capture_output=True, text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a small tmpfs to fill (needs root/CAP_SYS_ADMIN): {r.stderr.strip()}")
-    try:
-        yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
 def test_full_disk_stops_the_recorder_cleanly_reports_at_once_and_keeps_what_was_written(small_disk: Path):
@@ -114,13 +99,13 @@ def test_recorder_counters_survive_a_full_disk_in_a_child_that_exits(small_disk:
     code = (
         "import random, sys, time\n"
         "from dem_ros.bag import Recorder\n"
-        "from dem_ros.bag.bench import joint_state_cdr\n"
+        "from dem_ros.transport.dds.fastcdr import joint_state_bytes\n"
         "from dem_ros.contract import MEASUREMENT\n"
         "rec = Recorder(sys.argv[1], [MEASUREMENT], compression='none', chunk_size=8192,\n"
         "               on_error=lambda r: print('REPORTED', r, flush=True))\n"
         "rng = random.Random(3)\n"
         "for k in range(40000):\n"
-        "    rec.on_message(MEASUREMENT.name, k, joint_state_cdr(['a', 'b'], [rng.random()] * 2, [], [1.0, 2.0], k))\n"
+        "    rec.on_message(MEASUREMENT.name, k, joint_state_bytes(0, k, '', ['a', 'b'], [rng.random()] * 2, [], [1.0, 2.0]))\n"
         "    if k % 500 == 0: time.sleep(0.002)\n"
         "c = rec.close()[MEASUREMENT.name]\n"
         "print('COUNTERS', c.received, c.written, c.dropped)\n"

@@ -7,12 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bagutil import RUN_INFO, STORE, joint_state, string_msg
+from bagutil import RUN_INFO, STORE, joint_state, joint_state_cdr, string_msg
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from dem_ros.bag import BagError, BagReader, BagWriter
-from dem_ros.bag.bench import joint_state_cdr
 from dem_ros.contract import QOS_STREAM, QoS
 
 INF = QosTime(9223372036, 854775807)

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 import yaml
+from bagutil import joint_state_cdr
 
 from dem_ros.bag import BagError, BagReader, Recorder, check
-from dem_ros.bag.bench import joint_state_cdr
 from dem_ros.contract import COMMAND, MEASUREMENT, RUN_INFO
 
 MSG = joint_state_cdr(["magnet_1", "magnet_2"], [0.01, 0.02], [], [1.0, 2.0])

@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-import pytest
+import domains
 
 from dem_ros.bag import check
 
@@ -44,24 +44,10 @@ n.shutdown()
 """
 
 
-@pytest.fixture
-def small_disk(tmp_path: Path):
-    mnt = tmp_path / "disk"
-    mnt.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=192k", "tmpfs", str(mnt)], capture_output=True, text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a small tmpfs to fill (needs root/CAP_SYS_ADMIN): {r.stderr.strip()}")
-    try:
-        yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
-
-
 def test_recorder_node_reports_a_full_disk_and_exits_cleanly(small_disk: Path):
-    domain = 1 + (os.getpid() * 13 + 7) % 100
+    domain = domains.hold()  # a domain no other test or run uses, for the rest of this process
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    env.pop("CYCLONEDDS_URI", None)
     bag = small_disk / "bag"
     rec = subprocess.Popen([sys.executable, "-m", "dem_ros.tools.node_main", "recorder", "--transport", "dds",
                             "--bag", str(bag)], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

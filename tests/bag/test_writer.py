@@ -33,7 +33,7 @@ def _assert_equal_msg(a, b):
         np.testing.assert_array_equal(a, b)
     elif isinstance(a, list):
         assert len(a) == len(b)
-        for x, y in zip(a, b):
+        for x, y in zip(a, b, strict=True):
             _assert_equal_msg(x, y)
     else:
         assert a == b
@@ -59,7 +59,7 @@ def test_rosbags_rosbag2_reader_roundtrip(bag: Path, stream) -> None:
     want = sorted(((t, lt, m) for t, lt, m, _ in stream), key=key)
     got.sort(key=key)
     assert [(t, lt) for t, lt, _ in got] == [(t, lt) for t, lt, _ in want]
-    for (_, _, a), (_, _, b) in zip(got, want):
+    for (_, _, a), (_, _, b) in zip(got, want, strict=True):
         _assert_equal_msg(a, b)
 
 

@@ -53,7 +53,7 @@ def test_dynamics_matches_newton_and_circuit_law(changes):
     xs = random_states(rng, 25)
     us = rng.uniform(-100.0, 200.0, (25, 2))
     dx = np.empty(6)
-    for x, u in zip(xs, us):
+    for x, u in zip(xs, us, strict=True):
         model.dynamics(x, u, p, dx)
         ref = np.asarray(sym.xdot_fn(*x, *u, *values(cfg)), float).reshape(6)
         np.testing.assert_allclose(dx, ref, rtol=1e-10, atol=1e-12)
@@ -135,7 +135,7 @@ def test_flux_conservation_along_f6():
     """L_f6 (i1^2/delta1^2) = 0 (erratum 16), f6 the kinematic drift vector of Eq. 37, and dF/dt = (i/delta)(u - R i)."""
     sym = plant()
     x1, x2, x3, x4, x5, x6 = sym.x
-    m, I, L, l, K, R, N1, N2, g = sym.params
+    _m, _I, _L, _l, K, R, _N1, _N2, g = sym.params
     de1, de2 = sym.de1, sym.de2
     dde1 = sp.diff(de1, x1) * x2 + sp.diff(de1, x3) * x4
     dde2 = sp.diff(de2, x1) * x2 + sp.diff(de2, x3) * x4
@@ -156,7 +156,7 @@ def test_decoupling_matrix_and_its_determinant():
     wrong, the conclusion (invertible whenever both currents are non-zero) holds.
     """
     sym = plant()
-    x1, x2, x3, x4, x5, x6 = sym.x
+    _x1, _x2, _x3, _x4, x5, x6 = sym.x
     m, I, L, l = sym.params[:4]
     A = 1 / m + L * l / I
     B = 1 / m - L * l / I

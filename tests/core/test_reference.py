@@ -32,7 +32,7 @@ def _unit_step_response():
 
 
 def test_starts_in_steady_state_at_8mm(traj):
-    t, r, yd = traj
+    t, _r, yd = traj
     np.testing.assert_array_equal(yd[0], [0.008, 0.008, 0, 0, 0, 0, 0, 0])
     # nothing moves before the first step (steady state, not a start-up transient)
     before = t < CFG["step_time_1"]
@@ -62,9 +62,9 @@ def test_staggered_schedule():
 
 
 def test_outputs_follow_their_own_steps(traj):
-    t, r, yd = traj
-    k1 = int(round(CFG["step_time_1"] / DT))
-    k2 = int(round(CFG["step_time_2"] / DT))
+    _t, _r, yd = traj
+    k1 = round(CFG["step_time_1"] / DT)
+    k2 = round(CFG["step_time_2"] / DT)
     # y1 starts moving right after 1 s; its jerk jumps to b0 (r - y) at the step sample
     assert yd[k1, 6] == pytest.approx(CFG["b0"] * STEP, rel=1e-12)
     assert yd[k1 + 1, 0] < 0.008
@@ -76,7 +76,7 @@ def test_outputs_follow_their_own_steps(traj):
 
 def test_matches_analytic_step_response(traj):
     """y1(t) = 8 mm + (-3 mm) s(t - 1), s(t) = 1 - e^-t - t e^-t/2, and the same for y', y'', y'''."""
-    t, r, yd = traj
+    t, _r, yd = traj
     fns = _unit_step_response()
     for j, ts in ((0, CFG["step_time_1"]), (1, CFG["step_time_2"])):
         after = t > ts + DT / 2
@@ -90,8 +90,8 @@ def test_matches_analytic_step_response(traj):
 
 def test_derivatives_consistent_with_finite_differences(traj):
     """y', y'', y''' of the generator are the central differences of y, y', y'' (away from the step samples)."""
-    t, r, yd = traj
-    steps = [int(round(CFG["step_time_1"] / DT)), int(round(CFG["step_time_2"] / DT))]
+    _t, _r, yd = traj
+    steps = [round(CFG["step_time_1"] / DT), round(CFG["step_time_2"] / DT)]
     mask = np.ones(N - 2, bool)
     for k in steps:
         mask[max(k - 3, 0) : k + 2] = False
@@ -111,7 +111,7 @@ def test_settling(traj):
     Within 1 um of 5 mm takes 22.2 s after each step: y1 (step at 1 s) from t = 23.2 s,
     y2 (step at 10 s) from t = 32.2 s -- *not* by 20 s.
     """
-    t, r, yd = traj
+    t, _r, yd = traj
     for j, ts in ((0, CFG["step_time_1"]), (1, CFG["step_time_2"])):
         err = np.abs(yd[:, j] - 0.005)
         last_2pct = t[np.nonzero(err > 0.02 * abs(STEP))[0][-1]] - ts

@@ -159,10 +159,10 @@ def test_unperturbed_scenarios(scenarios):
 def test_bad_scenario_files(tmp_path):
     p = tmp_path / "sc.yaml"
     p.write_text("X1:\n  duration: -5\n")
-    with pytest.raises(ConfigError, match="X1.duration"):
+    with pytest.raises(ConfigError, match=r"X1\.duration"):
         load_scenarios(p)
     p.write_text("X2:\n  overrides:\n    plant_sim: {noise_scale: -1.0}\n")
-    with pytest.raises(ConfigError, match="scenario X2.*plant_sim.noise_scale"):
+    with pytest.raises(ConfigError, match=r"scenario X2.*plant_sim\.noise_scale"):
         load_scenarios(p)
     p.write_text("X3: 5\n")
     with pytest.raises(ConfigError, match="X3"):

@@ -34,7 +34,7 @@ CASES = ([msgs.message_class(t) for t in RECEIVED] + DISCOVERY + REQUESTS + REPL
 
 def node_decoder(cls: type):
     """The decode ``DdsNode`` applies to a subscription's samples (and ``cls.deserialize`` to requests)."""
-    return fastcdr.DECODERS.get(cls, cls.deserialize)
+    return fastcdr.decoder(cls)
 
 
 @pytest.mark.parametrize("cls", CASES, ids=lambda c: fastcdr._ros_name(c) + ("" if "Gid" not in str(
@@ -87,7 +87,7 @@ def test_joint_state_fast_path_and_generic_decoder_agree_on_mutated_input():
     for _ in range(N):
         data = mutate(random_message(msgs.JointState, gen).serialize(), gen)
         outcome = []
-        for decode in (fastcdr.decode_joint_state, lambda d: fastcdr._decode_generic(msgs.JointState, d)):
+        for decode in (fastcdr.decoder(msgs.JointState), lambda d: fastcdr._decode_generic(msgs.JointState, d)):
             try:
                 outcome.append(decode(data).serialize())
             except fastcdr.CdrError:

@@ -5,7 +5,6 @@ carries what leaves the process (a subscriber in this test process, the
 parameter services used while the loop runs). Nothing is mocked.
 """
 
-import os
 import re
 import subprocess
 import sys
@@ -25,10 +24,6 @@ from dem_ros.transport import make_node
 DURATION = 6.0
 
 
-def _domain(offset: int) -> int:
-    return 1 + (os.getpid() * 7 + offset) % 100
-
-
 def _wait_log(path, pred, timeout):
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -39,10 +34,12 @@ def _wait_log(path, pred, timeout):
 
 
 @pytest.fixture(scope="module")
-def composed_run(tmp_path_factory):
+def composed_run(tmp_path_factory, module_domain_id, request):
     """S1 for 6 s composed and recorded; a remote subscriber and a live parameter change while it runs."""
-    domain = _domain(3)
-    os.environ["ROS_DOMAIN_ID"] = str(domain)  # this process's own DDS participant joins the run's domain
+    domain = module_domain_id
+    mp = pytest.MonkeyPatch()
+    request.addfinalizer(mp.undo)
+    mp.setenv("ROS_DOMAIN_ID", str(domain))  # this process's own DDS participant joins the run's domain
     root = tmp_path_factory.mktemp("composed")
     bag = root / "run"
     cfg = get_scenario("S1").config()
@@ -63,7 +60,7 @@ def composed_run(tmp_path_factory):
     # the loop runs at 1 kHz: change a parameter now, through the rcl_interfaces services over DDS
     # (both clients at once: each has the rest of the run to find the node, however slowly a loaded machine starts them)
     calls = {key: subprocess.Popen([sys.executable, "-m", "dem_ros.tools.cli", "param", "set", "controller", *args,
-                                    "--domain-id", str(domain)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                    "--domain-id", str(domain), "--timeout", "120"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for key, args in (("set", ["w", "55"]), ("set_bad", ["k1", "0.5"]))}
     # the remote subscriber takes samples all the while (its history holds only 100 of them)
     end = time.monotonic() + 300

@@ -49,15 +49,23 @@ def test_nan_estimate_never_becomes_a_nan_command():
 
 
 def test_a_sample_older_than_max_age_is_not_acted_on():
-    bus, ctl, cmds, states, diags = _graph("-p", "max_age:=0.005")  # as with hardware
+    """Age is measured on the experiment clock (the newest /dem/applied_voltage stamp): wall time is
+    irrelevant (a lockstep plant's clock lags it)."""
+    bus, ctl, cmds, states, diags = _graph("-p", "max_age:=0.005")
     max_age = ctl.cfg["max_age"]
     assert max_age == 0.005
     t0 = bus.now_ns
     _feed(bus, 0, t0, 0.008)  # fresh
-    bus.now_ns = t0 + T + round(2 * max_age * 1e9)  # the next sample arrives twice max_age late
+    JS = bus.msg("sensor_msgs/msg/JointState")
+    bus.now_ns = t0 + 3_600_000 * T  # an hour of wall time later: still fresh on the plant's clock
     _feed(bus, 1, t0 + T, 0.008)
-    assert list(cmds) == [t0] and ctl.counts["stale"] == 1
-    assert states[t0 + T]["fault"] == 1.0 and states[t0 + T]["age_s"] > max_age
+    late = t0 + 2 * T + round(2 * max_age * 1e9)  # the plant has moved on twice max_age past the next sample
+    bus.publish(contract.APPLIED, joint_state(JS, late, effort=(80.0, 80.0)))
+    bus.publish(contract.ESTIMATE, joint_state(JS, t0 + 2 * T, position=(0.008, 0.008), velocity=(0.0, 0.0),
+                                               effort=(4.0, 4.0)))
+    bus.spin_once()
+    assert list(cmds) == [t0, t0 + T] and ctl.counts["stale"] == 1
+    assert states[t0 + 2 * T]["fault"] == 1.0 and states[t0 + 2 * T]["age_s"] > max_age
     bus.advance(1.0)  # the once-a-second diagnostics report it
     assert diags and diags[-1].status[0].level != 0
 

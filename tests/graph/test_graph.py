@@ -7,7 +7,6 @@ No ``from __future__ import annotations`` here: this module defines an IdlStruct
 """
 
 import itertools
-import os
 import subprocess
 import sys
 import threading
@@ -37,14 +36,10 @@ START_DELAY = 12.0
 
 
 
-def _domain(offset: int) -> int:
-    return 1 + (os.getpid() * 7 + offset) % 100
-
-
 @pytest.fixture(scope="module")
-def graph_run(tmp_path_factory):
+def graph_run(tmp_path_factory, module_domain_id):
     """S1 for 4 s in the graph, recorded; parameter changes made while it runs."""
-    domain = _domain(1)
+    domain = module_domain_id
     root = tmp_path_factory.mktemp("graph")
     bag = root / "run"
     cfg = get_scenario("S1").config()

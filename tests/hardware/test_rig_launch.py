@@ -19,8 +19,8 @@ from dem_ros import contract
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_launch_hardware_rig_runs_records_and_summarises(tmp_path):
-    env = dict(os.environ, PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(1 + (os.getpid() * 7) % 101))
+def test_launch_hardware_rig_runs_records_and_summarises(tmp_path, domain_id):
+    env = dict(os.environ, PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(domain_id))
     out = tmp_path / "summary.json"
     p = subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", "launch", "--hardware", "rig", "--compose",
                         "--scenario", "S1", "--duration", "3", "--transport", "dds", "--bag-dir", str(tmp_path / "bags"),

@@ -91,10 +91,5 @@ def test_the_graph_sees_relative_and_lazy_imports():
     assert "dem_ros.core.params" in g["dem_ros.tools.common"]
 
 
-#: TEMPORARY (health, 23:18): faults' decoder hardening (merged through main) made msgs.py and
-#: fastcdr.py import each other; faults to break it (e.g. the strict decoder in its own module).
-KNOWN_CYCLES = [["dem_ros.transport.dds.fastcdr", "dem_ros.transport.dds.msgs"]]
-
-
 def test_no_import_cycle_in_the_package():
-    assert [c for c in find_cycles(import_graph()) if c not in KNOWN_CYCLES] == []
+    assert find_cycles(import_graph()) == []

@@ -70,10 +70,8 @@ def _files(d: Path) -> set[str]:
 
 def _env(extra: dict[str, str]) -> dict[str, str]:
     env = dict(os.environ)
-    env.pop("CYCLONEDDS_URI", None)
     env.update(PYTHONPATH=str(ROOT) + os.pathsep + env.get("PYTHONPATH", ""),
-               ROS_DOMAIN_ID=str(1 + (os.getpid() * 17) % 101),  # hw: nobody else's driver answers
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")  # the run's own ROS_DOMAIN_ID: nobody else's driver answers
     env.update(extra)
     return env
 

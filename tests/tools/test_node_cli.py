@@ -27,7 +27,6 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def _env(domain_id: int) -> dict[str, str]:
     env = dict(os.environ)
-    env.pop("CYCLONEDDS_URI", None)
     env.update(PYTHONPATH=str(ROOT) + os.pathsep + env.get("PYTHONPATH", ""), ROS_DOMAIN_ID=str(domain_id),
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
     return env
@@ -55,12 +54,8 @@ def _wait_for(proc: subprocess.Popen, word: str, timeout: float) -> str:
 
 
 @pytest.fixture
-def domain(monkeypatch) -> int:
-    d = 1 + (os.getpid() * 23 + 11) % 101
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(d))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    monkeypatch.delenv("CYCLONEDDS_URI", raising=False)
-    return d
+def domain(domain_id) -> int:
+    return domain_id
 
 
 @pytest.mark.skipif(rclpy_available(), reason="needs a machine without rclpy: --transport rclpy must then fail")

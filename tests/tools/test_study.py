@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dem_ros.core.params import SCHEMA, ConfigError, apply_overrides
+from dem_ros.core.params import ConfigError, apply_overrides
 from dem_ros.core.scenarios import get_scenario
 from dem_ros.core.simulate import simulate
 from dem_ros.tools import study as st
@@ -27,7 +27,6 @@ from dem_ros.tools import study as st
 ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
 CMD = [sys.executable, "-m", "dem_ros.tools.cli", "study"]
-HAS_ASYM = all(n in {p.name for p in SCHEMA.groups["plant_sim"]} for n in ("d1_0", "d2_0"))
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -121,7 +120,6 @@ def test_monte_carlo_is_seeded_and_a_larger_sample_extends_a_smaller_one(base):
     assert len({j["seed"] for j in b}) == 50  # independent noise per sample
 
 
-@pytest.mark.skipif(not HAS_ASYM, reason="plant_sim.d1_0/d2_0 (uneven hover) are not in this build's schema")
 def test_hover_asymmetry_sets_both_gaps(base):
     jobs = st.plan_runs(_spec(base, ["hover_asymmetry=-0.5e-3:0.5e-3:3"]))
     pcs = [j["cfg"]["plant_sim"] for j in jobs]

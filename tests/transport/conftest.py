@@ -1,6 +1,5 @@
-"""Fixtures for the transport tests: a fresh ROS_DOMAIN_ID per test and child processes."""
+"""Fixtures for the transport tests: child processes (the ``domain_id`` fixture is in tests/conftest.py)."""
 
-import itertools
 import os
 import subprocess
 import sys
@@ -10,27 +9,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 PEER = Path(__file__).with_name("peer.py")
-_counter = itertools.count()
-
-
-def fresh_domain_id() -> int:
-    """A domain id in 1..101 that differs between tests of this run and, likely, other runs."""
-    return 1 + (os.getpid() * 17 + next(_counter) * 37) % 101
-
-
-@pytest.fixture
-def domain_id(monkeypatch) -> int:
-    d = fresh_domain_id()
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(d))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    monkeypatch.delenv("CYCLONEDDS_URI", raising=False)
-    monkeypatch.delenv("DEM_ROS_DISTRO", raising=False)
-    return d
-
-
 def child_env(domain_id, **extra) -> dict:
     env = dict(os.environ)
-    env.pop("CYCLONEDDS_URI", None)
     env.update(
         ROS_DOMAIN_ID=str(domain_id),
         ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",

@@ -52,6 +52,49 @@ def test_intra_process_delivery_is_fifo_zero_copy_and_skips_dds(domain_id):
     assert ex.stopped
 
 
+def test_a_background_node_runs_after_the_whole_chain_of_a_round(domain_id):
+    """The recorder of a container (a background node) is set up first and subscribes to every
+    topic; still the chain measurement -> estimate -> command runs to its end before any of the
+    recorder's callbacks, its timers included, and the recorder gets every message in publish order."""
+    ex, (rec, plant, est, ctl) = _composed("recorder", "plant_sim", "estimator", "controller")
+    try:
+        ex.set_background(rec)
+        calls = []
+        for t in (contract.MEASUREMENT, contract.ESTIMATE, contract.COMMAND):
+            rec.subscribe(t, lambda m, n=t.name: calls.append(("recorder", n)))
+        rec_timer = rec.timer(1e-6, lambda: calls.append(("recorder", "timer")))
+        pub_est, pub_cmd = est.publisher(contract.ESTIMATE), ctl.publisher(contract.COMMAND)
+        est.subscribe(contract.MEASUREMENT, lambda m: (calls.append(("estimator", "in")), pub_est.publish(m)))
+        ctl.subscribe(contract.ESTIMATE, lambda m: (calls.append(("controller", "in")), pub_cmd.publish(m)))
+        plant.subscribe(contract.COMMAND, lambda m: calls.append(("plant_sim", "command")))
+        time.sleep(1e-3)  # the recorder's timer is due
+        plant.publisher(contract.MEASUREMENT).publish(_js(plant, 1))
+        ex.spin_once(0.0)
+        assert calls == [("estimator", "in"), ("controller", "in"), ("plant_sim", "command"),
+                         ("recorder", "timer"), ("recorder", contract.MEASUREMENT.name),
+                         ("recorder", contract.ESTIMATE.name), ("recorder", contract.COMMAND.name)]
+        rec_timer.cancel()
+    finally:
+        ex.shutdown()
+
+
+def test_due_timers_fire_shortest_period_first_each_followed_by_what_it_set_off(domain_id):
+    """Rate-monotonic: a 1 s diagnostics timer registered before the 1 kHz tick and due in the
+    same round runs after the tick and the chain it set off."""
+    ex, (ctl, plant) = _composed("controller", "plant_sim")
+    try:
+        calls = []
+        slow = ctl.timer(1.0, lambda: calls.append("diagnostics"))
+        pub = plant.publisher(contract.MEASUREMENT)
+        fast = plant.timer(1e-3, lambda: (calls.append("tick"), pub.publish(_js(plant, 1))))
+        ctl.subscribe(contract.MEASUREMENT, lambda m: calls.append("controller"))
+        slow.next_ns = fast.next_ns = time.monotonic_ns()  # both due now
+        ex.spin_once(0.0)
+        assert calls == ["tick", "controller", "diagnostics"]
+    finally:
+        ex.shutdown()
+
+
 def test_remote_subscriber_gets_every_sample_and_locals_get_one_copy(domain_id, spawn, wait_line):
     import json
 

@@ -202,7 +202,7 @@ def test_joint_state_fast_path_is_the_generic_decoder():
         m = random_message(msgs.JointState, rng)
         b = fastcdr.encode_joint_state(m)
         assert b == m.serialize()
-        assert fastcdr.decode_joint_state(b) == fastcdr._decode_generic(msgs.JointState, b) == m
+        assert fastcdr.decoder(msgs.JointState)(b) == fastcdr._decode_generic(msgs.JointState, b) == m
 
 
 # --------------------------------------------------------------------------- each kind of bad input, by name

@@ -50,11 +50,30 @@ law's box after every iteration. P stays P0: the law keeps adapting from there.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["HoverFit", "hover_residuals", "solve_hover", "window_means"]
+__all__ = [
+    "LIFTOFF_CLEARANCE",
+    "LIFTOFF_MIN_S",
+    "LIFTOFF_SPEED",
+    "LIFT_DETECT",
+    "PREMAG_FRACTION",
+    "RAMP_MAX",
+    "RAMP_RATE",
+    "RESTING_FRACTION",
+    "HoverFit",
+    "hover_residuals",
+    "lift_fraction",
+    "liftoff_duration",
+    "liftoff_reference",
+    "liftoff_target",
+    "premagnetise",
+    "solve_hover",
+    "window_means",
+]
 
 S_DET = 10.0  # a direction is solved when the window knows it 10x better than the prior
 FLOOR = 1e-9  # relative floor of an equation's standard error (exact windows)
@@ -88,7 +107,7 @@ def window_means(Z: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return Z.mean(axis=0), U.mean(axis=0)
 
 
-def hover_residuals(phi: np.ndarray, Z: np.ndarray, U: np.ndarray, geo: dict) -> tuple[np.ndarray, np.ndarray]:
+def hover_residuals(phi: np.ndarray, Z: np.ndarray, U: np.ndarray, geo: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
     """(r, J): the hover equations per row of Z (n, 6), U (n, 2) -> r (n, 4) = [c1, c2, f1, f2]; J = dr/dphi (n, 4, 4).
 
     ``geo``: P, Q, cA, cC, N1, N2, g, floor (gap floor of the law, m).
@@ -123,7 +142,7 @@ def solve_hover(
     P0: np.ndarray,
     Z: np.ndarray,
     U: np.ndarray,
-    geo: dict,
+    geo: dict[str, float],
     lo: np.ndarray,
     hi: np.ndarray,
     iterations: int = 6,
@@ -168,3 +187,128 @@ def solve_hover(
 def _solved(a: np.ndarray) -> np.ndarray:
     """The equations that are solved: [c1, c2, f1 + f2] from rows [c1, c2, f1, f2] (first axis)."""
     return np.concatenate([a[:2], a[2:3] + a[3:4]])
+
+
+# ---------------------------------------------------------------------------------------------
+# Lift-off: starting the law from a plate that rests on its support (added for restarts, #11/#12)
+# ---------------------------------------------------------------------------------------------
+#
+# The hover initialisation above needs a levitating plate: with the coils off (i = 0) its
+# equations say nothing about R or K, and the heave equation mu (N1 + N2) + g = 0 has no
+# admissible solution, so the fit would drive the mass to its bound. Worse, the CE law itself
+# is singular at i = 0 (dF_j/di_j = 2 K i_j / delta_j^2: the current cannot be steered through
+# a coil that carries none), and neither the law's model nor the estimator's knows the support:
+# run on a plate that rests on it, they see a plate that does not fall and adapt to that
+# (measured on the emulated rig: the law wound up for 1.4 s, then drove the plate into the rail).
+# A plate on its support is therefore started in four steps:
+#
+# 1. *recognise it*: the magnets carry less than RESTING_FRACTION of the load
+#    (:func:`lift_fraction` on the nominal model): a hovering plate carries all of it;
+# 2. *premagnetise* (:func:`premagnetise`): hold u_j = R i*_j with i*_j the current of
+#    PREMAG_FRACTION of the hover force of magnet j at the measured gaps; the coil settles with
+#    its time constant L/R = (2K/delta)/R ~ 4 ms and the plate stays on its support (half its
+#    load; with K and m off by 25 % at most 0.5 * 1.25 / 0.75 = 83 % of the true one);
+# 3. *raise the force* at RAMP_RATE (share of the nominal hover force per second, up to
+#    RAMP_MAX) until the plate leaves its support by LIFT_DETECT: the force then just exceeds
+#    the true load, the plate is nearly at rest and the hover equations hold;
+# 4. start the law *with* its hover fit from that sample, and the *lift-off reference*
+#    (:func:`liftoff_reference`): a C^3 blend from rest where the plate is to the reference
+#    stream, at least LIFTOFF_CLEARANCE off the support (:func:`liftoff_target`).
+
+RESTING_FRACTION = 0.25  # the magnets carry less than this share of the load: the plate rests on its support
+PREMAG_FRACTION = 0.5  # premagnetise to this share of the hover force (the plate stays on its support)
+RAMP_RATE = 0.2  # 1/s: the premagnetising force rises by this share of the nominal hover force per second
+RAMP_MAX = 1.5  # the ramp stops at this share (the plate cannot be that much heavier than its data sheet)
+LIFT_DETECT = 1e-4  # m: the plate has left its support when a gap is this much smaller than where it rested
+LIFTOFF_SPEED = 5e-3  # m/s: peak speed of the lift-off blend (half the board's default landing speed)
+LIFTOFF_MIN_S = 0.5  # s: the shortest lift-off blend
+LIFTOFF_CLEARANCE = 1e-3  # m: the lift-off takes the plate at least this far off its support
+
+
+def _hover_forces(cfg: Mapping) -> np.ndarray:
+    """Hover forces F_j (2,) [N] of the nominal model: F1 + F2 = m g + N1 + N2, (F1 - F2) l = (N1 - N2) L."""
+    w = cfg["m_nominal"] * cfg["g"] + cfg["N1"] + cfg["N2"]
+    d = cfg["L"] / cfg["l"] * (cfg["N1"] - cfg["N2"])
+    return np.maximum(0.5 * np.array([w + d, w - d]), 0.0)
+
+
+def _deltas(cfg: Mapping, z: np.ndarray) -> np.ndarray:
+    """Magnet gaps delta_j (2,) [m] (Eq. 6) of the load-point gaps z[0], z[2], floored at gap_floor."""
+    L, l = cfg["L"], cfg["l"]
+    P, Q = (L + l) / (2 * L), (L - l) / (2 * L)
+    d1, d2 = max(z[0], cfg["gap_floor"]), max(z[2], cfg["gap_floor"])
+    return np.array([P * d1 + Q * d2, Q * d1 + P * d2])
+
+
+def lift_fraction(z: np.ndarray, cfg: Mapping) -> float:
+    """Share of the load the magnets carry: sum_j K i_j^2/delta_j^2 / (m g + N1 + N2) (nominal model).
+
+    ``z`` = [d1, d1', d2, d2', i1, i2] (m, m/s, A); ``cfg``: the controller group (L, l, N1, N2, g,
+    m_nominal, K_nominal, gap_floor). About 1 at hover; below ``RESTING_FRACTION`` the plate rests
+    on its support (or falls).
+    """
+    de = _deltas(cfg, z)
+    f = cfg["K_nominal"] * (z[4] ** 2 / de[0] ** 2 + z[5] ** 2 / de[1] ** 2)
+    return float(f / (cfg["m_nominal"] * cfg["g"] + cfg["N1"] + cfg["N2"]))
+
+
+def premagnetise(z: np.ndarray, cfg: Mapping, fraction: float = PREMAG_FRACTION) -> tuple[np.ndarray, np.ndarray]:
+    """(i*, u) (2,), (2,) [A], [V]: the currents of ``fraction`` of the nominal hover force at the
+    measured gaps, i*_j = delta_j sqrt(fraction F_j / K), and the voltages that hold them,
+    u_j = R_nominal i*_j."""
+    i_star = _deltas(cfg, z) * np.sqrt(fraction * _hover_forces(cfg) / cfg["K_nominal"])
+    return i_star, cfg["R_nominal"] * i_star
+
+
+def liftoff_target(y0: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, bool]:
+    """The reference the lift-off blends to: ``ref`` (8,), except that a magnet whose reference is not
+    ``LIFTOFF_CLEARANCE`` off the support (y0 (2,), the landed gaps) is held at rest that far off it.
+
+    A plate tracking a reference *at* its support does not leave it: the law's model, which has no
+    support, sees the plate not falling and adapts to that. Returns (target (8,), True when ``ref`` itself
+    is the target: the lift-off can hand over to the stream).
+    """
+    out = np.array(ref[:8], dtype=float)
+    off = np.asarray(y0, float) - LIFTOFF_CLEARANCE  # y positive down: off the support = a smaller gap
+    held = out[:2] > off
+    for j in np.flatnonzero(held):
+        out[j], out[2 + j], out[4 + j], out[6 + j] = off[j], 0.0, 0.0, 0.0
+    return out, not bool(held.any())
+
+
+def liftoff_duration(y0: np.ndarray, ref: np.ndarray) -> float:
+    """Length T [s] of the blend from the landed gaps ``y0`` (2,) to the reference gaps ``ref[:2]``:
+    the blend's peak speed 35/16 |dy| / T equals ``LIFTOFF_SPEED``, and T >= ``LIFTOFF_MIN_S``."""
+    dy = float(np.max(np.abs(np.asarray(ref[:2], float) - np.asarray(y0, float))))
+    return max(LIFTOFF_MIN_S, 35.0 / 16.0 * dy / LIFTOFF_SPEED)
+
+
+def liftoff_reference(y0: np.ndarray, ref: np.ndarray, t: float, T: float) -> np.ndarray:
+    r"""The lift-off reference (8,) at ``t`` s after the start: from rest at ``y0`` to ``ref``.
+
+    ``ref`` (8,) = [y1, y2, y1', y2', y1'', y2'', y1''', y2'''] (m, m/s, m/s^2, m/s^3), the
+    reference stream at the same instant. With a = [y0, 0, 0, 0] (rest) and b = ``ref``, the
+    blend y = (1 - s) a + s b, s(tau) = 35 tau^4 - 84 tau^5 + 70 tau^6 - 20 tau^7, tau = t/T in
+    [0, 1] (s and its first three derivatives vanish at 0, the derivatives at 1: C^3 at both
+    ends), has by Leibniz
+
+        y'   = s b' + s_t (b - a)
+        y''  = s b'' + 2 s_t b' + s_tt (b - a)
+        y''' = s b''' + 3 s_t b'' + 3 s_tt b' + s_ttt (b - a)
+
+    with s_t = s'/T, s_tt = s''/T^2, s_ttt = s'''/T^3. Peak |s'| = 35/16 (at tau = 1/2).
+    """
+    tau = min(max(t / T, 0.0), 1.0)
+    s0 = tau**4 * (35 - 84 * tau + 70 * tau**2 - 20 * tau**3)
+    s1 = 140 * tau**3 * (1 - tau) ** 3 / T
+    s2 = 420 * tau**2 * (1 - tau) ** 2 * (1 - 2 * tau) / T**2
+    s3 = 840 * tau * (1 - tau) * (5 * tau**2 - 5 * tau + 1) / T**3
+    b = np.asarray(ref[:8], float)
+    a = np.asarray(y0, float)
+    dy = b[:2] - a
+    out = np.empty(8)
+    out[:2] = a + s0 * dy
+    out[2:4] = s0 * b[2:4] + s1 * dy
+    out[4:6] = s0 * b[4:6] + 2 * s1 * b[2:4] + s2 * dy
+    out[6:8] = s0 * b[6:8] + 3 * s1 * b[4:6] + 3 * s2 * b[2:4] + s3 * dy
+    return out

@@ -26,10 +26,22 @@ the reference node off the estimator -> controller path, about 50 us here, but
 a lockstep plant catching up inside its command callback then overtakes the
 reference's one-sample lead, and the controller acts on an older reference:
 97 of 6000 samples in tests/graph/test_composed.py.)
+
+Due timers fire **rate-monotonic** (the shortest period first, as a fixed-priority real-time
+scheduler ranks periodic tasks), and what each one sets off is delivered before the next
+fires: the 1 kHz tick's chain never waits behind a 1 Hz diagnostics timer due in the same
+round. **Background nodes** (:meth:`DdsExecutor.set_background`; the recorder of a
+container) come last in every round: their timers and intra-process deliveries run after
+every other node's work of that round, i.e. after the 1 kHz chain measurement -> estimate ->
+command has run to its end. Recording is best-effort and never delays the loop. Samples from
+other processes are taken for all nodes at once, in the order the readers were made
+(deferring a background node's made the loop's commands stale behind a hardware driver on a
+pty: its readers are 1000 deep).
 """
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import threading
 import time
@@ -39,6 +51,8 @@ from typing import Any, Protocol
 
 from cyclonedds._clayer import ddspy_take
 from cyclonedds.core import GuardCondition, InstanceState, SampleState, ViewState, WaitSet
+
+from ...realtime import StallMonitor, loop_monitor
 
 __all__ = ["ANY_SAMPLE", "DdsExecutor", "DdsTimer", "LocalSubscription", "Member"]
 
@@ -130,6 +144,11 @@ class DdsExecutor:
         self.timers: list[DdsTimer] = []
         #: pending intra-process deliveries, (LocalSubscription, argument), FIFO over all topics
         self.queue: deque[tuple[LocalSubscription, Any]] = deque()
+        #: nodes whose work runs after every other node's in each round (see the module docstring)
+        self.background: set[Member] = set()
+        self._later: deque[tuple[LocalSubscription, Any]] = deque()  # background deliveries of this round
+        self._monitor: StallMonitor | None = None
+        self._monitor_known = False  # looked up on the spinning thread (see spin_once)
         #: DDS topic name -> intra-process subscriptions (the list object is shared with publishers)
         self.local: dict[str, list[LocalSubscription]] = {}
         self._lock = threading.Lock()
@@ -141,12 +160,18 @@ class DdsExecutor:
     def add_node(self, node: Member) -> None:
         self.nodes.append(node)
 
+    def set_background(self, node: Member) -> None:
+        """Run ``node``'s callbacks after every other node's in each round (best-effort work,
+        such as recording, that must never delay the loop's chain)."""
+        self.background.add(node)
+
     def add_reader(self, reader: Any, handler: Callable[[bytes, Any], None], cond: Any, node: Member) -> None:
         self.ws.attach(cond)
         self.readers.append((reader._ref, handler, cond, node))
 
     def add_timer(self, timer: DdsTimer) -> None:
-        self.timers.append(timer)
+        """Timers fire rate-monotonic: the shortest period first (after those of equal period)."""
+        bisect.insort_right(self.timers, timer, key=lambda t: t.period_ns)
 
     def local_subscriptions(self, dds_topic: str) -> list[LocalSubscription]:
         """The (shared, live) list of intra-process subscriptions of a topic."""
@@ -166,6 +191,7 @@ class DdsExecutor:
         then()
 
     def _forget(self, node: Member) -> None:
+        self.background.discard(node)
         for entry in [e for e in self.readers if e[3] is node]:
             with contextlib.suppress(Exception):
                 self.ws.detach(entry[2])
@@ -193,6 +219,8 @@ class DdsExecutor:
             if self._stopped:
                 return
             self._owner = threading.get_ident()
+            if not self._monitor_known:  # the loop's thread (after enter_loop) reports its stalls
+                self._monitor, self._monitor_known = loop_monitor(), True
             try:
                 self._dispatch(timeout_s)
             finally:
@@ -216,23 +244,49 @@ class DdsExecutor:
         triggered = self.ws.wait(max(wait, 0))
         if self._stopped:
             return
+        woke = time.monotonic_ns()
+        bg = self.background
         if triggered:
             self.guard.set(False)
             self._take()
-        now = time.monotonic_ns()
-        for t in self.timers:
-            if t.next_ns <= now and not t.cancelled and not (t.node is not None and t.node.is_shutdown):
+        for t in self.timers:  # rate-monotonic: what a timer sets off runs before any slower timer
+            if t.next_ns <= woke and not t.cancelled and t.node not in bg and not (t.node is not None and t.node.is_shutdown):
                 t.fire()
-        while queue:  # intra-process deliveries, including those the callbacks add
-            sub, arg = queue.popleft()
-            if not sub.node.is_shutdown:
-                sub.callback(arg)
+                self._deliver(bg)
+        self._deliver(bg)
+        later = self._later
+        monitor = self._monitor
+        if monitor is not None:  # the loop's work of this round is done: was it in time?
+            # due: the deadline it slept to, or when it woke (data, or a round that had no wait)
+            monitor.round(deadline if wait > 0 and woke >= deadline else woke, time.monotonic_ns())
+        if bg:  # best-effort nodes: after the loop's chain
+            now = time.monotonic_ns()
+            for t in self.timers:
+                if t.next_ns <= now and not t.cancelled and t.node is not None and t.node in bg and not t.node.is_shutdown:
+                    t.fire()
+            while later or queue:
+                sub, arg = later.popleft() if later else queue.popleft()
+                if not sub.node.is_shutdown:
+                    sub.callback(arg)
         for n in self.nodes:
             if n.has_pending_replies:
                 n.flush_replies()
 
+    def _deliver(self, bg: set[Member]) -> None:
+        """Run the queued intra-process deliveries, including those the callbacks add; those of
+        background nodes wait in ``_later``."""
+        queue, later = self.queue, self._later
+        while queue:
+            sub, arg = queue.popleft()
+            if sub.node in bg:
+                later.append((sub, arg))
+            elif not sub.node.is_shutdown:
+                sub.callback(arg)
+
     def _take(self) -> None:
-        """Run the callbacks of every sample waiting in a DDS reader."""
+        """Run the callbacks of every sample waiting in a DDS reader (in the order the readers were
+        made; a background node's samples from other processes are taken here too: deferring them
+        made the loop's own reader history overflow behind a hardware driver over serial)."""
         for ref, handler, _cond, node in self.readers:
             while True:
                 got = ddspy_take(ref, ANY_SAMPLE, _TAKE_N)

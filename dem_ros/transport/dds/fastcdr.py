@@ -2,7 +2,10 @@
 
 Every byte string a node receives - a topic sample, a service request, a
 discovery message - is decoded here (``msgs`` routes each IDL class's
-``deserialize`` to :func:`decode`). A byte string is either the message it
+``deserialize`` to :func:`decode`). This module knows the IDL classes only
+through their annotations and their DDS type names: it imports no message
+declarations (``msgs`` imports it), and no middleware until a generic decoder is
+compiled, so the bag package can use :func:`joint_state_bytes` without DDS. A byte string is either the message it
 encodes or a :class:`CdrError` that says what is wrong and where (field path
 and byte offset): too short, a length or sequence count larger than what is
 left, a string that is not NUL-terminated or not UTF-8, a bool byte other
@@ -33,19 +36,18 @@ from __future__ import annotations
 
 import struct
 import typing
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from ..api import TransportError
-from . import msgs
 
 __all__ = [
-    "DECODERS",
-    "ENCODERS",
     "CdrError",
     "decode",
-    "decode_joint_state",
+    "decoder",
     "encode_joint_state",
+    "encoder",
+    "joint_state_bytes",
 ]
 
 #: bytes after the message that are accepted as padding (rmw pads to 4, alignment to 8)
@@ -104,7 +106,7 @@ class _Reader:
     def count(self, what: str) -> int:
         self.align(4)
         self.need(4, what)
-        n = (_U32_LE if self.le else _U32_BE).unpack_from(self.data, self.pos)[0]
+        n: int = (_U32_LE if self.le else _U32_BE).unpack_from(self.data, self.pos)[0]
         self.pos += 4
         return n
 
@@ -258,13 +260,13 @@ def _container_plan(meta: Any) -> _Plan:
     from cyclonedds.idl.types import array
 
     is_array = isinstance(meta, array)
-    fixed = meta.length if is_array else None
-    bound = None if is_array else meta.max_length
+    fixed: int = meta.length if is_array else 0
+    bound: int | None = None if is_array else meta.max_length
     sub = meta.subtype
     prim = _prim_of(sub)
     as_bytes = is_array and prim is not None and prim[0] == "B"
     elem = None if prim is not None or sub is bool else _plan(sub)
-    elem_min = prim[1] if prim is not None else 1 if sub is bool else max(elem.min_size, 1)  # type: ignore[union-attr]
+    elem_min = prim[1] if prim is not None else 1 if elem is None else max(elem.min_size, 1)
     kind = "array" if is_array else "sequence"
 
     def read(r: _Reader) -> Any:
@@ -280,12 +282,12 @@ def _container_plan(meta: Any) -> _Plan:
                        start)
         if prim is not None:
             return _bulk(r, n, prim[0], prim[1], as_bytes)
-        if sub is bool:
+        if elem is None:  # bool
             return _bools(r, n)
         out = []
         for i in range(n):
             try:
-                out.append(elem.read(r))  # type: ignore[union-attr]
+                out.append(elem.read(r))
             except _Bad as e:
                 e.path.insert(0, f"[{i}]")
                 raise
@@ -307,7 +309,7 @@ def _struct_plan(cls: type) -> _Plan:
             except _Bad as e:
                 e.path.insert(0, name)
                 raise
-        obj = new(cls)
+        obj: Any = new(cls)
         obj.__dict__.update(vals)
         return obj
 
@@ -338,10 +340,7 @@ def decode(cls: type, data: Any, has_header: bool = True) -> Any:
         if not isinstance(data, (bytes, bytearray, memoryview)):
             raise CdrError(f"{_ros_name(cls)}: expected bytes, got {type(data).__name__}")
         data = b"\x00\x01\x00\x00" + bytes(data)
-    dec = DECODERS.get(cls)
-    if dec is not None:
-        return dec(data)
-    return _decode_generic(cls, data)
+    return decoder(cls)(data)
 
 
 def _decode_generic(cls: type, data: Any) -> Any:
@@ -365,9 +364,11 @@ _HDR = b"\x00\x01\x00\x00"
 _u32 = struct.Struct("<I")
 _time = struct.Struct("<iI")
 _unpack_u32 = _u32.unpack_from
+#: the DDS type name of the one message type with a hand-written codec
+JOINT_STATE = "sensor_msgs::msg::dds_::JointState_"
 
 
-def _put_str(parts: list, pos: int, s: str) -> int:
+def _put_str(parts: list[bytes], pos: int, s: str) -> int:
     b = s.encode()
     pad = -pos % 4
     if pad:
@@ -379,7 +380,7 @@ def _put_str(parts: list, pos: int, s: str) -> int:
     return pos + 5 + len(b)
 
 
-def _put_doubles(parts: list, pos: int, seq: Any) -> int:
+def _put_doubles(parts: list[bytes], pos: int, seq: Sequence[float]) -> int:
     n = len(seq)
     pad = -pos % 4
     if pad:
@@ -397,23 +398,33 @@ def _put_doubles(parts: list, pos: int, seq: Any) -> int:
     return pos
 
 
-def encode_joint_state(m: Any) -> bytes:
-    """CDR bytes (with encapsulation header) of a JointState."""
-    st = m.header.stamp
-    parts: list = [_HDR, _time.pack(st.sec, st.nanosec)]
-    pos = _put_str(parts, 8, m.header.frame_id)
+def joint_state_bytes(sec: int, nanosec: int, frame_id: str, name: Sequence[str], position: Sequence[float],
+                      velocity: Sequence[float], effort: Sequence[float]) -> bytes:
+    """CDR bytes (little-endian, with encapsulation header) of a ``sensor_msgs/msg/JointState``.
+
+    ``sec``/``nanosec``: header stamp [s] and [ns] (0 <= nanosec < 1e9); the three value
+    sequences are float64 (units per the topic contract: m, m/s, A or V).
+    """
+    parts: list[bytes] = [_HDR, _time.pack(sec, nanosec)]
+    pos = _put_str(parts, 8, frame_id)
     pad = -pos % 4
     if pad:
         parts.append(b"\0" * pad)
         pos += pad
-    parts.append(_u32.pack(len(m.name)))
+    parts.append(_u32.pack(len(name)))
     pos += 4
-    for s in m.name:
+    for s in name:
         pos = _put_str(parts, pos, s)
-    pos = _put_doubles(parts, pos, m.position)
-    pos = _put_doubles(parts, pos, m.velocity)
-    pos = _put_doubles(parts, pos, m.effort)
+    pos = _put_doubles(parts, pos, position)
+    pos = _put_doubles(parts, pos, velocity)
+    pos = _put_doubles(parts, pos, effort)
     return b"".join(parts)
+
+
+def encode_joint_state(m: Any) -> bytes:
+    """CDR bytes (with encapsulation header) of a JointState object (any class with the ROS fields)."""
+    st = m.header.stamp
+    return joint_state_bytes(st.sec, st.nanosec, m.header.frame_id, m.name, m.position, m.velocity, m.effort)
 
 
 # Positions below count from the end of the header (body offset); data index = pos + 4.
@@ -421,7 +432,7 @@ def _get_str(data: bytes, pos: int, end: int) -> tuple[str, int]:
     pos += -pos % 4
     if pos + 4 > end:
         raise _Bad("string length needs 4 bytes", pos + 4)
-    n = _unpack_u32(data, pos + 4)[0]
+    n: int = _unpack_u32(data, pos + 4)[0]
     if n == 0:
         return "", pos + 4
     if pos + 4 + n > end:
@@ -435,11 +446,11 @@ def _get_str(data: bytes, pos: int, end: int) -> tuple[str, int]:
     return s, pos + 4 + n
 
 
-def _get_doubles(data: bytes, pos: int, end: int) -> tuple[list, int]:
+def _get_doubles(data: bytes, pos: int, end: int) -> tuple[list[float], int]:
     pos += -pos % 4
     if pos + 4 > end:
         raise _Bad("sequence count needs 4 bytes", pos + 4)
-    n = _unpack_u32(data, pos + 4)[0]
+    n: int = _unpack_u32(data, pos + 4)[0]
     pos += 4
     if not n:
         return [], pos
@@ -449,54 +460,81 @@ def _get_doubles(data: bytes, pos: int, end: int) -> tuple[list, int]:
     return list(struct.unpack_from(f"<{n}d", data, pos + 4)), pos + 8 * n
 
 
-_new = object.__new__
+def _joint_state_decoder(cls: type) -> Callable[[Any], Any]:
+    """The fast decoder of the JointState class ``cls``; its Header and Time classes come from its annotations."""
+    header_cls = typing.get_type_hints(cls)["header"]
+    time_cls = typing.get_type_hints(header_cls)["stamp"]
+    new = object.__new__
+
+    def decode_joint_state(data: Any) -> Any:
+        if type(data) is not bytes or len(data) < 12 or data[0] != 0 or data[1] != 1:
+            # not the common little-endian case (or too short): the generic decoder says why or handles it
+            return _decode_generic(cls, data)
+        end = len(data) - 4  # body length
+        field = "header.frame_id"
+        try:
+            sec, nanosec = _time.unpack_from(data, 4)
+            frame_id, pos = _get_str(data, 8, end)
+            field = "name"
+            pos += -pos % 4
+            if pos + 4 > end:
+                raise _Bad("sequence count needs 4 bytes", pos + 4)
+            count: int = _unpack_u32(data, pos + 4)[0]
+            pos += 4
+            if 4 * count > end - pos:
+                raise _Bad(f"sequence count {count} needs at least {4 * count} bytes, only {end - pos} left", pos)
+            names = []
+            for i in range(count):
+                field = f"name[{i}]"
+                s, pos = _get_str(data, pos, end)
+                names.append(s)
+            field = "position"
+            position, pos = _get_doubles(data, pos, end)
+            field = "velocity"
+            velocity, pos = _get_doubles(data, pos, end)
+            field = "effort"
+            effort, pos = _get_doubles(data, pos, end)
+            if end - pos > MAX_TRAILING:
+                field = ""
+                raise _Bad(f"{end - pos} bytes left after the message (a different type?)", pos + 4)
+        except _Bad as e:
+            where = f": {field}" if field else ""
+            raise CdrError(f"sensor_msgs/msg/JointState{where}: {e.reason} (offset {e.offset})") from None
+        t: Any = new(time_cls)
+        t.__dict__.update(sec=sec, nanosec=nanosec)
+        h: Any = new(header_cls)
+        h.__dict__.update(stamp=t, frame_id=frame_id)
+        m: Any = new(cls)
+        m.__dict__.update(header=h, name=names, position=position, velocity=velocity, effort=effort)
+        return m
+
+    return decode_joint_state
 
 
-def decode_joint_state(data: Any) -> Any:
-    """JointState from CDR bytes (with the encapsulation header); :class:`CdrError` if they are not one."""
-    if type(data) is not bytes or len(data) < 12 or data[0] != 0 or data[1] != 1:
-        # not the common little-endian case (or too short): the generic decoder says why or handles it
-        return _decode_generic(msgs.JointState, data)
-    end = len(data) - 4  # body length
-    field = "header.frame_id"
-    try:
-        sec, nanosec = _time.unpack_from(data, 4)
-        frame_id, pos = _get_str(data, 8, end)
-        field = "name"
-        pos += -pos % 4
-        if pos + 4 > end:
-            raise _Bad("sequence count needs 4 bytes", pos + 4)
-        count = _unpack_u32(data, pos + 4)[0]
-        pos += 4
-        if 4 * count > end - pos:
-            raise _Bad(f"sequence count {count} needs at least {4 * count} bytes, only {end - pos} left", pos)
-        names = []
-        for i in range(count):
-            field = f"name[{i}]"
-            s, pos = _get_str(data, pos, end)
-            names.append(s)
-        field = "position"
-        position, pos = _get_doubles(data, pos, end)
-        field = "velocity"
-        velocity, pos = _get_doubles(data, pos, end)
-        field = "effort"
-        effort, pos = _get_doubles(data, pos, end)
-        if end - pos > MAX_TRAILING:
-            field = ""
-            raise _Bad(f"{end - pos} bytes left after the message (a different type?)", pos + 4)
-    except _Bad as e:
-        where = f": {field}" if field else ""
-        raise CdrError(f"sensor_msgs/msg/JointState{where}: {e.reason} (offset {e.offset})") from None
-    t = _new(msgs.Time)
-    t.__dict__.update(sec=sec, nanosec=nanosec)
-    h = _new(msgs.Header)
-    h.__dict__.update(stamp=t, frame_id=frame_id)
-    m = _new(msgs.JointState)
-    m.__dict__.update(header=h, name=names, position=position, velocity=velocity, effort=effort)
-    return m
+# --------------------------------------------------------------------------- codec per class
+def _typename(cls: type) -> str:
+    return str(getattr(cls, "__idl_typename__", ""))
 
 
+_DECODERS: dict[type, Callable[[Any], Any]] = {}
 
-ENCODERS: dict[type, Callable[[Any], bytes]] = {msgs.JointState: encode_joint_state}
-#: decoders that are faster than the generic one; :func:`decode` picks them
-DECODERS: dict[type, Callable[[bytes], Any]] = {msgs.JointState: decode_joint_state}
+
+def decoder(cls: type) -> Callable[[Any], Any]:
+    """The fastest decoder of IDL class ``cls``: CDR bytes (with header) -> message, or :class:`CdrError`.
+
+    Hand-written for JointState (found by DDS type name), the generic one otherwise.
+    """
+    dec = _DECODERS.get(cls)
+    if dec is None:
+        if _typename(cls) == JOINT_STATE:
+            dec = _joint_state_decoder(cls)
+        else:
+            def dec(data: Any) -> Any:
+                return _decode_generic(cls, data)
+        _DECODERS[cls] = dec
+    return dec
+
+
+def encoder(cls: type) -> Callable[[Any], bytes] | None:
+    """A hand-written encoder of IDL class ``cls`` (faster than its ``serialize``), or None."""
+    return encode_joint_state if _typename(cls) == JOINT_STATE else None

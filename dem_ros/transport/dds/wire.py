@@ -184,49 +184,19 @@ def service_topics(service: str) -> tuple[str, str]:
     return f"rq/{s}Request", f"rr/{s}Reply"
 
 
-# RIHS01 hashes of the request/response messages of the parameter services
-# (rmw_cyclonedds puts the *message* hash of the request on the request
-# endpoints and of the response on the reply endpoints).
-_SRV_DEFS = {
-    "rcl_interfaces/srv/GetParameters_Request": "string[] names",
-    "rcl_interfaces/srv/GetParameters_Response": "rcl_interfaces/ParameterValue[] values",
-    "rcl_interfaces/srv/SetParameters_Request": "rcl_interfaces/Parameter[] parameters",
-    "rcl_interfaces/srv/SetParameters_Response": "rcl_interfaces/SetParametersResult[] results",
-    "rcl_interfaces/srv/SetParametersAtomically_Request": "rcl_interfaces/Parameter[] parameters",
-    "rcl_interfaces/srv/SetParametersAtomically_Response": "rcl_interfaces/SetParametersResult result",
-    "rcl_interfaces/srv/ListParameters_Request": "string[] prefixes\nuint64 depth",
-    "rcl_interfaces/srv/ListParameters_Response": "rcl_interfaces/ListParametersResult result",
-    "rcl_interfaces/srv/DescribeParameters_Request": "string[] names",
-    "rcl_interfaces/srv/DescribeParameters_Response": "rcl_interfaces/ParameterDescriptor[] descriptors",
-    "rcl_interfaces/srv/GetParameterTypes_Request": "string[] names",
-    "rcl_interfaces/srv/GetParameterTypes_Response": "uint8[] types",
-}
-
-
-@cache
-def _typestore(distro: str):  # type: ignore[no-untyped-def]
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
-    store = get_typestore(Stores.ROS2_HUMBLE if distro == "humble" else Stores.ROS2_JAZZY)
-    types = {}
-    for name, text in _SRV_DEFS.items():
-        # rosbags would file "pkg/srv/X" under "pkg/srv/msg/X"; keep rosidl's name, it is hashed
-        types[name] = list(get_types_from_msg(text, name).values())[-1]
-    store.register(types)
-    return store
-
-
 @cache
 def type_hash(ros_type: str, distro: str = "jazzy") -> str:
-    """``RIHS01_<hex>`` of a ROS type (rosidl's type-description hash, via rosbags).
+    """``RIHS01_<hex>`` of a ROS type (rosidl's type-description hash, from :mod:`dem_ros.typestore`).
 
-    ``""`` on Humble (no type hashes) or if the type is unknown.
+    ``""`` on Humble (no type hashes) or if the type is unknown (like an rmw without type descriptions).
     """
     if distro == "humble":
         return ""
+    from ...typestore import rihs01  # rosbags: imported on first use, not with the transport
+
     try:
-        return str(_typestore(distro).hash_rihs01(ros_type))
-    except Exception:  # unknown type: no hash, like an rmw without type descriptions
+        return rihs01(ros_type)
+    except KeyError:
         return ""
 
 

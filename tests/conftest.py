@@ -1,0 +1,49 @@
+"""Suite-wide DDS isolation (see domains.py): the run never joins the user's ROS graph or another run's.
+
+At start the run leases one domain id for itself and puts it in ``ROS_DOMAIN_ID``, with
+``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and without the shell's DDS configuration
+(``domains.FOREIGN_DDS_ENV``): every process a test starts without choosing a domain - a CLI
+call, a launch - talks on that private domain, on loopback. A test that needs a domain of its
+own takes the ``domain_id`` fixture (or ``module_domain_id``).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+
+import domains
+import pytest
+
+_session: domains.DomainLease | None = None
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    global _session
+    _session = domains.lease()
+    for name in domains.FOREIGN_DDS_ENV:
+        os.environ.pop(name, None)
+    os.environ["ROS_DOMAIN_ID"] = str(_session.id)
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if _session is not None:
+        _session.release()
+
+
+@pytest.fixture
+def domain_id(monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
+    """A DDS domain of this test's own, set as ``ROS_DOMAIN_ID`` (loopback, Jazzy conventions) for its life."""
+    with domains.lease() as d:
+        monkeypatch.setenv("ROS_DOMAIN_ID", str(d))
+        monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        monkeypatch.delenv("DEM_ROS_DISTRO", raising=False)
+        yield d
+
+
+@pytest.fixture(scope="module")
+def module_domain_id() -> Iterator[int]:
+    """A DDS domain held for the test module's life (for module-scoped runs; the environment is not changed)."""
+    with domains.lease() as d:
+        yield d

@@ -1,0 +1,153 @@
+"""The controller's input checks and the lift-off pieces of hover.py, tested as math."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dem_ros.core.controllers.checks import InputChecks, reference_speed_bound
+from dem_ros.core.controllers.hover import (
+    LIFTOFF_CLEARANCE,
+    LIFTOFF_SPEED,
+    PREMAG_FRACTION,
+    lift_fraction,
+    liftoff_duration,
+    liftoff_reference,
+    liftoff_target,
+    premagnetise,
+)
+from dem_ros.core.params import SCHEMA
+from dem_ros.core.reference import ReferenceModel, command
+
+CC = SCHEMA.defaults("controller")
+RC = SCHEMA.defaults("reference")
+MS = 1_000_000
+
+
+def test_the_default_speed_bound_is_the_bound_of_the_default_reference_model():
+    v = reference_speed_bound((RC["a0"], RC["a1"], RC["a2"]), RC["b0"], CC["reference_gap_min"], CC["reference_gap_max"])
+    assert v == pytest.approx(1.862e-3, rel=1e-3)
+    assert v <= CC["reference_max_speed"] <= 1.03 * v  # the schema's default: the bound, rounded up
+
+
+def test_the_speed_bound_is_tight_for_the_worst_command():
+    """Eq. (1): the worst command switches between the range's ends as sign(h'(t0 - t)) does; a seeded random
+    schedule stays below the bound, the bang-bang one reaches it to 1 %."""
+    lo, hi = CC["reference_gap_min"], CC["reference_gap_max"]
+    v = reference_speed_bound((RC["a0"], RC["a1"], RC["a2"]), RC["b0"], lo, hi)
+    cfg = {**RC, "dt": 1e-3}
+    n = 40_000
+    t = np.arange(n) * 1e-3
+    # h'(tau) changes sign once, at the peak of h (the peak speed of a unit step's response)
+    m = ReferenceModel(cfg)
+    m.reset(0.0)
+    step = m.run(np.ones((n, 2)))
+    tau_star = float(np.argmax(step[:, 2])) * 1e-3
+    t0 = t[-1]
+    r = np.where((t0 - t) < tau_star, hi, lo)  # h' > 0 before the peak: r = hi there, lo elsewhere
+    m = ReferenceModel(cfg)
+    m.reset(lo)
+    y = m.run(np.stack([r, r], axis=1))
+    assert np.abs(y[:, 2]).max() == pytest.approx(v, rel=0.01)
+    rng = np.random.default_rng(3)
+    r2 = np.repeat(rng.uniform(lo, hi, n // 500), 500)
+    m.reset(0.5 * (lo + hi))
+    y2 = m.run(np.stack([r2, r2], axis=1))
+    assert np.abs(y2[:, 2]).max() < v
+
+
+def _checks(**over) -> InputChecks:
+    c = InputChecks({**CC, **over})
+    c.plant_stamp(0)
+    return c
+
+
+def test_every_sample_of_the_default_schedule_is_accepted():
+    cfg = {**RC, "dt": 1e-3}
+    m = ReferenceModel(cfg)
+    ch = _checks()
+    for k in range(15_000):
+        ref = m.step(command(cfg, k * 1e-3))
+        ch.plant_stamp(k * MS)
+        assert ch.reference(k * MS + MS, ref).ok, k
+
+
+@pytest.mark.parametrize(("y", "key"), [(0.028, "reference_range"), (0.001, "reference_range"),
+                                        (0.0081, "reference_rate"), (float("nan"), "reference_invalid")])
+def test_a_step_or_an_implausible_gap_is_refused_and_the_last_good_one_held(y, key):
+    ch = _checks()
+    good = np.array([0.008, 0.008, 0, 0, 0, 0, 0, 0])
+    assert ch.reference(MS, good).ok
+    v = ch.reference(2 * MS, np.array([y, 0.008, 0, 0, 0, 0, 0, 0]))
+    assert not v.ok and v.key == key and v.why
+    assert np.array_equal(ch.held_reference(), good)  # at rest at the last good gaps
+
+
+def test_a_resumed_stream_is_accepted_as_soon_as_the_bound_allows_it():
+    ch = _checks()
+    assert ch.reference(0, np.array([0.008, 0.008, 0, 0, 0, 0, 0, 0])).ok
+    moved = np.array([0.0075, 0.008, 0, 0, 0, 0, 0, 0])  # 0.5 mm away
+    ch.plant_stamp(100 * MS)
+    assert not ch.reference(100 * MS, moved).ok  # 100 ms at 1.9 mm/s: 0.19 mm at most
+    ch.plant_stamp(300 * MS)
+    assert ch.reference(300 * MS, moved).ok  # 300 ms: 0.57 mm
+
+
+def test_a_too_fast_reference_is_refused():
+    ch = _checks()
+    assert not ch.reference(MS, np.array([0.008, 0.008, 0.01, 0, 0, 0, 0, 0])).ok  # 10 mm/s
+
+
+def test_stamps_are_judged_on_the_plants_clock():
+    ch = _checks()
+    ch.plant_stamp(100 * MS)
+    assert ch.estimate(100 * MS) == "" and ch.estimate(98 * MS) == ""  # d T = 1 ms late: on time; 2 ms: max_age
+    assert ch.estimate(97 * MS) == "stale"
+    assert ch.estimate(103 * MS) == "future"
+    assert ch.reference(103 * MS, np.array([0.008, 0.008, 0, 0, 0, 0, 0, 0])).ok  # one period ahead is normal
+    assert ch.reference(3_600_000 * MS, np.array([0.008, 0.008, 0, 0, 0, 0, 0, 0])).key == "reference_future"
+    off = _checks(max_age=0.0)
+    off.plant_stamp(100 * MS)
+    assert off.estimate(0) == "" and off.estimate(10**12) == ""  # 0: no stamp checks
+
+
+def test_liftoff_reference_is_c3_and_its_derivatives_are_its_derivatives():
+    """Finite differences of the blend's position, speed and acceleration match the published derivatives."""
+    y0 = np.array([0.0112, 0.0110])
+    T = 1.3
+
+    def stream(t):  # a moving reference stream: y = 8 mm + 0.5 mm sin(2 t)
+        s, c = np.sin(2 * t), np.cos(2 * t)
+        return np.array([0.008 + 5e-4 * s, 0.0075, 1e-3 * c, 0, -2e-3 * s, 0, -4e-3 * c, 0])
+
+    h = 1e-5
+    for t in np.linspace(0.0, T + 0.2, 37):
+        f = [liftoff_reference(y0, stream(t + d), t + d, T) for d in (-h, 0.0, h)]
+        for i in range(3):  # d/dt of [y, y', y''] against [y', y'', y''']
+            fd = (f[2][2 * i:2 * i + 2] - f[0][2 * i:2 * i + 2]) / (2 * h)
+            assert np.allclose(fd, f[1][2 * i + 2:2 * i + 4], rtol=1e-4, atol=1e-7 * 10**i), (t, i)
+    start, end = liftoff_reference(y0, stream(0.0), 0.0, T), liftoff_reference(y0, stream(T), T, T)
+    assert np.array_equal(start, np.r_[y0, np.zeros(6)])  # at rest where the plate lies
+    assert np.allclose(end, stream(T))  # handed over to the stream
+
+
+def test_liftoff_duration_and_target():
+    y0 = np.array([0.0112, 0.0112])
+    ref = np.array([0.008, 0.0112, 0, 0, 0, 0, 0, 0])
+    target, handover = liftoff_target(y0, ref)
+    assert not handover and target[0] == 0.008 and target[1] == pytest.approx(0.0112 - LIFTOFF_CLEARANCE)
+    dur = liftoff_duration(y0, target)
+    assert dur == pytest.approx(35 / 16 * 3.2e-3 / LIFTOFF_SPEED)  # the blend's peak speed is LIFTOFF_SPEED
+    speeds = [abs(liftoff_reference(y0, target, t, dur)[2]) for t in np.linspace(0, dur, 1001)]
+    assert max(speeds) == pytest.approx(LIFTOFF_SPEED, rel=1e-4)
+
+
+def test_lift_fraction_and_premagnetisation():
+    gap = 0.008
+    i_hover = premagnetise(np.array([gap, 0, gap, 0, 0, 0]), CC, 1.0)[0]
+    z = np.array([gap, 0, gap, 0, *i_hover])
+    assert lift_fraction(z, CC) == pytest.approx(1.0)  # the nominal hover carries the whole load
+    assert lift_fraction(np.array([0.0112, 0, 0.0112, 0, 0, 0]), CC) == 0.0
+    i_pm, u_pm = premagnetise(np.array([0.0112, 0, 0.0112, 0, 0, 0]), CC)
+    assert lift_fraction(np.array([0.0112, 0, 0.0112, 0, *i_pm]), CC) == pytest.approx(PREMAG_FRACTION)
+    assert np.allclose(u_pm, CC["R_nominal"] * i_pm)

@@ -1,5 +1,6 @@
-# The two quick-start commands: `make demo` (main job) and `make test`.
-# Both create .venv and install the package with its test extras when missing.
+# The quick-start commands: `make demo` (the main job), `make test`, `make report`, `make bench`.
+# Each creates .venv and installs the package with its test extras when missing, then compiles the
+# numba kernels once; every step prints a line at least every 5 s (a first run takes minutes).
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
@@ -7,16 +8,24 @@ PYTHON ?= python3
 
 .PHONY: demo test bench report clean-venv
 
+# pip -qq: errors only (setuptools' editable-install notice is nothing a user can act on); the background
+# loop is the progress line that venv and pip do not give (it ends with the recipe's shell, Ctrl-C included)
 $(STAMP): setup.py
-	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test]'
+	@echo "make: first run: creating $(VENV) and installing dem_ros with its test dependencies (numpy, scipy, numba, cyclonedds, ...)"
+	@t0=$$(date +%s); me=$$$$; \
+	( while sleep 5 && kill -0 $$me 2>/dev/null; do echo "make:   ... ($$(( $$(date +%s) - t0 )) s)"; done ) & beat=$$!; \
+	{ echo "make: $(PYTHON) -m venv $(VENV)" && $(PYTHON) -m venv $(VENV) && \
+	  echo "make: $(PY) -m pip install -qq -e '.[test]'" && \
+	  $(PY) -m pip install -qq --upgrade pip && $(PY) -m pip install -qq -e '.[test]'; }; rc=$$?; \
+	kill $$beat; \
+	if [ $$rc -eq 0 ]; then echo "make: $(VENV) ready in $$(( $$(date +%s) - t0 )) s"; fi; exit $$rc
 	@# compile the numba kernels once, here, with progress (demo, test and the nodes then load the cache)
 	$(PY) -c "from dem_ros.tools.common import warm_kernels; warm_kernels('make')"
 	touch $(STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/dem-ros launch --scenario S1 --duration 30
+	@echo "make: figures of this run: $(VENV)/bin/dem-ros replay $$(ls -td bags/*_S1_adaptive | head -n 1) --plot figs/"
 
 test: $(STAMP)
 	$(PY) -m pytest -q tests

@@ -39,11 +39,41 @@ Discrete step (period T)::
 
 ``H`` picks the gaps and currents, and the gap rates when the sensors deliver
 them. Innovation, gain and covariance are kept for inspection.
+
+Plausibility gates (:class:`KalmanEstimator`; the ``gate`` array of :func:`ekf_step`). Before the
+update each gap sensor j (state index i = 0, 2) is tested twice:
+
+* range: its reading must lie inside the sensor's physical range, ``gap_range_min < z_i < gap_range_max``
+  (a dead, saturated or disconnected sensor reads outside it; a NaN fails too);
+* innovation: the normalised innovation squared of that gap alone,
+  NIS_j = y_i^2 / S_ii with S_ii = P_ii + sigma_gap^2 (after the prediction), is chi^2 with one degree of
+  freedom when the filter is consistent; the sample is rejected when NIS_j > chi2.isf(p_fa, 1)
+  (``gate_false_alarm`` = p_fa: the probability of rejecting a good sample; 1e-5: 4.4 sigma).
+
+A rejected sensor's gap and rate are left out of this update (the prediction holds for them; the other
+sensor and the currents still update), counted per reason, and after ``fault_samples`` rejections in a
+row the sensor is declared faulty (latched until :meth:`KalmanEstimator.reset`). While a sensor is
+rejected P_ii grows with every prediction, so the gate widens by itself: a true jump of the plate is
+accepted again after a few samples, a dead one is not. A sensor stuck at a plausible value passes both
+gates: the acceleration bias beta_j absorbs the difference between it and the model (3 mm of travel
+needs ~8 m/s^2). So beta_j is a third check: beyond ``bias_max`` (default 5 m/s^2, an unknown load of
++50 % of the module's mass) for ``fault_samples`` samples in a row, the measurements of gap j and the
+model disagree beyond any load the plate can carry: declared as a fault of gap j (latched) as well.
+A sensor stuck while the plate holds still is not detectable at all (and harmless until it moves).
+
+Numerical guard: the update is skipped (counted) when S is not finite or singular, and a state or
+covariance that became non-finite (a gap near zero makes the model singular: delta^-2 terms) is
+re-initialised from the measurement, so the filter never raises; both end the convergence run below.
+
+Convergence (:attr:`KalmanEstimator.converged`): after a (re)start the estimate counts as converged once
+``converge_samples`` consecutive samples passed both gates on every gap without a guard event; a node
+does not publish before that (see docs/manual/topics.md).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -51,9 +81,29 @@ from numba import njit
 from .model import IK, IP, IQ, dynamics, plant_vector
 from .params import SCHEMA
 
-__all__ = ["KalmanEstimator", "PassThrough", "make_estimator"]
+__all__ = ["GATE_SIZE", "Estimator", "KalmanEstimator", "PassThrough", "make_estimator"]
 
 NS = 10
+
+# the ``gate`` array of ekf_step (float64): settings, then counters the kernel updates in place
+G_CHI2 = 0  # NIS threshold chi2.isf(p_fa, 1)
+G_LO = 1  # gap sensor range (m): a reading must lie strictly inside (G_LO, G_HI)
+G_HI = 2
+G_NFAULT = 3  # rejections in a row that declare a sensor fault
+G_W0 = 4  # initial variance of the voltage biases (V^2), for a re-initialisation
+G_RUN = 5  # (2) rejections in a row, per gap sensor
+G_RANGE = 7  # (2) rejected: outside the range or non-finite, per sensor
+G_INNOV = 9  # (2) rejected: NIS above the threshold, per sensor
+G_FAULT = 11  # (2) 1.0 once the sensor is declared faulty (latched)
+G_NIS = 13  # (2) the newest NIS per sensor (NaN when not tested)
+G_GOOD = 15  # samples in a row with every gap accepted and no guard event
+G_SKIPPED = 16  # updates skipped: S not finite or singular
+G_REINIT = 17  # state or covariance non-finite: re-initialised from the measurement
+G_BMAX = 18  # |beta_j| above this (m/s^2) ...
+G_BRUN = 19  # (2) ... samples in a row, per gap
+G_BFAULT = 21  # (2) 1.0 once beta_j stayed beyond G_BMAX for G_NFAULT samples (latched)
+GATE_SIZE = 23
+_GAPS = (0, 2)  # state indices of the gaps; each sensor's rate follows its gap
 
 
 @njit(cache=True)
@@ -103,11 +153,62 @@ def jacobian(s: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def ekf_step(s, P, z, mask, u_prev, p, T, qc, rm, out) -> None:
+def _init_cov(P: np.ndarray, rm: np.ndarray, w0: float) -> None:
+    """P of a (re)start: the measurement variances on [d, d', i], 1 (m/s^2)^2 on beta, ``w0`` V^2 on w."""
+    P[:, :] = 0.0
+    for i in range(6):
+        P[i, i] = rm[i]
+    P[1, 1] = max(rm[1], 1e-6)
+    P[3, 3] = max(rm[3], 1e-6)
+    P[6, 6] = P[7, 7] = 1.0
+    P[8, 8] = P[9, 9] = w0
+
+
+@njit(cache=True)
+def _gate(s: np.ndarray, P: np.ndarray, z: np.ndarray, use: np.ndarray, rm: np.ndarray, gate: np.ndarray) -> bool:
+    """Range and chi^2 gates of the module docstring on each gap sensor; clears ``use`` of a rejected
+    sensor's gap and rate and counts. True when every gap was accepted."""
+    good = True
+    for j in range(2):
+        i = _GAPS[j]
+        zi = z[i]
+        reason = 0
+        gate[G_NIS + j] = np.nan
+        if not (gate[G_LO] < zi < gate[G_HI]):  # NaN fails too
+            reason = G_RANGE
+        else:
+            y = zi - s[i]
+            nis = y * y / (P[i, i] + rm[i])
+            gate[G_NIS + j] = nis
+            if not nis <= gate[G_CHI2]:
+                reason = G_INNOV
+        if reason:
+            good = False
+            use[i] = 0.0
+            use[i + 1] = 0.0
+            gate[reason + j] += 1.0
+            gate[G_RUN + j] += 1.0
+            if gate[G_RUN + j] >= gate[G_NFAULT]:
+                gate[G_FAULT + j] = 1.0
+        else:
+            gate[G_RUN + j] = 0.0
+    return good
+
+
+@njit(cache=True)
+def _finite(a: np.ndarray) -> bool:
+    return bool(np.all(np.isfinite(a)))
+
+
+@njit(cache=True)
+def ekf_step(s: np.ndarray, P: np.ndarray, z: np.ndarray, mask: np.ndarray, u_prev: np.ndarray, p: np.ndarray,
+             T: float, qc: np.ndarray, rm: np.ndarray, out: np.ndarray, gate: np.ndarray | None = None) -> None:
     """One predict + update. ``z`` (6,) measured [d1, d1', d2, d2', i1, i2]; ``mask`` (6,) 1 = measured.
 
     ``qc`` = (sigma_accel^2, sigma_voltage^2, sigma_bias^2, sigma_voltage_bias^2), ``rm`` (6,) measurement variances.
-    Writes the estimate [d1, d1', d2, d2', i1, i2] into ``out``.
+    Writes the estimate [d1, d1', d2, d2', i1, i2] into ``out``. ``gate`` (GATE_SIZE,): the plausibility
+    gates and the numerical guard of the module docstring (settings and counters, updated in place);
+    None: every finite measurement is used (a non-finite S skips the update all the same).
     """
     A = jacobian(s, u_prev, p)
     _rk4(s, u_prev, p, T)
@@ -130,9 +231,13 @@ def ekf_step(s, P, z, mask, u_prev, p, T, qc, rm, out) -> None:
     Q[8, 8] = qc[3] * T2
     Q[9, 9] = qc[3] * T2
     P[:, :] = F @ P @ F.T + Q
+    use = mask.copy()
+    good = True
+    if gate is not None:
+        good = _gate(s, P, z, use, rm, gate)
     nm = 0
     for i in range(6):
-        if mask[i] > 0.0 and np.isfinite(z[i]):
+        if use[i] > 0.0 and np.isfinite(z[i]):
             nm += 1
     if nm > 0:
         H = np.zeros((nm, NS))
@@ -140,61 +245,157 @@ def ekf_step(s, P, z, mask, u_prev, p, T, qc, rm, out) -> None:
         Rm = np.zeros((nm, nm))
         r = 0
         for i in range(6):
-            if mask[i] > 0.0 and np.isfinite(z[i]):
+            if use[i] > 0.0 and np.isfinite(z[i]):
                 H[r, i] = 1.0
                 y[r] = z[i] - s[i]
                 Rm[r, r] = rm[i]
                 r += 1
         S = H @ P @ H.T + Rm
-        Kg = np.linalg.solve(S, H @ P).T
-        s += Kg @ y
-        IKH = np.eye(NS) - Kg @ H
-        P[:, :] = IKH @ P @ IKH.T + Kg @ Rm @ Kg.T
+        HP = H @ P
+        solved = _finite(S) and _finite(HP)
+        Kt = HP
+        if solved:
+            try:
+                Kt = np.linalg.solve(S, HP)  # Kg^T = S^-1 H P (S symmetric)
+            except Exception:  # singular S: no update this sample
+                solved = False
+        if solved:
+            Kg = np.ascontiguousarray(Kt.T)
+            s += Kg @ y
+            IKH = np.eye(NS) - Kg @ H
+            P[:, :] = IKH @ P @ IKH.T + Kg @ Rm @ Kg.T
+        else:
+            good = False
+            if gate is not None:
+                gate[G_SKIPPED] += 1.0
+    if gate is not None and not (_finite(s) and _finite(P)):
+        # re-initialise from what was measured and passed the gates (the rest NaN: nothing to trust)
+        for i in range(6):
+            s[i] = z[i] if use[i] > 0.0 and np.isfinite(z[i]) else (0.0 if (i == 1 or i == 3) else np.nan)
+        s[6:] = 0.0
+        _init_cov(P, rm, gate[G_W0])
+        gate[G_REINIT] += 1.0
+        good = False
+    if gate is not None:
+        for j in range(2):
+            if abs(s[6 + j]) > gate[G_BMAX]:
+                gate[G_BRUN + j] += 1.0
+                if gate[G_BRUN + j] >= gate[G_NFAULT]:
+                    gate[G_BFAULT + j] = 1.0
+            else:
+                gate[G_BRUN + j] = 0.0
+        gate[G_GOOD] = gate[G_GOOD] + 1.0 if good else 0.0
     for i in range(6):
         out[i] = s[i]
 
 
 class KalmanEstimator:
-    """EKF of the module docstring; ``step(z, u_prev) -> x_hat`` (6,)."""
+    """EKF of the module docstring; ``step(z, u_prev) -> x_hat`` (6,), with the plausibility gates.
+
+    Attributes kept for inspection: ``s`` (10,) state, ``P`` (10, 10) covariance, ``gate``
+    (GATE_SIZE,) gate settings and counters (read them through :meth:`counters`).
+    """
 
     name = "kf"
 
-    def __init__(self, cfg: Mapping, measure_velocity: bool = True):
-        self.cfg = SCHEMA.validate_group("estimator", dict(cfg))
-        c = self.cfg
-        self.p = plant_vector(c)
-        self.T = c["dt"]
-        self.qc = np.array([c["sigma_accel"] ** 2, c["sigma_voltage"] ** 2, c["sigma_bias"] ** 2,
-                            c["sigma_voltage_bias"] ** 2])
-        self.rm = np.array([c["sigma_gap"], c["sigma_rate"], c["sigma_gap"], c["sigma_rate"],
-                            c["sigma_current"], c["sigma_current"]]) ** 2
+    def __init__(self, cfg: Mapping[str, Any], measure_velocity: bool = True):
         self.mask = np.array([1.0, float(measure_velocity), 1.0, float(measure_velocity), 1.0, 1.0])
         self.s = np.zeros(NS)
         self.P = np.eye(NS)
         self.out = np.zeros(6)
+        self.gate = np.zeros(GATE_SIZE)
         self.started = False
+        self.configure(cfg)
+
+    def configure(self, cfg: Mapping[str, Any]) -> None:
+        """Take new settings (noise levels, model, gates) without restarting: state and covariance stay."""
+        from scipy.stats import chi2
+
+        self.cfg = SCHEMA.validate_group("estimator", dict(cfg))
+        c = self.cfg
+        self.p = plant_vector(c)
+        self.T = float(c["dt"])
+        self.qc = np.array([c["sigma_accel"] ** 2, c["sigma_voltage"] ** 2, c["sigma_bias"] ** 2,
+                            c["sigma_voltage_bias"] ** 2])
+        self.rm = np.array([c["sigma_gap"], c["sigma_rate"], c["sigma_gap"], c["sigma_rate"],
+                            c["sigma_current"], c["sigma_current"]]) ** 2
+        g = self.gate
+        g[G_CHI2] = chi2.isf(c["gate_false_alarm"], 1)
+        g[G_LO], g[G_HI] = c["gap_range_min"], c["gap_range_max"]
+        g[G_NFAULT] = c["fault_samples"]
+        g[G_W0] = c["voltage_bias_prior"] ** 2
+        g[G_BMAX] = c["bias_max"]
+
+    @property
+    def chi2_threshold(self) -> float:
+        """The NIS above which a gap sample is rejected: chi2.isf(gate_false_alarm, 1)."""
+        return float(self.gate[G_CHI2])
 
     def reset(self, z0: np.ndarray) -> None:
-        """Start at the first measurement (velocities 0 when not measured, no bias)."""
+        """(Re)start at measurement ``z0`` (velocities 0 when not measured, no bias); clears the sensor
+        faults and the convergence run. A gap outside the sensor range cannot start the filter: see :meth:`step`."""
         z0 = np.asarray(z0, float)
         self.s[:6] = np.where(self.mask > 0, z0, 0.0)
         self.s[6:] = 0.0
-        w0 = self.cfg["voltage_bias_prior"] ** 2
-        self.P = np.diag(np.concatenate([self.rm, [1.0, 1.0, w0, w0]]))
-        self.P[1, 1] = self.P[3, 3] = max(self.rm[1], 1e-6)
+        _init_cov(self.P, self.rm, self.gate[G_W0])
         self.out[:] = self.s[:6]
+        g = self.gate
+        g[G_RUN:G_RUN + 2] = 0.0
+        g[G_FAULT:G_FAULT + 2] = 0.0
+        g[G_BRUN:G_BRUN + 2] = 0.0
+        g[G_BFAULT:G_BFAULT + 2] = 0.0
+        g[G_GOOD] = 1.0  # the start sample itself passed the range gate
         self.started = True
 
+    def _startable(self, z: np.ndarray) -> bool:
+        g = self.gate
+        return all(g[G_LO] < z[i] < g[G_HI] for i in _GAPS) and bool(np.all(np.isfinite(z[self.mask > 0])))
+
     def step(self, z: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
-        """Estimate for this sample from measurement ``z`` and the voltage applied since the last one."""
+        """Estimate for this sample from measurement ``z`` (6,) [m, m/s, m, m/s, A, A] and the voltage
+        ``u_prev`` (2,) [V] applied since the last one. Before the first plausible measurement (both gaps
+        in range, every measured value finite) the output is NaN."""
+        z = np.asarray(z, float)
         if not self.started:
-            self.reset(z)
+            if self._startable(z):
+                self.reset(z)
+            else:
+                self.out[:] = np.nan
+                self.gate[G_RANGE] += 1.0
             return self.out
-        ekf_step(self.s, self.P, np.asarray(z, float), self.mask, np.asarray(u_prev, float),
-                 self.p, self.T, self.qc, self.rm, self.out)
+        ekf_step(self.s, self.P, z, self.mask, np.asarray(u_prev, float), self.p, self.T, self.qc, self.rm,
+                 self.out, self.gate)
         return self.out
 
-    def kernel_args(self) -> tuple:
+    @property
+    def converged(self) -> bool:
+        """``converge_samples`` samples in a row passed both gates on every gap, with no guard event."""
+        return self.started and self.gate[G_GOOD] >= self.cfg["converge_samples"]
+
+    @property
+    def faults(self) -> list[str]:
+        """Why each faulty gap sensor was declared faulty (latched), e.g. ``"gap sensor 1: 20 rejections in a row"``."""
+        g = self.gate
+        out = [f"gap sensor {j + 1}: {int(g[G_NFAULT])} rejections in a row (outside the range"
+               f" {g[G_LO]:g}..{g[G_HI]:g} m: {int(g[G_RANGE + j])}, innovation: {int(g[G_INNOV + j])} so far)"
+               for j in range(2) if g[G_FAULT + j] > 0]
+        out += [f"gap sensor {j + 1} or the load: acceleration bias {self.s[6 + j]:.2f} m/s^2 beyond bias_max"
+                f" {g[G_BMAX]:g} m/s^2 for {int(g[G_NFAULT])} samples (a stuck sensor, or a load the model cannot carry)"
+                for j in range(2) if g[G_BFAULT + j] > 0]
+        return out
+
+    def counters(self) -> dict[str, int]:
+        """Gate and guard counts since construction: rejected per sensor and reason, guard events."""
+        g = self.gate
+        out = {}
+        for j in range(2):
+            out[f"gap{j + 1}_out_of_range"] = int(g[G_RANGE + j])
+            out[f"gap{j + 1}_innovation"] = int(g[G_INNOV + j])
+        out["updates_skipped"] = int(g[G_SKIPPED])
+        out["reinitialised"] = int(g[G_REINIT])
+        return out
+
+    def kernel_args(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
         return (self.s, self.P, self.mask, self.p, self.T, self.qc, self.rm)
 
 
@@ -215,7 +416,11 @@ class PassThrough:
         return self.out
 
 
-def make_estimator(cfg: Mapping, kind: str | None = None, measure_velocity: bool = True):
+#: what :func:`make_estimator` makes: ``reset(z0)``, ``step(z, u_prev) -> x_hat`` (6,)
+Estimator = KalmanEstimator | PassThrough
+
+
+def make_estimator(cfg: Mapping[str, Any], kind: str | None = None, measure_velocity: bool = True) -> Estimator:
     kind = kind or cfg["type"]
     if kind == "kf":
         return KalmanEstimator(cfg, measure_velocity)

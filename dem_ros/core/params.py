@@ -291,6 +291,29 @@ SAFETY_SPECS = (
 _SAFETY_DEFAULTS = {p.name: p.default for p in SAFETY_SPECS}
 
 
+# The command source lock of the nodes that drive the coils (plant_sim, hw_driver): they take /dem/command
+# only from the writers of this node (docs/manual/topics.md "Command source lock").
+COMMAND_SOURCE = ParamSpec(
+    "command_source", str, "controller", "",
+    "accept /dem/command only from this node's writers (a node name in this node's namespace, or /ns/name); others are dropped, counted and reported",
+    read_only=True,  # the parameter services are open to any process: no redirecting the lock at run time
+)
+_NODE_NAME = re.compile(r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
+
+
+def _check_command_source(v: Mapping[str, Any]) -> str | None:
+    if not _NODE_NAME.match(v["command_source"]):
+        return (f"command_source = {v['command_source']!r} is not a ROS node name (e.g. controller or "
+                "/rig1/controller)")
+    return None
+
+
+def _check_gap_range(v: Mapping[str, Any]) -> str | None:
+    if not v["gap_range_min"] < v["gap_range_max"]:
+        return f"need gap_range_min < gap_range_max; got {v['gap_range_min']:g}, {v['gap_range_max']:g} m"
+    return None
+
+
 def _check_safety(v: Mapping[str, Any]) -> str | None:
     if not v["trip_gap_min"] < v["landing_gap"] <= v["trip_gap_max"]:
         return (f"need trip_gap_min < landing_gap <= trip_gap_max; got {v['trip_gap_min']:g}, "
@@ -310,8 +333,8 @@ _CONTROLLERS = ("adaptive", "adaptive_enhanced", "paper", "paper_fixed", "nonlin
 
 SCHEMA = Schema(
     groups={
-        "plant_sim": _geometry("true ")
-        + (
+        "plant_sim": (
+            *_geometry("true "),
             ParamSpec("m", float, TABLE2["m"], "kg", "true mass of the suspended module", 0.1, 1e4),
             ParamSpec("R", float, TABLE2["R"], "ohm", "true coil resistance", 0.01, 1e4),
             ParamSpec("K", float, TABLE2["K"], "N*m^2/A^2", "true force coefficient, F = K i^2/delta^2", 1e-7, 1.0),
@@ -349,8 +372,9 @@ SCHEMA = Schema(
             ParamSpec("preroll", float, 1.0, "s", "graph: levitate in closed loop this long before t = 0 (frame_id dem/preroll)", 0.0, 600.0),
             ParamSpec("start_delay", float, 3.0, "s", "graph: wait at least this long after start-up before t = 0 (discovery)", 0.0, 600.0),
             ParamSpec("min_subscribers", int, 2, "", "graph: wait (up to 30 s) until this many readers match /dem/measurement (estimator, reference)", 0, 100),
-        )
-        + SAFETY_SPECS,
+            COMMAND_SOURCE,
+            *SAFETY_SPECS,
+        ),
         "reference": (
             ParamSpec("b0", float, 0.25, "s^-3", "reference model numerator, M(s) = b0/(s^3+a2 s^2+a1 s+a0) (Eq. 46)", 1e-9, 1e9),
             ParamSpec("a2", float, 2.0, "s^-1", "reference model denominator coefficient", 1e-9, 1e9),
@@ -373,10 +397,14 @@ SCHEMA = Schema(
             ParamSpec("sigma_bias", float, 30.0, "m/s^3", "process noise: rate of the acceleration-bias random walk (sigma_bias T per sample)", 1e-9, 1e6),
             ParamSpec("sigma_voltage_bias", float, 20.0, "V/s", "process noise: rate of the per-coil voltage-bias random walk (resistance error, heating, driver offset)", 1e-9, 1e6),
             ParamSpec("voltage_bias_prior", float, 20.0, "V", "initial standard deviation of the per-coil voltage bias (R tolerance x hover current)", 1e-9, 1e4),
+            ParamSpec("gap_range_min", float, 0.0, "m", "gap sensors' physical range: a reading at or below this is rejected (dead sensor; no gap is <= 0)", -1.0, 1.0),
+            ParamSpec("gap_range_max", float, 0.02, "m", "gap sensors' physical range: a reading at or above this is rejected (saturated or disconnected; the rig's ADC spans ~0-20 mm)", 1e-4, 10.0),
+            ParamSpec("gate_false_alarm", float, 1e-5, "", "chi^2 innovation gate on each gap: probability of rejecting a good sample (1e-5: NIS > 19.5, 4.4 sigma)", 1e-12, 0.5),
+            ParamSpec("bias_max", float, 5.0, "m/s^2", "an acceleration bias beyond this for fault_samples samples declares a gap sensor (stuck) or load fault (5: an unknown load of +50 % of the module's mass)", 0.1, 1e4),
+            ParamSpec("fault_samples", int, 20, "samples", "this many rejected samples of one gap sensor in a row declare it faulty (latched; ERROR on /diagnostics)", 1, 100000),
+            ParamSpec("converge_samples", int, 100, "samples", "after a (re)start the node publishes no estimate until this many samples in a row passed the gates", 1, 100000),
             ParamSpec("dt", float, 1e-3, "s", "sample period", 1e-5, 0.1, read_only=True),
-        )
-        + _geometry("model ")
-        + (
+            *_geometry("model "),
             ParamSpec("m", float, TABLE2["m"], "kg", "model mass used by the filter", 0.1, 1e4),
             ParamSpec("R", float, TABLE2["R"], "ohm", "model coil resistance used by the filter", 0.01, 1e4),
             ParamSpec("K", float, TABLE2["K"], "N*m^2/A^2", "model force coefficient used by the filter", 1e-7, 1.0),
@@ -387,9 +415,10 @@ SCHEMA = Schema(
             ParamSpec("k1", float, 70.0, "s^-1", "error dynamics s^3+k1 s^2+k2 s+k3 (coefficient of e'')", 0.0, 1e6),
             ParamSpec("k2", float, 1600.0, "s^-2", "error dynamics coefficient of e'", 0.0, 1e9),
             ParamSpec("k3", float, 12000.0, "s^-3", "error dynamics coefficient of e", 0.0, 1e12),
-        )
-        + _geometry("model ")
-        + (
+            ParamSpec("coil_weight", float, 1.0, "", "adaptive / adaptive_enhanced: weight of the coil equations u_j = R_j i_j + 2K d(i_j/delta_j)/dt in the least squares, relative to the tracking error a coil-voltage misfit causes (0: off)", 0.0, 1e6),
+            ParamSpec("coil_bandwidth", float, 10.0, "rad/s", "low-pass bw/(s + bw) of the coil equations' signals (no differentiated current; slow: averages out unknown fast voltages such as a 50 Hz disturbance, which would bias R)", 0.1, 1e4),
+            ParamSpec("ki", float, 10.0, "s^-1", "integral action of adaptive / adaptive_enhanced: error dynamics (s + ki)(s^3 + k1 s^2 + k2 s + k3) on int e (0: off)", 0.0, 1e4),
+            *_geometry("model "),
             ParamSpec("m_init", float, 10.0, "kg", "initial mass estimate (paper: 10)", 0.1, 1e4),
             ParamSpec("R_init", float, 15.0, "ohm", "initial resistance estimate (paper: 15)", 0.01, 1e4),
             ParamSpec("K_init", float, 3.0618e-4, "N*m^2/A^2", "initial force-coefficient estimate (docs/manual/model.md: 0.7 K)", 1e-7, 1.0),
@@ -406,10 +435,10 @@ SCHEMA = Schema(
             ParamSpec("P0_R", float, 1.0, "", "initial covariance of R (scaled)", 0.0, 1e12),
             ParamSpec("P0_K", float, 0.1, "", "initial covariance of K (scaled)", 0.0, 1e12),
             ParamSpec("q_m", float, 10.0, "s^-1", "random-walk rate of the scaled 1/m (tracks load changes)", 0.0, 1e9),
-            ParamSpec("q_R", float, 0.0, "s^-1", "random-walk rate of the scaled R", 0.0, 1e9),
+            ParamSpec("q_R", float, 1.0, "s^-1", "random-walk rate of the scaled R (coil heating)", 0.0, 1e9),
             ParamSpec("q_K", float, 0.0, "s^-1", "random-walk rate of the scaled K", 0.0, 1e9),
             ParamSpec("P0_rho", float, 0.01, "", "initial covariance of the coil-resistance difference rho = (R1 - R2)/2 (scaled by R_init)", 0.0, 1e12),
-            ParamSpec("q_rho", float, 0.0, "s^-1", "random-walk rate of the scaled rho (coils heating at different rates)", 0.0, 1e9),
+            ParamSpec("q_rho", float, 1.0, "s^-1", "random-walk rate of the scaled rho (coils heating at different rates)", 0.0, 1e9),
             ParamSpec("rho_max", float, 10.0, "ohm", "bound of |rho|, half the largest resistance difference of the coils", 0.0, 1e4),
 
             ParamSpec("hover_init", bool, True, "", "initialise the estimates from the measured hover before start (docs/manual/controllers.md A2 iv)"),
@@ -449,6 +478,7 @@ SCHEMA = Schema(
             # i_max or a measured gap outside [trip_gap_min, trip_gap_max] for trip_samples samples trips
             # (the board lands); no controller command for hold_timeout (steady clock) -> fault, LAND
             *SAFETY_SPECS,
+            COMMAND_SOURCE,
             ParamSpec("trip_samples", int, 3, "samples", "consecutive out-of-limit samples that trip (a single spike is counted, not tripped on)", 1, 1000),
             ParamSpec("link_timeout", float, 0.05, "s", "no sensor frame this long while armed or active -> fault (the board's own watchdog lands it)", 1e-3, 10.0),
             ParamSpec("late_threshold", float, 1e-3, "s", "a sensor frame received later than this after its sample is counted late", 1e-6, 1.0),
@@ -478,11 +508,11 @@ SCHEMA = Schema(
         ),
     },
     checks={
-        "plant_sim": (_check_plant, _check_safety),
+        "plant_sim": (_check_plant, _check_safety, _check_command_source),
         "reference": (_check_reference,),
-        "estimator": (_check_geometry,),
+        "estimator": (_check_geometry, _check_gap_range),
         "controller": (_check_geometry, _check_hurwitz, _check_bounds, _check_controller_safety),
-        "hw_driver": (_check_safety,),
+        "hw_driver": (_check_safety, _check_command_source),
     },
 )
 

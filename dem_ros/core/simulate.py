@@ -14,14 +14,14 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit, prange
 
-from .controllers import CEController, PIDController, make_controller
+from .controllers import CEController, Controller, PIDController, make_controller
 from .controllers import kernels as CK
-from .estimator import NS, KalmanEstimator, ekf_step, make_estimator
+from .estimator import NS, KalmanEstimator, PassThrough, ekf_step, make_estimator
 from .model import IP, IQ, NPP, SM, apply_schedule, initial_state, plant_vector, rk4
 from .reference import hover_start, reference_trajectory
 from .scenarios import NOISE_UNIT, disturbances, plant_schedule, sensor_model
@@ -29,68 +29,124 @@ from .scenarios import NOISE_UNIT, disturbances, plant_schedule, sensor_model
 __all__ = ["Preroll", "SimResult", "preroll", "simulate", "simulate_batch"]
 
 
+class LawArgs(NamedTuple):
+    """The control law of a run, as the compiled loop takes it: a CE law or the PID."""
+
+    is_pid: bool
+    ce: CK.CELaw
+    ce_state: CK.CEState
+    pid_cp: np.ndarray  # (NPID,)
+    pid_integ: np.ndarray  # (2,) PID integrators (m s)
+
+
+class EstimatorArgs(NamedTuple):
+    """The estimator of a run (``on`` False: the law gets the masked measurement); see :func:`.estimator.ekf_step`."""
+
+    on: bool
+    s: np.ndarray  # (NS,) EKF state
+    P: np.ndarray  # (NS, NS)
+    mask: np.ndarray  # (6,) 1 = measured
+    p: np.ndarray  # (NPP,) the filter's model
+    T: float  # s
+    qc: np.ndarray  # (4,) process noise
+    rm: np.ndarray  # (6,) measurement variances
+
+
+class PlantArgs(NamedTuple):
+    """The simulated plant and board of a run (SI units)."""
+
+    x: np.ndarray  # (6,) state, advanced in place
+    p: np.ndarray  # (NPP,) kernel parameter vector (truth set from ``sched`` every sample)
+    L: float  # m
+    l: float  # m
+    sched: np.ndarray  # (n, NSCHED) time-varying truth
+    sg: np.ndarray  # (6,) sensor gains
+    sb: np.ndarray  # (6,) sensor offsets
+    noise: np.ndarray  # (n, 6) measurement noise
+    pert: np.ndarray  # (n, 2) input perturbation (V)
+    dt: float  # s
+    nsub: int  # RK4 sub-steps per sample
+    gap_min: float  # m, rail contact at or below
+    gap_max: float  # m, dropped above
+    u_max: float  # V, the coil driver's limit (the board's Supervisor u_max)
+    delay: int  # samples between a command's sample and the period it is held over
+    u0: np.ndarray  # (2,) voltage held before t = 0 (V)
+
+
+class Logs(NamedTuple):
+    """Per-sample logs filled by the loop when ``on``: X (n, 6) true state, U (n, 2) applied voltage, D (n, NDIAG)."""
+
+    X: np.ndarray
+    U: np.ndarray
+    D: np.ndarray
+    on: bool
+
+
 @njit(cache=True)
-def _closed_loop(
-    is_pid, mode, cp, theta, v, scale, v0, Pc, Z, uh, Ad, Bd, pid_cp, integ,
-    est_on, s, Pe, mask, pe, Te, qc, rm,
-    x, pp, L, l, sched, sg, sb, noise, pert, ref, dt, nsub, gap_min, gap_max, delay, u0,
-    X_log, U_log, D_log, log,
-):
-    """Run the loop; returns the index of the first failed sample or -1."""
+def _closed_loop(law: LawArgs, est: EstimatorArgs, plant: PlantArgs, ref: np.ndarray, logs: Logs) -> int:
+    """Run the loop (``law`` :class:`LawArgs`, ``est`` :class:`EstimatorArgs`, ``plant`` :class:`PlantArgs`,
+    ``ref`` (n, 8), ``logs`` :class:`Logs`); returns the index of the first failed sample or -1.
+
+    The applied voltage is the command of ``delay`` samples ago clipped to +-u_max (the board's coil
+    driver, :class:`dem_ros.core.safety.Supervisor` in RUN), plus the input perturbation.
+    """
     n = ref.shape[0]
+    delay = plant.delay
+    x = plant.x
+    pp = plant.p
+    u_max = plant.u_max
     ubuf = np.zeros((delay + 1, 2))
     for j in range(delay + 1):
-        ubuf[j, 0] = u0[0]
-        ubuf[j, 1] = u0[1]
+        ubuf[j, 0] = plant.u0[0]
+        ubuf[j, 1] = plant.u0[1]
     u = np.empty(2)
     diag = np.zeros(CK.NDIAG)
     z = np.empty(6)
     xh = np.empty(6)
-    u_prev = u0.copy()
+    u_prev = plant.u0.copy()
     ua = np.empty(2)
     for k in range(n):
         for i in range(6):
-            z[i] = sg[i] * x[i] + sb[i] + noise[k, i]
-        if est_on:
-            ekf_step(s, Pe, z, mask, u_prev, pe, Te, qc, rm, xh)
+            z[i] = plant.sg[i] * x[i] + plant.sb[i] + plant.noise[k, i]
+        if est.on:
+            ekf_step(est.s, est.P, z, est.mask, u_prev, est.p, est.T, est.qc, est.rm, xh)
         else:
             for i in range(6):
-                xh[i] = z[i] if mask[i] > 0.0 else 0.0
-        if is_pid:
-            CK.pid_step(pid_cp, integ, xh, ref[k], u, diag)
+                xh[i] = z[i] if est.mask[i] > 0.0 else 0.0
+        if law.is_pid:
+            CK.pid_step(law.pid_cp, law.pid_integ, xh, ref[k], u, diag)
         else:
-            CK.ce_step(mode, cp, theta, v, scale, v0, Pc, Z, uh, Ad, Bd, xh, ref[k], u, diag)
-        # delay line: slot k % (delay+1) holds u_k; apply u_{k-delay}
+            CK.ce_step(law.ce, law.ce_state, xh, ref[k], u, diag)
+        # delay line: slot k % (delay+1) holds u_k; apply u_{k-delay}, clipped by the coil driver
         slot = k % (delay + 1)
         ubuf[slot, 0] = u[0]
         ubuf[slot, 1] = u[1]
         old = (k + 1) % (delay + 1) if delay > 0 else slot
-        u_prev[0] = ubuf[old, 0]
-        u_prev[1] = ubuf[old, 1]
-        ua[0] = u_prev[0] + pert[k, 0]
-        ua[1] = u_prev[1] + pert[k, 1]
-        if log:
+        for j in range(2):
+            u_prev[j] = min(max(ubuf[old, j], -u_max), u_max)
+            ua[j] = u_prev[j] + plant.pert[k, j]
+        if logs.on:
             for i in range(6):
-                X_log[k, i] = x[i]
-            U_log[k, 0] = u_prev[0]
-            U_log[k, 1] = u_prev[1]
+                logs.X[k, i] = x[i]
+            logs.U[k, 0] = u_prev[0]
+            logs.U[k, 1] = u_prev[1]
             for i in range(CK.NDIAG):
-                D_log[k, i] = diag[i]
-        apply_schedule(pp, sched[k], L, l)
-        rk4(x, ua, pp, dt, nsub)
+                logs.D[k, i] = diag[i]
+        apply_schedule(pp, plant.sched[k], plant.L, plant.l)
+        rk4(x, ua, pp, plant.dt, plant.nsub)
         de1 = pp[IP] * x[0] + pp[IQ] * x[2]
         de2 = pp[IQ] * x[0] + pp[IP] * x[2]
         bad = False
         for i in range(6):
             if not np.isfinite(x[i]):
                 bad = True
-        if bad or min(x[0], x[2], de1, de2) <= gap_min or max(x[0], x[2]) > gap_max:
+        if bad or min(x[0], x[2], de1, de2) <= plant.gap_min or max(x[0], x[2]) > plant.gap_max:
             return k + 1
     return -1
 
 
 @njit(cache=True)
-def _batch_metrics(X, ref, start):
+def _batch_metrics(X: np.ndarray, ref: np.ndarray, start: int) -> np.ndarray:
     """(rms (2,), max (2,), rms after ``start`` (2,)) of e = gaps - y_m over rows of X."""
     n = X.shape[0]
     out = np.zeros(6)
@@ -117,7 +173,7 @@ class SimResult:
     scenario: str
     controller: str
     estimator: str
-    config: dict
+    config: dict[str, dict[str, Any]]
     t: np.ndarray  # (N,) s
     x: np.ndarray  # (N, 6) true state [d1, d1', d2, d2', i1, i2] (m, m/s, A)
     u: np.ndarray  # (N, 2) commanded voltage held over [t_k, t_k+1) (V)
@@ -130,12 +186,12 @@ class SimResult:
     failed: bool
     fail_time: float | None
     wall_time: float
-    extra: dict = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
 
     @property
     def error(self) -> np.ndarray:
         """Tracking error e = true gap - y_m (N, 2) in m."""
-        return self.x[:, [0, 2]] - self.ref[:, :2]
+        return np.asarray(self.x[:, [0, 2]] - self.ref[:, :2])
 
     def metrics(self) -> dict[str, Any]:
         from .metrics import tracking_metrics
@@ -143,30 +199,36 @@ class SimResult:
         return tracking_metrics(self)
 
 
-def _final_estimates(D: np.ndarray) -> dict | None:
+def _final_estimates(D: np.ndarray) -> dict[str, float] | None:
     if D.shape[0] == 0 or not np.all(np.isfinite(D[-1, :3])):
         return None
     return {"m_kg": float(D[-1, 0]), "R_ohm": float(D[-1, 1]), "K": float(D[-1, 2])}
 
 
-def _estimator_args(est, measure_velocity: bool):
+def _estimator_args(est: KalmanEstimator | PassThrough, measure_velocity: bool) -> EstimatorArgs:
     if isinstance(est, KalmanEstimator):
-        return (True,) + est.kernel_args()
+        return EstimatorArgs(True, *est.kernel_args())
     mask = np.array([1.0, float(measure_velocity), 1.0, float(measure_velocity), 1.0, 1.0])
-    return (False, np.zeros(NS), np.eye(NS), mask, np.zeros(NPP), 1e-3, np.zeros(4), np.zeros(6))
+    return EstimatorArgs(False, np.zeros(NS), np.eye(NS), mask, np.zeros(NPP), 1e-3, np.zeros(4), np.zeros(6))
 
 
-def _controller_args(ctrl):
+def _law_args(ctrl: Controller) -> LawArgs:
     if isinstance(ctrl, PIDController):
-        dummy = np.zeros(CK.NTH)
-        return (True, 0, np.zeros(CK.NCP), dummy, dummy.copy(), dummy.copy(), dummy.copy(), np.zeros((CK.NTH, CK.NTH)),
-                np.zeros((3, CK.NZ)), np.zeros((CK.NUH, 2)), np.eye(3), np.zeros(3), ctrl.cp, ctrl.integ)
+        dummy = CK.CEState(*(np.zeros(a.shape) for a in _ce_shapes()))
+        return LawArgs(True, CK.CELaw(0, np.zeros(CK.NCP), np.eye(3), np.zeros(3)), dummy, ctrl.cp, ctrl.integ)
     assert isinstance(ctrl, CEController)
-    mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd = ctrl.kernel_args()
-    return (False, mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, np.zeros(CK.NPID), np.zeros(2))
+    return LawArgs(False, ctrl.law, ctrl.state, np.zeros(CK.NPID), np.zeros(2))
 
 
-def prepare(cfg: Mapping, duration: float, seed: int | None = None):
+def _ce_shapes() -> tuple[np.ndarray, ...]:
+    """Zero arrays of the shapes of a :class:`~.controllers.kernels.CEState`."""
+    nth = CK.NTH
+    return (np.zeros(nth), np.zeros(nth), np.zeros(nth), np.zeros(nth), np.zeros((nth, nth)), np.zeros((3, CK.NZ)),
+            np.zeros((CK.NUH, 2)), np.zeros(2), np.zeros((5, 2)))
+
+
+def prepare(cfg: Mapping[str, Mapping[str, Any]], duration: float, seed: int | None = None
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(t, r, ref, mass, noise, pert) of a run of ``duration`` s (see :func:`.scenarios.disturbances`)."""
     pc = cfg["plant_sim"]
     dt = pc["dt"]
@@ -192,7 +254,7 @@ class Preroll:
     gaps: np.ndarray
 
 
-def preroll(pc: Mapping, est, x0: np.ndarray, u0: np.ndarray, sg: np.ndarray, sb: np.ndarray,
+def preroll(pc: Mapping[str, Any], est: KalmanEstimator | PassThrough, x0: np.ndarray, u0: np.ndarray, sg: np.ndarray, sb: np.ndarray,
             window: float, seed: int | None = None) -> Preroll:
     """The graph's pre-roll, offline: the plate rests at x0 under u0 for ``preroll`` s before t = 0.
 
@@ -243,9 +305,10 @@ def simulate(
         raise ConfigError(f"duration: got {duration!r}, expected a positive number of seconds")
     wall0 = time.perf_counter()
     if delay is not None:
-        cfg = {g: dict(v) for g, v in cfg.items()}
-        cfg["plant_sim"]["command_delay"] = int(delay)
-        cfg["controller"]["command_delay"] = int(delay)
+        copy = {g: dict(v) for g, v in cfg.items()}
+        copy["plant_sim"]["command_delay"] = int(delay)
+        copy["controller"]["command_delay"] = int(delay)
+        cfg = copy
     pc = cfg["plant_sim"]
     delay = pc["command_delay"]
     dt = pc["dt"]
@@ -264,11 +327,9 @@ def simulate(
     X = np.zeros((n, 6))
     U = np.zeros((n, 2))
     D = np.full((n, CK.NDIAG), np.nan)
-    k_fail = _closed_loop(
-        *_controller_args(ctrl), *_estimator_args(est, pc["measure_velocity"]),
-        x, pp, pc["L"], pc["l"], dist.schedule, sg, sb, dist.noise, dist.pert, ref, dt, pc["substeps"],
-        pc["gap_min"], pc["gap_max"], int(delay), u0.copy(), X, U, D, True,
-    )
+    plant = PlantArgs(x, pp, pc["L"], pc["l"], dist.schedule, sg, sb, dist.noise, dist.pert, dt, pc["substeps"],
+                      pc["gap_min"], pc["gap_max"], pc["u_max"], int(delay), u0.copy())
+    k_fail = _closed_loop(_law_args(ctrl), _estimator_args(est, pc["measure_velocity"]), plant, ref, Logs(X, U, D, True))
     mass = dist.schedule[:, SM]
     pert = dist.pert
     failed = k_fail >= 0
@@ -284,35 +345,39 @@ def simulate(
 
 
 @njit(cache=True, parallel=True)
-def _batch(
-    is_pid, mode, cp, theta, v, scale, v0, Pc, Z, uh, Ad, Bd, pid_cp, integ,
-    x0, pp, L, l, scheds, ref, dt, nsub, gap_min, gap_max, u0, start, delay, out,
-):
+def _batch(law: LawArgs, states: CK.CEState, integ: np.ndarray, plant: PlantArgs, scheds: np.ndarray, ref: np.ndarray, start: int,
+           out: np.ndarray) -> None:
+    """Run plant b with schedule ``scheds[b]`` and law state ``states`` row b, for every b in parallel.
+
+    ``law`` :class:`LawArgs` (its states unused), ``states`` stacked CEState, ``integ`` (B, 2) PID integrators,
+    ``plant`` :class:`PlantArgs` (its x, p, sched are copied per run). ``out`` (B, 7): see :func:`simulate_batch`.
+    The records are taken apart before the parallel loop and rebuilt inside it (numba's parallel
+    region takes arrays and scalars, not records of arrays).
+    """
     B = scheds.shape[0]
     n = ref.shape[0]
-    noise = np.zeros((n, 6))
-    pert = np.zeros((n, 2))
-    mask = np.ones(6)
-    sg = np.ones(6)
-    sb = np.zeros(6)
+    is_pid, mode, cp, Ad, Bd, pid_cp = law.is_pid, law.ce.mode, law.ce.cp, law.ce.Ad, law.ce.Bd, law.pid_cp
+    th, v, sc, v0, P, Z, uh, ie, coil = (states.theta, states.v, states.scale, states.v0, states.P, states.Z,
+                                         states.uh, states.ie, states.coil)
+    x0, p0, L, l, sg, sb, noise, pert = plant.x, plant.p, plant.L, plant.l, plant.sg, plant.sb, plant.noise, plant.pert
+    dt, nsub, gap_min, gap_max, u_max, delay, u0 = (plant.dt, plant.nsub, plant.gap_min, plant.gap_max, plant.u_max,
+                                                    plant.delay, plant.u0)
     for b in prange(B):
         X = np.zeros((n, 6))
         U = np.zeros((n, 2))
         D = np.zeros((n, CK.NDIAG))
-        x = x0.copy()
-        ppb = pp.copy()
-        kf = _closed_loop(
-            is_pid, mode, cp.copy(), theta[b], v[b], scale[b], v0[b], Pc[b], Z[b], uh[b], Ad, Bd, pid_cp, integ[b],
-            False, np.zeros(NS), np.eye(NS), mask, pp, dt, np.zeros(4), np.zeros(6),
-            x, ppb, L, l, scheds[b], sg, sb, noise, pert, ref, dt, nsub, gap_min, gap_max, delay, u0,
-            X, U, D, True,
-        )
+        st = CK.CEState(th[b], v[b], sc[b], v0[b], P[b], Z[b], uh[b], ie[b], coil[b])
+        lb = LawArgs(is_pid, CK.CELaw(mode, cp.copy(), Ad, Bd), st, pid_cp, integ[b])
+        est = EstimatorArgs(False, np.zeros(NS), np.eye(NS), np.ones(6), p0, dt, np.zeros(4), np.zeros(6))
+        pb = PlantArgs(x0.copy(), p0.copy(), L, l, scheds[b], sg, sb, noise, pert, dt, nsub, gap_min, gap_max, u_max,
+                       delay, u0)
+        kf = _closed_loop(lb, est, pb, ref, Logs(X, U, D, True))
         m = n if kf < 0 else kf
         out[b, 6] = kf
         out[b, :6] = _batch_metrics(X[:m], ref[:m], start)
 
 
-def simulate_batch(cfg: Mapping, mass_offsets: np.ndarray, *, controller: str | None = None, duration: float = 100.0) -> np.ndarray:
+def simulate_batch(cfg: Mapping[str, Mapping[str, Any]], mass_offsets: np.ndarray, *, controller: str | None = None, duration: float = 100.0) -> np.ndarray:
     """Run ``len(mass_offsets)`` plants (added mass, kg) in parallel (no noise, no estimator).
 
     Returns (B, 7): rms e1, rms e2, max e1, max e2, rms e1 after 40 s, rms e2 after 40 s (m),
@@ -330,11 +395,12 @@ def simulate_batch(cfg: Mapping, mass_offsets: np.ndarray, *, controller: str | 
     ctrl.reset(pre.window_z, pre.window_u)
     _, ref = reference_trajectory({**cfg["reference"], "dt": pc["dt"]}, n, hover_start(pre.gaps))
 
-    args = list(_controller_args(ctrl))
+    law = _law_args(ctrl)
     B = len(mass_offsets)
-    for i in (3, 4, 5, 6, 7, 8, 9, 13):  # per-run state arrays
-        args[i] = np.ascontiguousarray(np.repeat(args[i][None], B, axis=0))
+    states = CK.CEState(*(np.ascontiguousarray(np.repeat(a[None], B, axis=0)) for a in law.ce_state))
+    integ = np.ascontiguousarray(np.repeat(law.pid_integ[None], B, axis=0))
+    plant = PlantArgs(x0, plant_vector(pc), pc["L"], pc["l"], scheds[0], sg, sb, np.zeros((n, 6)), np.zeros((n, 2)),
+                      pc["dt"], pc["substeps"], pc["gap_min"], pc["gap_max"], pc["u_max"], int(pc["command_delay"]), u0)
     out = np.zeros((B, 7))
-    _batch(*args, x0, plant_vector(pc), pc["L"], pc["l"], scheds, ref, pc["dt"], pc["substeps"],
-           pc["gap_min"], pc["gap_max"], u0, round(40.0 / pc["dt"]), int(pc["command_delay"]), out)
+    _batch(law, states, integ, plant, scheds, ref, round(40.0 / pc["dt"]), out)
     return out

@@ -5,22 +5,35 @@ On each ``/dem/measurement`` it takes the voltage applied over the last sample
 order, so a measurement whose voltage is not there yet waits for it, at most
 until the next measurement), runs one predict/update and
 publishes ``/dem/state_estimate`` with the measurement's stamp. Gap rates are
-used when the sensors deliver them (a non-empty ``velocity``). Non-finite
-sensor values are skipped by the update (counted); type ``none`` passes the
-measurement through.
+used when the first measurement delivers them (a non-empty ``velocity``; a later
+one without them updates without rates). Type ``none`` passes the measurement through.
+
+Plausibility (the math is :mod:`dem_ros.core.estimator`'s): each gap is gated by the sensor's
+range and by a chi^2 test on its innovation; a rejected sample holds the prediction, is counted
+and reported (WARN); ``fault_samples`` rejections in a row, or an acceleration bias beyond
+``bias_max`` that long, declare a sensor fault (latched ERROR on ``/diagnostics``, status
+``estimator``; estimates go on from the other sensor, the currents and the model). A
+measurement with fewer than two gaps or currents is dropped and counted.
+
+Convergence: after a (re)start the node publishes no estimate until the filter has converged
+(``converge_samples`` samples in a row passing every gate, :attr:`KalmanEstimator.converged`);
+a start on a pre-roll sample (frame ``dem/preroll``) publishes at once: before t = 0 the plate
+hovers in equilibrium, where the filter's start (rates 0, no bias) is right. Parameter changes
+retune the running filter (no restart); ``type`` cannot change during a run.
 """
 
 from __future__ import annotations
 
+import math
 import sys
 
 import numpy as np
 
 from .. import contract
-from ..core.estimator import make_estimator
+from ..core.estimator import Estimator, KalmanEstimator, make_estimator
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import JointStates, all_finite, meas_into, stamp_ns
+from .common import WARN, Diagnostics, JointStates, all_finite, meas_into, stamp_ns
 
 __all__ = ["EstimatorNode", "main"]
 
@@ -31,7 +44,7 @@ class EstimatorNode:
     def __init__(self, node: Node):
         self.node = node
         self.cfg = node.declare_parameters("estimator", self.on_change)
-        self.est = None
+        self.est: Estimator | None = None
         self.has_v: bool | None = None
         self.u_prev: np.ndarray | None = None  # the newest applied voltage (a row of ``u_ring``)
         # applied voltages by stamp, the newest KEEP: stamp -> row of u_ring (V), filled in place
@@ -41,8 +54,13 @@ class EstimatorNode:
         self.z = np.zeros(6)  # the measurement being processed [d1, d1', d2, d2', i1, i2]
         self.u_zero = np.zeros(2)
         self.pending = None  # a measurement waiting for its applied voltage
-        self.bad = 0
-        self.unpaired = 0  # measurements processed without the voltage of their stamp
+        self.publishing = False  # the filter has converged since its (re)start (or started in the pre-roll)
+        # /diagnostics "estimator", once a second: WARN after rejected or dropped samples, ERROR on a sensor fault
+        gates = [f"gap{j}_{why}" for j in (1, 2) for why in ("out_of_range", "innovation")]
+        self.diag = Diagnostics(node, "estimator", values=self._values,
+                                warn_on=(*gates, "malformed", "non_finite", "unpaired", "updates_skipped", "reinitialised"))
+        self.counts = self.diag.counters
+        self.counts.update(measurements=0, published=0, withheld=0, malformed=0, non_finite=0, unpaired=0, restarts=0)
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
@@ -52,9 +70,20 @@ class EstimatorNode:
         node.logger.info("ready")
 
     def on_change(self, values) -> str | None:
+        if values["type"] != self.cfg["type"]:
+            return "the estimator type cannot change during a run (a new filter would have to re-converge)"
         self.cfg = dict(values)
-        self.est = None  # rebuilt (and restarted) at the next measurement
+        if isinstance(self.est, KalmanEstimator):
+            self.est.configure(values)  # the running filter takes the new settings; state and covariance stay
         return None
+
+    def _values(self) -> dict:
+        est = self.est
+        out: dict = {"type": self.cfg["type"], "converged": self.publishing}
+        if isinstance(est, KalmanEstimator):
+            out.update(est.counters())
+            out["faults"] = "; ".join(est.faults)
+        return out
 
     def on_applied(self, msg) -> None:
         if len(msg.effort) >= 2:
@@ -74,10 +103,16 @@ class EstimatorNode:
                 self._step(pending)
 
     def on_measurement(self, msg) -> None:
+        if len(msg.position) < 2 or len(msg.effort) < 2:
+            n = self.diag.count("malformed")
+            if n in (1, 10, 100, 1000):
+                self.node.logger.warn(f"measurement with {len(msg.position)} gaps and {len(msg.effort)} currents"
+                                      f" dropped, expected 2 each ({n} so far)")
+            return
         if self.pending is not None:  # its voltage never came: go on with the latest one
-            self.unpaired += 1
-            if self.unpaired in (1, 10, 100, 1000):
-                self.node.logger.warn(f"measurement without the applied voltage of its stamp ({self.unpaired} so far)")
+            n = self.diag.count("unpaired")
+            if n in (1, 10, 100, 1000):
+                self.node.logger.warn(f"measurement without the applied voltage of its stamp ({n} so far)")
             pending, self.pending = self.pending, None
             self._step(pending)
         if self.u_prev is not None and stamp_ns(msg) not in self.volts:
@@ -88,18 +123,47 @@ class EstimatorNode:
     def _step(self, msg) -> None:
         z = self.z
         has_v = meas_into(msg, z)
+        counts = self.counts
+        counts["measurements"] += 1
         if not all_finite(z):
-            self.bad += 1
-            if self.bad in (1, 10, 100, 1000):
-                self.node.logger.warn(f"non-finite measurement ({self.bad} so far): skipped by the filter")
-        if self.est is None or has_v != self.has_v:
+            n = self.diag.count("non_finite")
+            if n in (1, 10, 100, 1000):
+                self.node.logger.warn(f"non-finite measurement ({n} so far): skipped by the filter")
+        if self.est is None:  # (re)start: rates are used when the first measurement has them
             self.est = make_estimator(self.cfg, None, has_v)
             self.has_v = has_v
+            self.publishing = not isinstance(self.est, KalmanEstimator)
+            counts["restarts"] += 1
+        elif self.has_v and not has_v:
+            z[1] = z[3] = math.nan  # this sample has no rates: the update goes on without them
         t = stamp_ns(msg)
         u = self.volts.get(t, self.u_prev)
-        x = self.est.step(z, u if u is not None else self.u_zero).tolist()
+        est = self.est
+        started = isinstance(est, KalmanEstimator) and est.started
+        x = est.step(z, u if u is not None else self.u_zero).tolist()
+        if isinstance(est, KalmanEstimator):
+            if not started and est.started and msg.header.frame_id == contract.FRAME_PREROLL:
+                self.publishing = True  # started in the pre-roll: the plate hovers in equilibrium, as the filter starts
+            self._check(est)
+        if not self.publishing:
+            counts["withheld"] += 1
+            return
+        counts["published"] += 1
         J = self.js
         self.pub.publish(J.make(J.header(t), self.names, [x[0], x[2]], [x[1], x[3]], [x[4], x[5]]))
+
+    def _check(self, est: KalmanEstimator) -> None:
+        """Convergence (publish from then on) and sensor faults (latched ERROR), reported once each."""
+        if not self.publishing:
+            if est.converged:
+                self.publishing = True
+                self.diag.set_condition(0)
+                self.node.logger.info(f"converged after {self.counts['withheld']} samples: publishing estimates")
+            else:
+                self.diag.set_condition(WARN, "converging: no estimate published yet")
+        faults = est.faults
+        if faults and self.diag.faulted is None:
+            self.diag.fault("; ".join(faults))
 
 
 def main(args=None) -> int:

@@ -41,7 +41,7 @@ from ..hardware.driver import DriverState, HwDriver, Sample
 from ..hardware.link import HELLO_REQUEST, Mode, encode
 from ..realtime import config_from_env
 from ..transport import Node, TransportError, run_node
-from .common import OK, WARN, Diagnostics, LatencyStats, diag_array, joint_state, stamp_ns
+from .common import OK, WARN, CommandSource, Diagnostics, LatencyStats, diag_array, joint_state, stamp_ns
 
 __all__ = ["HwDriverNode", "main"]
 
@@ -73,7 +73,9 @@ class HwDriverNode:
         # grew, a latched ERROR while the driver is in FAULT (published at once)
         self.diag = Diagnostics(node, contract.HW_LOOP_STATUS, warn_on=WARN_ON, values=self.stats, timer=False)
         self.pub_state = node.publisher(contract.HW_STATE)
-        node.subscribe(contract.COMMAND, self.on_command)
+        # the command source lock: /dem/command only from command_source's writers (nodes/common.CommandSource)
+        self.source = CommandSource(node, c["command_source"])
+        node.subscribe_with_source(contract.COMMAND, self.on_command)
         node.subscribe(contract.HW_REQUEST, self.on_request)
         node.subscribe(contract.HW_ESTOP, self.on_estop)
         for verb in ("arm", "disarm", "estop", "status"):  # ~/arm ... (std_srvs/Trigger), as the request topic
@@ -215,8 +217,8 @@ class HwDriverNode:
         self.pub_applied.publish(joint_state(JS, s.stamp_ns, effort=s.applied, frame=frame))
         self.pub_meas.publish(joint_state(JS, s.stamp_ns, position=s.gap, effort=s.current, frame=frame))
 
-    def on_command(self, msg) -> None:
-        if len(msg.effort) < 2:
+    def on_command(self, msg, gid: bytes) -> None:
+        if not self.source.accepts(gid) or len(msg.effort) < 2:
             return
         t = stamp_ns(msg)
         with self.lock:
@@ -271,7 +273,7 @@ class HwDriverNode:
         if self.drv.state == DriverState.FAULT:
             return 2
         c = self.drv.counters
-        return 1 if (c["lost"] or c["corrupt"] or c["hold_samples"]) else 0
+        return 1 if (c["lost"] or c["corrupt"] or c["hold_samples"] or self.source.foreign) else 0
 
     def stats(self) -> dict:
         with self.lock:
@@ -285,7 +287,8 @@ class HwDriverNode:
                 **epoch, "realtime_factor": 1.0, "lockstep": False,
                 "cpu_s": round(cpu, 3), "wall_s": round(wall, 3),
                 "latency_p50_us": round(lat["p50"], 1), "latency_p99_us": round(lat["p99"], 1),
-                "latency_max_us": round(lat["max"], 1), "failed": bool(self.failed), "fault": self.failed, **st}
+                "latency_max_us": round(lat["max"], 1), "failed": bool(self.failed), "fault": self.failed, **st,
+                **self.source.values()}
 
     def status(self) -> None:
         s = self.stats()

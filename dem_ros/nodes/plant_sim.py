@@ -32,6 +32,15 @@ Before t = 0 the plant levitates in closed loop for ``preroll`` seconds
 (the simulated plate starts in exact equilibrium, so that costs nothing); from
 then on a missing command is held at most ``hold_timeout``: a graph that cannot
 keep up lands the plate.
+Command source lock (:class:`~dem_ros.nodes.common.CommandSource`): ``/dem/command`` is taken only
+from the writers that the ROS graph attributes to the node ``command_source`` (default
+``controller``; read-only), by each sample's writer GID. A command from any other writer is
+dropped, counted (``commands_foreign``), logged once per writer and reported (WARN) on
+``/diagnostics``. The run does not start (either timing mode) before that node's ``/dem/command``
+writer is on the graph: until then the plant waits, reporting WARN "waiting for ...". What the
+lock protects against and what it does not (no DDS-Security: any process can forge a GID): see
+that class.
+
 Latency = receive time of a command - publish time of the measurement it
 answers. A hardware driver replaces this node by honouring the same topics.
 """
@@ -50,7 +59,7 @@ from ..core.plant import DemPlant
 from ..core.safety import SAFETY_KEYS, Mode, Supervisor
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import JointStates, LatencyStats, all_finite, diag_array, stamp_ns
+from .common import ERROR, OK, WARN, CommandSource, Diagnostics, JointStates, LatencyStats, all_finite, stamp_ns
 
 __all__ = ["PlantSimNode", "main"]
 
@@ -66,10 +75,10 @@ class PlantSimNode:
         self.node = node
         self.cfg = node.declare_parameters("plant_sim", self.on_change)
         c = self.cfg
-        self.dt_ns = int(round(c["dt"] * 1e9))
+        self.dt_ns = round(c["dt"] * 1e9)
         self.early_ns = self.dt_ns // 2  # a tick this much before ``due`` publishes the sample
         self.plant = DemPlant(c, c["duration"])
-        self.n_end = int(round(c["duration"] / c["dt"])) if c["duration"] > 0 else 0
+        self.n_end = round(c["duration"] / c["dt"]) if c["duration"] > 0 else 0
         warm_up()  # kernels resident before we subscribe (no slow first samples)
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
@@ -77,10 +86,11 @@ class PlantSimNode:
         self.pub_meas = node.publisher(contract.MEASUREMENT)
         self.pub_truth = node.publisher(contract.TRUTH)
         self.pub_applied = node.publisher(contract.APPLIED)
-        self.pub_diag = node.publisher(contract.DIAGNOSTICS)
-        self.D = (node.msg("diagnostic_msgs/msg/DiagnosticArray"), node.msg("diagnostic_msgs/msg/DiagnosticStatus"),
-                  node.msg("diagnostic_msgs/msg/KeyValue"))
-        node.subscribe(contract.COMMAND, self.on_command)
+        # /diagnostics "plant_sim: loop": published by status() once a second and at once on board events
+        self.diag = Diagnostics(node, contract.LOOP_STATUS, warn_on=("commands_foreign",), values=self.stats,
+                                timer=False)
+        self.source = CommandSource(node, c["command_source"])
+        node.subscribe_with_source(contract.COMMAND, self.on_command)
         self.cmd_stamp = np.full(RING, -1, dtype=np.int64)  # stamp of the command held in each slot
         self.cmd_u = np.zeros((RING, 2))
         self.pub_wall = np.zeros(RING, dtype=np.int64)  # when each sample was published (wall clock, ns)
@@ -96,7 +106,7 @@ class PlantSimNode:
         self.k_next = 0
         self.epoch = 0  # stamp of sample 0 (t = 0 of the experiment), plant clock
         self.due = 0  # wall time (monotonic ns) at which sample k_next is due
-        self.wait_since = None  # lockstep: wall time we started waiting for the current sample
+        self.wait_since: int | None = None  # lockstep: wall time we started waiting for the current sample
         self.wall0 = 0
         self.cpu0: float | None = None  # process CPU time at t = 0
         self.t_boot = time.monotonic()
@@ -117,15 +127,15 @@ class PlantSimNode:
         self.plant.pc.update(values)  # disturbances and noise act from the next sample
         return None
 
-    def on_command(self, msg) -> None:
-        if not self.started or len(msg.effort) < 2:
+    def on_command(self, msg, gid: bytes) -> None:
+        if not self.source.accepts(gid) or not self.started or len(msg.effort) < 2:
             return
         u = msg.effort[:2]
         if not all_finite(u):
             self.node.logger.warn("non-finite command ignored")
             return
         t = stamp_ns(msg)
-        k = int(round((t - self.epoch) / self.dt_ns))
+        k = round((t - self.epoch) / self.dt_ns)
         slot = k % RING
         self.cmd_stamp[slot] = t
         self.cmd_u[slot] = u
@@ -138,6 +148,10 @@ class PlantSimNode:
         waited = time.monotonic() - self.t_boot
         if waited < c["start_delay"]:
             return False
+        if not self.source.matched:
+            self.diag.set_condition(WARN, f"waiting for {self.source.source!r}'s /dem/command writer")
+            return False  # never start without the controller: its first command would come too late
+        self.diag.set_condition(OK)
         count = self.pub_meas.subscription_count
         return not (count < c["min_subscribers"] and waited < c["start_delay"] + 30.0)
 
@@ -150,7 +164,7 @@ class PlantSimNode:
             if not self._ready():
                 return
             self.started = True
-            self.n_pre = int(round(self.cfg["preroll"] / self.cfg["dt"]))
+            self.n_pre = round(self.cfg["preroll"] / self.cfg["dt"])
             self.k_next = -self.n_pre
             self.epoch = self.node.now_ns() + self.n_pre * self.dt_ns
             self.due = now
@@ -249,7 +263,7 @@ class PlantSimNode:
             x = self.plant.x
             (log.error if b.fault else log.warn)(f"{when}: safe landing from gaps {x[0] * 1e3:.3f} / {x[2] * 1e3:.3f} mm to"
                       f" {self.cfg['landing_gap'] * 1e3:g} mm at <= {self.cfg['landing_speed'] * 1e3:g} mm/s: {b.reason}")
-            self.publish_diag(2 if b.fault else 1, f"landing: {b.reason}")
+            self.diag.publish(ERROR if b.fault else WARN, f"landing: {b.reason}")
         elif b.mode == Mode.LANDED:
             self.finish(f"landed safely at {when}"
                         f" (gaps {self.plant.x[0] * 1e3:.3f} / {self.plant.x[2] * 1e3:.3f} mm): {b.reason}",
@@ -280,7 +294,7 @@ class PlantSimNode:
         cpu = time.process_time() - self.cpu0 if self.cpu0 is not None else 0.0
         return {
             "cycles": k, "t_sim_s": round(k * self.cfg["dt"], 3), "deadline_misses": self.misses,
-            "preroll_misses": self.preroll_misses, **self.board_stats(),
+            "preroll_misses": self.preroll_misses, **self.board_stats(), **self.source.values(),
             "lockstep": self.cfg["lockstep"], "realtime_factor": round(k * self.cfg["dt"] / wall, 3) if k else 0.0,
             "epoch_ns": self.epoch, "cpu_s": round(cpu, 3), "wall_s": round(wall if k else 0.0, 3),
             "latency_p50_us": round(lat["p50"], 1), "latency_p99_us": round(lat["p99"], 1), "latency_max_us": round(lat["max"], 1),
@@ -300,12 +314,11 @@ class PlantSimNode:
             "board_fault": b.fault, "lockstep_timeouts": self.lockstep_landing,
         }
 
-    def publish_diag(self, level: int, message: str, stats: dict | None = None) -> None:
-        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), contract.LOOP_STATUS, level, message,
-                                         stats if stats is not None else self.stats()))
-
     def status(self) -> None:
-        if not self.started or self.finished:
+        if self.finished:
+            return
+        if not self.started:
+            self.diag.publish()  # waiting for the command source (or discovery)
             return
         s = self.stats()
         x = self.plant.x
@@ -315,14 +328,14 @@ class PlantSimNode:
         print(f"t = {s['t_sim_s']:7.1f} s  gaps {x[0] * 1e3:6.3f} / {x[2] * 1e3:6.3f} mm  {late} {s['deadline_misses']}"
               f"  holds {s['holds']}  board {s['board_mode']}{lat}  x{s['realtime_factor']:.2f} real time",
               flush=True)
-        level = 0 if s["deadline_misses"] == 0 and s["holds"] == 0 else 1
-        self.publish_diag(2 if s["landing"] else level, "landing" if s["landing"] else "running", s)
+        level = ERROR if s["landing"] else OK if s["deadline_misses"] == 0 and s["holds"] == 0 else WARN
+        self.diag.publish(level, "landing" if s["landing"] else "running", s)
 
     def finish(self, message: str, level: int) -> None:
         self.finished = True
         log = self.node.logger
         (log.error if level >= 2 else log.warn if level == 1 else log.info)(message)
-        self.publish_diag(level, "finished: " + message)
+        self.diag.publish(level, "finished: " + message)
         # give the last samples time to reach subscribers, then stop the node
         self.node.timer(0.3, self.node.shutdown)
 

@@ -13,6 +13,7 @@
     dem-ros hw        arm | disarm | estop | status of the running hardware driver
     dem-ros config    print the parameter schema or the default params file
     dem-ros study     robustness over plant truth x controllers, on Dask distributed
+    dem-ros faults    the fault catalogue (#12) injected into the real graph: outcome per fault
 
 Bad input ends with a one-line error and exit status 2, never a traceback.
 """
@@ -29,7 +30,7 @@ from .. import __version__
 from ..core.params import SCHEMA, ConfigError
 from ..nodes import NODES
 from ..transport import param_get, param_set
-from . import bench, launcher, node_main, replay, study
+from . import bench, faults, launcher, node_main, replay, study
 from .common import (
     CONTROLLER_TYPES,
     ESTIMATOR_TYPES,
@@ -49,7 +50,7 @@ from .runmetrics import RunMetrics
 __all__ = ["build_parser", "main"]
 
 #: commands that join a DDS domain (and so read ROS_DOMAIN_ID)
-_DDS_COMMANDS = ("launch", "node", "param", "hw", "bench", "replay")
+_DDS_COMMANDS = ("launch", "node", "param", "hw", "bench", "replay", "faults")
 _TRANSPORTS = ("auto", "rclpy", "dds")
 
 
@@ -118,11 +119,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def cmd_config(args: argparse.Namespace) -> int:
     if args.what == "schema":
         for g, specs in SCHEMA.groups.items():
+            if args.group and g != args.group:
+                continue
             print(f"[{g}]")
             for p in specs:
                 ro = " (read-only)" if p.read_only else ""
                 print(f"  {p.name:<24} {p.type.__name__:<5} default {p.default!r:<12} {p.allowed()}{ro}  -- {p.description}")
         return 0
+    if args.group:
+        raise UsageError("config params takes no GROUP (it writes every group's defaults)")
     from .params_file import render_params_file
 
     sys.stdout.write(render_params_file())
@@ -198,12 +203,19 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="dem-ros", description="DEM maglev adaptive control: simulation, ROS 2 graph, recording and analysis.")
+    p = _Parser(prog="dem-ros", description="DEM maglev adaptive control: simulation, ROS 2 graph, recording and analysis.",
+                epilog="first steps: 'dem-ros launch --duration 30' (the node graph, recorded to bags/), 'dem-ros replay BAG "
+                       "--plot figs/' (its figures), 'dem-ros sim --scenario S2 --plot figs/' (offline); 'dem-ros COMMAND "
+                       "--help' for each command; the manual is docs/manual/README.md. A mistake ends with one line and "
+                       "exit status 2.")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("sim", help="offline closed-loop simulation of one scenario")
-    s.add_argument("--scenario", default="S1", help="scenario name from config/scenarios.yaml (default S1)")
+    from ..core.scenarios import load_scenarios
+
+    s.add_argument("--scenario", default="S1", help=f"scenario from config/scenarios.yaml: {', '.join(load_scenarios())}"
+                   " (default S1; docs/manual/scenarios.md)")
     s.add_argument("--controller", default=None, choices=CONTROLLER_TYPES, help="control law (default: config, 'adaptive')")
     s.add_argument("--estimator", default=None, choices=ESTIMATOR_TYPES, help="state estimator (default: config, 'kf')")
     s.add_argument("--duration", type=seconds, default=None, help="seconds (default: the scenario's, 100)")
@@ -224,12 +236,14 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=cmd_report)
 
     b = sub.add_parser("bench", help="benchmarks: sim | loop | record")
-    b.add_argument("what", choices=["sim", "loop", "record"])
+    b.add_argument("what", choices=["sim", "loop", "record"],
+                   help="sim: offline simulator speed; loop: the 1 kHz node graph's timing; record: the bag writer's throughput")
     b.add_argument("--json", type=out_file, default=None, help="write the figures as JSON")
     b.add_argument("--batch", type=_positive_int, default=64, help="bench sim: plants in the batch (default 64)")
     b.add_argument("--peer-duration", type=seconds, default=5.0, help="bench sim: seconds simulated by the peer (default 5)")
     b.add_argument("--duration", type=seconds, default=None, help="bench loop/record: seconds (default 60 / 10)")
-    b.add_argument("--transport", default="dds", choices=["auto", "rclpy", "dds"])
+    b.add_argument("--transport", default="dds", choices=["auto", "rclpy", "dds"],
+                   help="bench loop: node transport (default dds; auto: rclpy when it imports)")
     b.add_argument("--compose", action="store_true", help="bench loop: all nodes in one process (see dem-ros launch --compose)")
     b.add_argument("--free-run", action="store_true", help="bench loop: the plant does not wait for late commands (plant_sim.lockstep=false)")
     b.add_argument("--load", type=int, default=0, metavar="N", help="bench loop: N busy processes beside the graph (default 0)")
@@ -238,7 +252,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.set_defaults(func=cmd_bench)
 
     c = sub.add_parser("config", help="print the parameter schema or a params file of the defaults")
-    c.add_argument("what", choices=["schema", "params"])
+    c.add_argument("what", choices=["schema", "params"],
+                   help="schema: every parameter with type, default, range, unit and meaning; params: a ROS 2 params "
+                        "file of the defaults (config/dem_ros.yaml)")
+    c.add_argument("group", nargs="?", choices=list(SCHEMA.groups), metavar="GROUP",
+                   help=f"schema: only this group ({', '.join(SCHEMA.groups)})")
     c.set_defaults(func=cmd_config)
 
     lg = sub.add_parser("launch", help="run the node graph (each node its own process), record a bag, print a summary")
@@ -247,7 +265,8 @@ def build_parser() -> argparse.ArgumentParser:
     lg.add_argument("--controller", default=None, choices=CONTROLLER_TYPES, help="control law (default: config, 'adaptive')")
     lg.add_argument("--estimator", default=None, choices=ESTIMATOR_TYPES, help="state estimator (default: config, 'kf')")
     lg.add_argument("--duration", type=seconds, default=None, help="seconds (default: the scenario's)")
-    lg.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"])
+    lg.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"],
+                    help="auto (rclpy when it imports, else dds) | rclpy | dds (no ROS install needed)")
     lg.add_argument("--compose", action="store_true",
                     help="all nodes in one process on one executor, topics between them in memory (dds); "
                          "the real-time configuration")
@@ -276,19 +295,19 @@ def build_parser() -> argparse.ArgumentParser:
     hw = sub.add_parser("hw", help="the hardware driver: arm | disarm (a controlled landing) | estop | status")
     hw.add_argument("action", choices=["arm", "disarm", "estop", "status"])
     hw.add_argument("reason", nargs="?", default="", help="estop: why (recorded with the fault)")
-    hw.add_argument("--domain-id", type=domain_id, default=None)
+    hw.add_argument("--domain-id", type=domain_id, default=None, help="ROS_DOMAIN_ID of the driver (default: the environment's)")
     hw.add_argument("--timeout", type=float, default=5.0, help="seconds to find the driver and get its answer (default 5)")
     hw.set_defaults(func=cmd_hw)
 
     nd = sub.add_parser("node", help="run one node of the graph")
-    nd.add_argument("name", choices=NODES)
+    nd.add_argument("name", choices=NODES, help="the node; container: several in one process (--nodes a,b,...)")
     nd.add_argument("--transport", default="auto", choices=_TRANSPORTS,
                     help="auto (rclpy when it imports) | rclpy | dds; before or after NAME")
     nd.add_argument("ros_args", nargs=argparse.REMAINDER, help="node options, then --ros-args ... (params file, remaps)")
     nd.set_defaults(func=cmd_node)
 
     rp = sub.add_parser("replay", help="metrics, figures and what-if re-runs from a recorded bag")
-    rp.add_argument("bag")
+    rp.add_argument("bag", help="a bag directory (dem-ros launch, dem-ros sim --record) or its .mcap file")
     rp.add_argument("--json", type=out_file, default=None, help="write the metrics as JSON")
     rp.add_argument("--plot", type=out_dir, default=None, metavar="DIR", help="write figures (PNG) to DIR")
     rp.add_argument("--controller", default=None, choices=CONTROLLER_TYPES, help="what-if: re-run this controller on the recorded measurements")
@@ -296,19 +315,23 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--publish", action="store_true", help="play the bag back onto the graph at its recorded rate")
     rp.set_defaults(func=replay.cmd_replay)
 
+    ft = sub.add_parser("faults", help="inject the fault catalogue into the real graph; a table of outcomes")
+    faults.add_arguments(ft)
+    ft.set_defaults(func=faults.cmd_faults)
+
     bg = sub.add_parser("bag", help="inspect bags")
     bg.add_argument("action", choices=["check", "info"],
                     help="info: what the bag holds (topics, types, counts, the run); check: its integrity "
                          "(summary, chunks, sample gaps, rates, problems; exit 1 if any)")
-    bg.add_argument("bag")
+    bg.add_argument("bag", help="a bag directory or its .mcap file")
     bg.set_defaults(func=replay.cmd_bag)
 
     pm = sub.add_parser("param", help="get or set a parameter of a running node (DDS parameter services)")
     pm.add_argument("action", choices=["get", "set"])
-    pm.add_argument("node")
-    pm.add_argument("name")
-    pm.add_argument("value", nargs="?")
-    pm.add_argument("--domain-id", type=domain_id, default=None)
+    pm.add_argument("node", help="node name, e.g. controller or /controller")
+    pm.add_argument("name", help="parameter name, e.g. k1 (dem-ros config schema lists them)")
+    pm.add_argument("value", nargs="?", help="set: the new value, e.g. 60 (validated before the node is asked)")
+    pm.add_argument("--domain-id", type=domain_id, default=None, help="ROS_DOMAIN_ID of the node (default: the environment's)")
     pm.add_argument("--timeout", type=float, default=5.0, help="seconds to find the node and get its reply (default 5)")
     pm.set_defaults(func=cmd_param)
 

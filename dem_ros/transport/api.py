@@ -11,6 +11,16 @@ exception is caught per callback by a :class:`CallbackGuard`, counted under
 the callback's name (``subscription /dem/command``, ``timer 0.001 s``,
 ``service /controller/arm``), and logged once per name with its traceback.
 Nodes report the counts (:attr:`Node.callback_errors`) on /diagnostics.
+
+Sources. Every transport tells which writer sent a sample (:meth:`Node.subscribe_with_source`) and which
+writers the ROS graph attributes to a named node on a topic (:meth:`Node.publisher_gids`), as GIDs: the
+16-byte DDS GUID of the writer (participant prefix + entity id; what ``ros2 topic info -v`` prints as
+the "Endpoint GID", without the zero padding of 24-byte GIDs before Jazzy; :func:`gid16`). On the dds
+transport they come from the sample's ``publication_handle`` and from the DCPSPublication built-in
+topic joined with ``ros_discovery_info``; on the memory transport from the bus's publishers. Without
+DDS-Security (the PyPI cyclonedds wheel has none) a GID is not authenticated: any process on the
+domain can claim one. A lock on GIDs separates this graph's writers from strays (a second controller,
+a test publisher, a replayed bag), it does not stop a forger.
 """
 
 from __future__ import annotations
@@ -22,6 +32,7 @@ from typing import Any, Protocol, runtime_checkable
 from ..contract import Topic
 
 __all__ = [
+    "GID_SIZE",
     "SERVICE_TYPES",
     "Callback",
     "CallbackGuard",
@@ -31,8 +42,11 @@ __all__ = [
     "Publisher",
     "RawCallback",
     "ServiceCallback",
+    "SourcedCallback",
     "Timer",
     "TransportError",
+    "gid16",
+    "node_fqn",
 ]
 
 #: the ROS service types every transport serves and calls (request fields -> response fields):
@@ -51,6 +65,27 @@ OnChange = Callable[[Mapping[str, Any]], "str | None"]
 RawCallback = Callable[[bytes], object]
 #: ``callback(msg)`` (return value ignored)
 Callback = Callable[[Any], object]
+#: ``callback(msg, writer_gid)``: a message and the :data:`GID_SIZE`-byte GID of the writer that sent it
+#: (``b""`` when the transport cannot tell: then no writer lock can accept it)
+SourcedCallback = Callable[[Any, bytes], object]
+#: bytes of a GID as dem_ros compares them: the DDS GUID (12-byte participant prefix + 4-byte entity id)
+GID_SIZE = 16
+
+
+def gid16(gid: Any) -> bytes:
+    """A GID as :data:`GID_SIZE` bytes: the DDS GUID of a ROS GID of any distro (24 bytes zero-padded
+    before Jazzy, 16 since), of an ``rmw_gid_t``-like sequence of ints, or of bytes."""
+    return bytes(bytearray(gid)[:GID_SIZE])
+
+
+def node_fqn(name: str, namespace: str) -> str:
+    """The fully qualified name of node ``name`` seen from a node in ``namespace``: ``/ns/name`` as
+    given, a relative name joins the namespace (as ROS resolves names)."""
+    if name.startswith("/"):
+        return name
+    return namespace.rstrip("/") + "/" + name
+
+
 #: ``callback(request, response) -> response`` (as rclpy): fill ``response`` and return it.
 ServiceCallback = Callable[[Any, Any], Any]
 
@@ -119,6 +154,15 @@ class Node(Protocol):
 
     def subscribe_raw(self, topic: Topic, callback: RawCallback) -> None:
         """Call ``callback(cdr_bytes)`` (encapsulation header included, what rosbag2 stores)."""
+
+    def subscribe_with_source(self, topic: Topic, callback: SourcedCallback) -> None:
+        """Call ``callback(msg, writer_gid)`` for every message on ``topic``: the message and the
+        GID (:func:`gid16`) of the writer that sent it, also for a publisher of the same process."""
+
+    def publisher_gids(self, topic: Topic, node: str) -> frozenset[bytes]:
+        """The GIDs (:func:`gid16`) of the writers on ``topic`` (remapped as this node's) that the ROS
+        graph attributes to the node ``node`` (``/ns/name``, or a name relative to this node's
+        namespace, :func:`node_fqn`), as discovered now; empty while none is known."""
 
     def timer(self, period_s: float, callback: Callable[[], object]) -> Timer:
         """Call ``callback()`` every ``period_s`` seconds."""

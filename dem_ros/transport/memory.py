@@ -11,6 +11,11 @@ controls exactly what a node sees and when. Services are called synchronously
 with :meth:`MemoryBus.call`. Message classes are the DDS transport's IDL
 structs (plain dataclasses; no participant is created).
 
+Sources: every publisher has a GID (16 bytes, numbered in creation order); a
+sourced subscription gets ``(msg, gid)``, ``b""`` for :meth:`MemoryBus.publish`
+(a stimulus from outside the graph has no writer), and
+:meth:`MemoryNode.publisher_gids` answers from the bus's publishers.
+
 Parameters are declared and validated as on the other transports (ROS
 arguments, params files, :class:`~dem_ros.transport.parameters.ParameterStore`);
 ``/parameter_events`` is not published.
@@ -25,14 +30,23 @@ arguments, params files, :class:`~dem_ros.transport.parameters.ParameterStore`);
 
 from __future__ import annotations
 
-import sys
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from ..contract import Topic
-from .api import CallbackGuard, OnChange, RawCallback, ServiceCallback, TransportError
+from .api import (
+    GID_SIZE,
+    CallbackGuard,
+    OnChange,
+    RawCallback,
+    ServiceCallback,
+    SourcedCallback,
+    TransportError,
+    node_fqn,
+)
+from .logger import NodeLogger
 from .parameters import ParameterStore
 from .rosargs import initial_parameters, parse_ros_args
 
@@ -47,6 +61,7 @@ class _Subscription:
     node: MemoryNode
     callback: Callable[[Any], object]
     raw: bool
+    sourced: bool = False  # the callback takes (msg, writer gid)
 
 
 class MemoryTimer:
@@ -69,41 +84,22 @@ class MemoryTimer:
 class MemoryPublisher:
     """Publishes into the bus's queue; ``subscription_count`` counts the topic's subscriptions."""
 
-    def __init__(self, bus: MemoryBus, name: str, type_name: str):
+    def __init__(self, bus: MemoryBus, name: str, type_name: str, node: MemoryNode | None = None):
         self._bus = bus
         self.topic = name
         self.type_name = type_name
+        bus.writers.append((name, node, self))
+        self.gid = len(bus.writers).to_bytes(GID_SIZE, "big")  # this writer's GID
 
     def publish(self, msg: Any) -> None:
-        self._bus._enqueue(self.topic, msg, None)
+        self._bus._enqueue(self.topic, msg, None, gid=self.gid)
 
     def publish_raw(self, data: bytes) -> None:
-        self._bus._enqueue(self.topic, None, bytes(data), self.type_name)
+        self._bus._enqueue(self.topic, None, bytes(data), self.type_name, gid=self.gid)
 
     @property
     def subscription_count(self) -> int:
         return len(self._bus.subscriptions.get(self.topic, ()))
-
-
-class _Logger:
-    def __init__(self, node: MemoryNode):
-        self._node = node
-
-    def _log(self, level: str, text: str) -> None:
-        self._node.bus.log.append((level, self._node.fully_qualified_name, text))
-        if self._node.bus.echo:
-            sys.stderr.write(f"[{level}] [{self._node.fully_qualified_name}]: {text}\n")
-
-    def info(self, msg: str) -> None:
-        self._log("INFO", msg)
-
-    def warn(self, msg: str) -> None:
-        self._log("WARN", msg)
-
-    warning = warn
-
-    def error(self, msg: str) -> None:
-        self._log("ERROR", msg)
 
 
 class MemoryNode:
@@ -119,7 +115,9 @@ class MemoryNode:
         self.name = self._ros_args.name_for(name)
         self.namespace = self._ros_args.namespace_for(name)
         self._ignore_undeclared = ignore_undeclared
-        self.logger = _Logger(self)
+        self.logger = NodeLogger(lambda: self.fully_qualified_name,
+                                 sink=lambda level, name, text, _t: bus.log.append((level, name, text)),
+                                 echo=lambda: bus.echo)
         self._guard = CallbackGuard(lambda: self.logger)
         self._params: ParameterStore | None = None
         self._shutdown = False
@@ -144,7 +142,7 @@ class MemoryNode:
         return self._ros_args.resolve(topic_name, self.namespace, self._given_name)
 
     def publisher(self, topic: Topic) -> MemoryPublisher:
-        return MemoryPublisher(self.bus, self.resolve(topic.name), topic.type)
+        return MemoryPublisher(self.bus, self.resolve(topic.name), topic.type, self)
 
     def _subscribe(self, topic: Topic, callback: Callable[[Any], object], raw: bool) -> None:
         name = self.resolve(topic.name)
@@ -157,6 +155,15 @@ class MemoryNode:
     def subscribe_raw(self, topic: Topic, callback: RawCallback) -> None:
         self._subscribe(topic, callback, raw=True)
 
+    def subscribe_with_source(self, topic: Topic, callback: SourcedCallback) -> None:
+        name = self.resolve(topic.name)
+        sub = _Subscription(self, self._guard.wrap(f"subscription {name}", lambda pair: callback(*pair)), False, True)
+        self.bus.subscriptions.setdefault(name, []).append(sub)
+
+    def publisher_gids(self, topic: Topic, node: str) -> frozenset[bytes]:
+        name, fqn = self.resolve(topic.name), node_fqn(node, self.namespace)
+        return frozenset(p.gid for t, n, p in self.bus.writers
+                         if t == name and n is not None and n.fully_qualified_name == fqn and not n.is_shutdown)
     def timer(self, period_s: float, callback: Callable[[], object]) -> MemoryTimer:
         t = MemoryTimer(self, period_s, self._guard.wrap(f"timer {period_s:g} s", callback))
         self.bus.timers.append(t)
@@ -225,13 +232,15 @@ class MemoryBus:
         self.services: dict[str, tuple[str, tuple[type, type], ServiceCallback, MemoryNode]] = {}
         self.log: list[tuple[str, str, str]] = []
         self.echo = echo
+        #: every publisher made on the bus: (topic, its node, publisher); a shut-down node's have left the graph
+        self.writers: list[tuple[str, MemoryNode | None, MemoryPublisher]] = []
 
     def node(self, name: str, args: Sequence[str] | None = None, *, ignore_undeclared: bool = False) -> MemoryNode:
         """A new node on this bus (``args``: ROS arguments, e.g. ``["--ros-args", "-p", "k1:=60"]``)."""
         return MemoryNode(self, name, args, ignore_undeclared=ignore_undeclared)
 
     # -- messages ------------------------------------------------------------------------
-    def _enqueue(self, topic: str, msg: Any, data: bytes | None, type_name: str | None = None) -> None:
+    def _enqueue(self, topic: str, msg: Any, data: bytes | None, type_name: str | None = None, gid: bytes = b"") -> None:
         subs = self.subscriptions.get(topic)
         if not subs:
             return
@@ -245,7 +254,7 @@ class MemoryBus:
             assert type_name is not None
             msg = deserialize(type_name, data or b"", transport="dds")
         for s in subs:
-            self.queue.append((s, data if s.raw else msg))
+            self.queue.append((s, data if s.raw else (msg, gid) if s.sourced else msg))
 
     def publish(self, topic: Topic, msg: Any) -> None:
         """Publish ``msg`` on ``topic`` from outside the nodes (a test's stimulus)."""

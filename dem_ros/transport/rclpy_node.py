@@ -12,12 +12,19 @@ Start values are computed by :func:`dem_ros.transport.rosargs.initial_parameters
 (the same code as the DDS transport) and declared with ``ignore_override=True``,
 so a bad params file fails with the ConfigError message in both transports.
 
+Sources: rclpy (Jazzy) hands a subscription callback a ``MessageInfo`` with time stamps and
+sequence numbers but no publisher GID, so :meth:`RclpyNode.subscribe_with_source` can only attribute
+a sample when exactly one writer is matched (``get_publisher_count``) and the graph
+(``get_publishers_info_by_topic``, re-read when that count changes and at least every
+``_GRAPH_REFRESH_NS``) lists exactly one: then its GID, otherwise ``b""`` (a source lock drops it).
+
 Only importable where ``import rclpy`` works.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -30,11 +37,14 @@ from rosidl_runtime_py.utilities import get_message
 from ..contract import QoS, Topic
 from ..core.params import SCHEMA
 from . import paramvalue as pv
-from .api import CallbackGuard, OnChange, RawCallback, ServiceCallback, TransportError
+from .api import CallbackGuard, OnChange, RawCallback, ServiceCallback, SourcedCallback, TransportError, gid16, node_fqn
 from .parameters import ParameterStore
 from .rosargs import initial_parameters, parse_ros_args
 
 __all__ = ["RclpyNode", "RclpyPublisher", "to_qos_profile"]
+
+#: a sourced subscription re-reads the topic's writers at least this often (ns)
+_GRAPH_REFRESH_NS = 100_000_000
 
 
 def to_qos_profile(q: QoS) -> QoSProfile:
@@ -150,6 +160,34 @@ class RclpyNode:
             get_message(topic.type), topic.name, self._guard.wrap(f"subscription {topic.name}", callback),
             to_qos_profile(topic.qos), raw=True
         )
+
+    def subscribe_with_source(self, topic: Topic, callback: SourcedCallback) -> None:
+        """``callback(msg, gid)``: the GID only while one writer is matched and the graph lists one
+        (rclpy's MessageInfo carries no publisher GID), else ``b""``. Untested here (no ROS 2 install)."""
+        node = self._node
+        state: dict[str, Any] = {"count": -1, "gid": b"", "next": 0}
+        box: list[Any] = []
+
+        def source() -> bytes:
+            count = box[0].get_publisher_count()
+            now = time.monotonic_ns()
+            if count != state["count"] or now >= state["next"]:
+                infos = node.get_publishers_info_by_topic(box[0].topic_name)
+                state.update(count=count, next=now + _GRAPH_REFRESH_NS,
+                             gid=gid16(infos[0].endpoint_gid) if len(infos) == 1 else b"")
+            return state["gid"] if count == 1 else b""
+
+        box.append(node.create_subscription(
+            get_message(topic.type), topic.name,
+            self._guard.wrap(f"subscription {topic.name}", lambda msg: callback(msg, source())),
+            to_qos_profile(topic.qos)))
+
+    def publisher_gids(self, topic: Topic, node: str) -> frozenset[bytes]:
+        """GIDs of ``node``'s writers on ``topic`` from ``get_publishers_info_by_topic``."""
+        fqn = node_fqn(node, self.namespace)
+        name = self._node.resolve_topic_name(topic.name)
+        return frozenset(gid16(i.endpoint_gid) for i in self._node.get_publishers_info_by_topic(name)
+                         if node_fqn(i.node_name, i.node_namespace) == fqn)
 
     def timer(self, period_s: float, callback: Callable[[], object]) -> Any:
         return self._node.create_timer(period_s, self._guard.wrap(f"timer {period_s:g} s", callback))

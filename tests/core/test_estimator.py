@@ -179,3 +179,169 @@ def test_consistent_under_a_resistance_error():
     frozen = {**EC, "voltage_bias_prior": 1e-9, "sigma_voltage_bias": 1e-9}
     out0, _ = replay(res.x, res.u, frozen, measure_velocity=True)
     assert np.abs(out0[-500:, 4:] - res.x[-500:, 4:]).max() > 10 * np.abs(out[-500:, 4:] - res.x[-500:, 4:]).max()
+
+
+# -- plausibility gates, numerical guard, convergence (issue #12) ----------------------------------------------
+
+
+def _noisy(X: np.ndarray, sigma: float, seed: int) -> np.ndarray:
+    """Gaussian noise of the filter's assumed standard deviations (gaps ``sigma``; rates, currents as EC)."""
+    rng = np.random.default_rng(seed)
+    sd = np.array([sigma, EC["sigma_rate"], sigma, EC["sigma_rate"], EC["sigma_current"], EC["sigma_current"]])
+    return X + rng.normal(0.0, 1.0, X.shape) * sd
+
+
+def _run(Z: np.ndarray, U: np.ndarray, cfg: dict = EC) -> tuple[np.ndarray, KalmanEstimator, int | None]:
+    """The EKF over measurements ``Z`` (n, 6); (estimates, the filter, first sample with a declared fault)."""
+    est = KalmanEstimator(cfg)
+    out = np.empty_like(Z)
+    out[0] = est.step(Z[0], U[0])
+    first = None
+    for k in range(1, len(Z)):
+        out[k] = est.step(Z[k], U[k - 1])
+        if first is None and est.faults:
+            first = k
+    return out, est, first
+
+
+def test_a_10mm_spike_and_a_50mm_reading_do_not_move_the_estimate(s1_adaptive_15s):
+    """S1 (adaptive, 4 s) measured with 10 um Gaussian gap noise: a single +10 mm spike on gap 1 while the plate
+    follows r1's step and a 50 mm reading of gap 2 later leave the estimate within a fraction of the noise of
+    the clean run's (last session, ungated: 1.3 mm error from the spike, the plate 2.3 mm from the rail)."""
+    X, U = s1_adaptive_15s.x[:4000], s1_adaptive_15s.u[:4000]
+    Z = _noisy(X, EC["sigma_gap"], 61)
+    clean, est0, _ = _run(Z, U)
+    c0 = est0.counters()  # the clean run's own rejections (false alarms: expected 8000 x 1e-5 = 0.08)
+    k1 = 1000 + int(np.argmax(np.abs(X[1000:2500, 1])))  # the plate moving fastest in 1..2.5 s (after r1's step)
+    k2 = 3000
+    Zs = Z.copy()
+    Zs[k1, 0] += 0.010
+    Zs[k2, 2] = 0.050
+    spiked, est, _ = _run(Zs, U)
+    dev = np.abs(spiked - clean)[:, [0, 2]].max()
+    c = est.counters()
+    assert c == {**c0, "gap1_innovation": c0["gap1_innovation"] + 1, "gap2_out_of_range": 1}, (c, c0)
+    assert not est.faults and est.converged
+    assert dev < 0.5 * EC["sigma_gap"], dev  # the estimate stays where the clean run's is
+    err = np.abs(spiked - X)[1000:, [0, 2]].max()
+    assert err < 5 * EC["sigma_gap"], err
+    print(f"\nspike 10 mm at k={k1} and a 50 mm reading: estimate moved {dev * 1e6:.3f} um from the clean run's"
+          f" (gap noise 10 um); max gap error {err * 1e6:.2f} um")
+
+
+def test_a_dead_sensor_is_declared_after_fault_samples(s1_adaptive_15s):
+    X, U = s1_adaptive_15s.x[:1500], s1_adaptive_15s.u[:1500]
+    Z = _noisy(X, EC["sigma_gap"], 62)
+    Z[500:, 2] = 0.0  # gap sensor 2 dead: reads 0 from sample 500 on
+    out, est, first = _run(Z, U)
+    assert first == 500 + EC["fault_samples"] - 1  # on the fault_samples-th rejection in a row
+    assert est.faults and est.faults[0].startswith("gap sensor 2:") and len(est.faults) == 1, est.faults
+    assert est.counters()["gap2_out_of_range"] == 1000 and not est.converged
+    assert np.all(np.isfinite(out)) and np.abs(out[:, 2] - X[:, 2]).max() < 1e-3  # predicted, never 0
+
+
+def test_a_stuck_sensor_is_declared_when_the_plate_moves(s1_adaptive_15s):
+    """Gap sensor 1 frozen at its reading from t = 0.9 s (the plate at rest at 8 mm) while r1 steps to 5 mm at
+    1 s: it stays plausible sample by sample (the innovation gate passes it: the acceleration bias absorbs the
+    difference), but the bias check declares gap 1 faulty before the plate is 2 mm away from the reading
+    (the plate moves as in a healthy run: this replays one)."""
+    X, U = s1_adaptive_15s.x[:8000], s1_adaptive_15s.u[:8000]
+    Z = _noisy(X, EC["sigma_gap"], 63)
+    Z[900:, 0] = Z[900, 0]
+    out, est, first = _run(Z, U)
+    assert first is not None and est.faults[0].startswith("gap sensor 1 or the load:"), (est.counters(), est.s)
+    moved = abs(X[first, 0] - Z[900, 0])
+    err = np.abs(out[900:first, 0] - X[900:first, 0]).max()
+    print(f"\nstuck gap sensor 1: declared at t = {first * 1e-3:.3f} s, the plate {moved * 1e6:.0f} um away from"
+          f" the stuck reading; max gap-1 error of the estimate meanwhile {err * 1e6:.0f} um")
+    assert moved < 2e-3 and len(est.faults) == 1
+
+
+def test_false_alarm_rate_matches_the_chosen_probability():
+    """A consistent filter: truth drawn from the filter's own stochastic model (its process noise added each
+    sample, held by a PID on the true state at 8 mm), Gaussian measurement noise of the assumed sigmas. Each
+    gap's NIS is then chi^2(1): with gate_false_alarm = 0.01 the rate of rejected good samples must be 1 %
+    within the binomial spread (+-4.5 sigma over 2 x 20 000 samples)."""
+    from dem_ros.core.controllers import make_controller
+    from dem_ros.core.estimator import _rk4
+    from dem_ros.core.model import IK, IP, IQ, hover_state
+
+    pfa, n, skip = 0.01, 21_000, 1_000
+    cfg = {**EC, "gate_false_alarm": pfa}
+    est = KalmanEstimator(cfg)
+    rng = np.random.default_rng(64)
+    x0, u0 = hover_state(default_config()["plant_sim"], 0.008)
+    ctl = make_controller(default_config()["controller"], "decentralized_pid")
+    ctl.reset(x0.copy(), u0)
+    ref = np.array([0.008, 0.008, 0, 0, 0, 0, 0, 0, 0.008, 0.008])
+    p, T, sd = est.p, est.T, np.sqrt(est.rm)
+    s = np.concatenate([x0, np.zeros(4)])  # the truth, in the filter's state
+    u = u0.copy()
+    rejected = 0
+    for k in range(n):
+        z = s[:6] + rng.normal(0.0, 1.0, 6) * sd
+        before = est.counters()["gap1_innovation"] + est.counters()["gap2_innovation"]
+        est.step(z, u)
+        if k >= skip:
+            rejected += est.counters()["gap1_innovation"] + est.counters()["gap2_innovation"] - before
+        u = ctl.step(s[:6].copy(), ref).copy()
+        _rk4(s, u, p, T)  # the truth moves as the filter's model under u, plus its process noise
+        de = (p[IP] * s[0] + p[IQ] * s[2], p[IQ] * s[0] + p[IP] * s[2])
+        s[[1, 3]] += rng.normal(0.0, cfg["sigma_accel"] * T, 2)
+        s[4:6] += rng.normal(0.0, 1.0, 2) * cfg["sigma_voltage"] * np.array(de) / (2.0 * p[IK]) * T
+        s[6:8] += rng.normal(0.0, cfg["sigma_bias"] * T, 2)
+        s[8:10] += rng.normal(0.0, cfg["sigma_voltage_bias"] * T, 2)
+    tests = 2 * (n - skip)
+    rate = rejected / tests
+    spread = np.sqrt(pfa * (1 - pfa) / tests)
+    print(f"\nfalse alarms: {rejected} of {tests} good gap samples = {rate:.4%} (chosen {pfa:.2%}, binomial sigma"
+          f" {spread:.4%}); threshold NIS > {est.chi2_threshold:.3f}")
+    assert abs(rate - pfa) < 4.5 * spread, (rate, pfa, spread)
+    assert est.chi2_threshold == pytest.approx(6.6349, abs=1e-4)  # chi2.isf(0.01, 1)
+
+
+def test_never_raises_near_zero_gap():
+    """The rig's landing: gaps near zero make the model singular (delta^-2) and numpy raised LinAlgError from
+    the update. Now a non-finite S skips the update, a non-finite state is re-initialised from the
+    measurement, both counted; the filter keeps running and the ungated kernel does not raise either."""
+    rng = np.random.default_rng(65)
+    for gap in (1e-3, 1e-4, 1e-5, 1e-6, 1e-8):
+        est = KalmanEstimator(EC, measure_velocity=False)
+        z = np.array([gap, 0.0, 0.008, 0.0, 9.0, 4.0])
+        est.reset(z)
+        s, P, mask, p, T, qc, rm = (a.copy() if isinstance(a, np.ndarray) else a for a in est.kernel_args())
+        out = np.empty(6)
+        for _ in range(200):
+            zk = z + rng.normal(0.0, 1e-5, 6)
+            u = np.array([200.0, -200.0]) * rng.choice([-1.0, 1.0], 2)
+            x = est.step(zk, u)
+            ekf_step(s, P, zk, mask, u, p, T, qc, rm, out)  # ungated: must not raise
+            assert np.all(np.isfinite(x) | np.isnan(x))
+        c = est.counters()
+        if gap < 1e-5:
+            assert c["reinitialised"] + c["updates_skipped"] + c["gap1_out_of_range"] + c["gap1_innovation"] > 0, c
+        print(f"gap {gap:g} m: {c}")
+
+
+def test_convergence_after_a_restart():
+    """A (re)start counts as converged after converge_samples samples in a row that passed every gate; a
+    rejected sample starts the count again; a start on an implausible measurement is refused (NaN output)."""
+    from dem_ros.core.model import hover_state
+
+    x0, u0 = hover_state(default_config()["plant_sim"], 0.008)
+    est = KalmanEstimator(EC)
+    bad = x0.copy()
+    bad[0] = 0.05
+    assert np.all(np.isnan(est.step(bad, u0))) and not est.started  # a 50 mm reading cannot start the filter
+    n = EC["converge_samples"]
+    for _ in range(n):
+        assert not est.converged
+        est.step(x0, u0)
+    assert est.converged
+    spike = x0.copy()
+    spike[2] += 0.005
+    est.step(spike, u0)
+    assert not est.converged
+    for _ in range(n):
+        est.step(x0, u0)
+    assert est.converged

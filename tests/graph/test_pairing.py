@@ -26,14 +26,15 @@ def test_estimator_uses_the_voltage_of_each_measurements_stamp():
     # arrival order across the two topics: a measurement before its voltage, or after the next
     # sample's voltage (the plant runs one sample ahead with command_delay 1), never two samples off
     events = [(k + rng.uniform(-0.9, 0.3), pa, joint_state(JS, k * T, effort=u[k])) for k in range(n)]
-    events += [(k + rng.uniform(-0.1, 0.9), pm, joint_state(JS, k * T, position=z[k], effort=i[k]))
+    # pre-roll frames: a filter started in the pre-roll publishes from its first sample (no convergence wait)
+    events += [(k + rng.uniform(-0.1, 0.9), pm, joint_state(JS, k * T, position=z[k], effort=i[k], frame=contract.FRAME_PREROLL))
                for k in range(n)]
     events.sort(key=lambda e: e[0])
     assert events[0][1] is pa  # (the very first voltage comes first: the filter starts from it)
     for _, pub, msg in events:
         pub.publish(msg)
         bus.spin_once()
-    assert node.unpaired == 0
+    assert node.counts["unpaired"] == 0
     ref = make_estimator(default_config()["estimator"], None, False)
     for k in range(n):
         xh = ref.step(np.array([z[k, 0], 0.0, z[k, 1], 0.0, i[k, 0], i[k, 1]]), u[k])

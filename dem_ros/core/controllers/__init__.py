@@ -22,6 +22,7 @@ m_hat, R_hat, K_hat, e_c (2), e (2), adapting, fault.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -33,7 +34,7 @@ from .hover import HoverFit, solve_hover, window_means
 
 __all__ = ["CONTROLLERS", "CEController", "Controller", "PIDController", "make_controller"]
 
-CONTROLLERS = {
+_MODES = {
     "adaptive": kernels.MODE_ADAPTIVE,
     "adaptive_enhanced": kernels.MODE_ENHANCED,
     "paper": kernels.MODE_PAPER,
@@ -41,6 +42,10 @@ CONTROLLERS = {
     "nonlinear_decoupling": kernels.MODE_FIXED,
     "decentralized_pid": -1,
 }
+#: name -> kernel mode (-1: the PID), in the schema's order; the names are the schema's (``controller.type``)
+CONTROLLERS = {name: _MODES[name] for name in SCHEMA.spec("controller", "type").choices or ()}
+if set(CONTROLLERS) != set(_MODES):  # pragma: no cover - a law added on one side only
+    raise ImportError(f"controller.type choices {sorted(CONTROLLERS)} != implemented laws {sorted(_MODES)}")
 
 
 class Controller:
@@ -55,11 +60,11 @@ class Controller:
     def step(self, meas: np.ndarray, ref: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
 
-    def set_params(self, cfg: Mapping) -> None:  # pragma: no cover - interface
+    def set_params(self, cfg: Mapping[str, Any]) -> None:  # pragma: no cover - interface
         raise NotImplementedError
 
 
-def _cp_vector(cfg: Mapping) -> np.ndarray:
+def _cp_vector(cfg: Mapping[str, Any]) -> np.ndarray:
     cp = np.zeros(kernels.NCP)
     L, l, I = cfg["L"], cfg["l"], cfg["I"]
     cp[kernels.CP_K1], cp[kernels.CP_K2], cp[kernels.CP_K3] = cfg["k1"], cfg["k2"], cfg["k3"]
@@ -83,6 +88,9 @@ def _cp_vector(cfg: Mapping) -> np.ndarray:
     cp[kernels.CP_DELAY] = cfg["command_delay"]
     cp[kernels.CP_QRHO] = cfg["q_rho"]
     cp[kernels.CP_RHO_MAX] = cfg["rho_max"]
+    cp[kernels.CP_KI] = cfg["ki"]
+    cp[kernels.CP_COIL_W] = cfg["coil_weight"]
+    cp[kernels.CP_COIL_A] = 1.0 - np.exp(-cfg["coil_bandwidth"] * cfg["dt"])
     return cp
 
 
@@ -106,7 +114,7 @@ def hover_regressors(cp: np.ndarray, meas0: np.ndarray, u0: np.ndarray) -> tuple
 class CEController(Controller):
     """Certainty-equivalence feedback linearisation, fixed or adaptive (modes of :mod:`.kernels`)."""
 
-    def __init__(self, cfg: Mapping, name: str | None = None):
+    def __init__(self, cfg: Mapping[str, Any], name: str | None = None):
         self.name = name or cfg["type"]
         if self.name not in CONTROLLERS or self.name == "decentralized_pid":
             raise ConfigError(f"controller.type: {self.name!r} is not a CE controller")
@@ -122,6 +130,7 @@ class CEController(Controller):
     def _filter(self) -> None:
         c = self.cfg
         self.F = AllPoleFilter([c["k3"], c["k2"], c["k1"]], 1.0, c["dt"])
+        self.law = kernels.CELaw(self.mode, self.cp, self.F.Ad, self.F.Bd)
 
     # -- state ------------------------------------------------------------
     def reset(self, meas0: np.ndarray | None, u0: np.ndarray | None) -> None:
@@ -142,7 +151,7 @@ class CEController(Controller):
         self.v0 = np.zeros(kernels.NTH)
         self.scale = np.ones(kernels.NTH)
         if self.mode == kernels.MODE_FIXED:
-            self.theta = _theta([1 / c["m_nominal"], c["R_nominal"], c["K_nominal"]], cp)
+            self.theta = _theta(np.array([1 / c["m_nominal"], c["R_nominal"], c["K_nominal"]]), cp)
         else:
             phi0 = np.array([1 / c["m_init"], c["R_init"], c["K_init"]])
             th0 = _theta(phi0, cp)
@@ -156,7 +165,7 @@ class CEController(Controller):
                 self.scale[:8] = [A0 * phi0[1] / 2, A0 * phi0[2], A0 * phi0[1] / 2, A0 * phi0[2], A0 / 2, A0 / 2, C0, C0]
                 self.v[:] = th0 / self.scale  # entries 8, 9 (rho) stay 0: A1 keeps the paper's 8 thetas
                 self.P[:8, :8] = 1e4 * np.eye(8)
-                if meas0 is not None and c["hover_init"]:
+                if meas0 is not None and u0 is not None and c["hover_init"]:
                     self._hover_init_a1(meas0, u0)
                 self.theta = self.scale * self.v
             else:
@@ -169,6 +178,9 @@ class CEController(Controller):
                 self.theta = _theta(self.scale[:n] * self.v[:n], cp)
             self.v0[:] = self.v
         self.u = np.zeros(2) if u0 is None else np.asarray(u0, float).copy()
+        self.ie = np.zeros(2)
+        self.coil = np.full((5, 2), np.nan)  # coil-equation filters: start at the first sample
+        self.state = kernels.CEState(self.theta, self.v, self.scale, self.v0, self.P, self.Z, self.uh, self.ie, self.coil)
         self.diag = np.full(kernels.NDIAG, np.nan)
         self._fill_estimates()
 
@@ -208,11 +220,10 @@ class CEController(Controller):
 
     # -- loop -------------------------------------------------------------
     def step(self, meas: np.ndarray, ref: np.ndarray) -> np.ndarray:
-        kernels.ce_step(self.mode, self.cp, self.theta, self.v, self.scale, self.v0, self.P, self.Z, self.uh,
-                  self.F.Ad, self.F.Bd, meas, ref, self.u, self.diag)
+        kernels.ce_step(self.law, self.state, meas, ref, self.u, self.diag)
         return self.u
 
-    def set_params(self, cfg: Mapping) -> None:
+    def set_params(self, cfg: Mapping[str, Any]) -> None:
         """Apply a validated live change at the next step (gains, leakage, dead zone, limits).
 
         Changing k1..k3 re-discretises F(s); its states are kept (a transient in e_c follows).
@@ -225,16 +236,14 @@ class CEController(Controller):
         if gains_changed:
             self._filter()
         if self.mode == kernels.MODE_FIXED:
-            self.theta[:] = _theta([1 / new["m_nominal"], new["R_nominal"], new["K_nominal"]], self.cp)
+            self.theta[:] = _theta(np.array([1 / new["m_nominal"], new["R_nominal"], new["K_nominal"]]), self.cp)
 
-    def kernel_args(self) -> tuple:
-        return (self.mode, self.cp, self.theta, self.v, self.scale, self.v0, self.P, self.Z, self.uh, self.F.Ad, self.F.Bd)
 
 
 class PIDController(Controller):
     """Decentralised cascade PID on the nominal single-magnet model (coupling ignored)."""
 
-    def __init__(self, cfg: Mapping):
+    def __init__(self, cfg: Mapping[str, Any]):
         self.name = "decentralized_pid"
         self.cfg = SCHEMA.validate_group("controller", dict(cfg))
         self.cp = np.zeros(kernels.NPID)
@@ -257,12 +266,12 @@ class PIDController(Controller):
         kernels.pid_step(self.cp, self.integ, meas, ref, self.u, self.diag)
         return self.u
 
-    def set_params(self, cfg: Mapping) -> None:
+    def set_params(self, cfg: Mapping[str, Any]) -> None:
         self.cfg = SCHEMA.validate_group("controller", dict(cfg))
         self._fill()
 
 
-def make_controller(cfg: Mapping, name: str | None = None) -> Controller:
+def make_controller(cfg: Mapping[str, Any], name: str | None = None) -> Controller:
     """Build the controller ``name`` (default ``cfg['type']``) from a ``controller`` group."""
     name = name or cfg["type"]
     if name not in CONTROLLERS:

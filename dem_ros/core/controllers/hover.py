@@ -52,6 +52,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -107,7 +108,7 @@ def window_means(Z: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return Z.mean(axis=0), U.mean(axis=0)
 
 
-def hover_residuals(phi: np.ndarray, Z: np.ndarray, U: np.ndarray, geo: dict) -> tuple[np.ndarray, np.ndarray]:
+def hover_residuals(phi: np.ndarray, Z: np.ndarray, U: np.ndarray, geo: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
     """(r, J): the hover equations per row of Z (n, 6), U (n, 2) -> r (n, 4) = [c1, c2, f1, f2]; J = dr/dphi (n, 4, 4).
 
     ``geo``: P, Q, cA, cC, N1, N2, g, floor (gap floor of the law, m).
@@ -142,7 +143,7 @@ def solve_hover(
     P0: np.ndarray,
     Z: np.ndarray,
     U: np.ndarray,
-    geo: dict,
+    geo: dict[str, float],
     lo: np.ndarray,
     hi: np.ndarray,
     iterations: int = 6,
@@ -225,14 +226,14 @@ LIFTOFF_MIN_S = 0.5  # s: the shortest lift-off blend
 LIFTOFF_CLEARANCE = 1e-3  # m: the lift-off takes the plate at least this far off its support
 
 
-def _hover_forces(cfg: Mapping) -> np.ndarray:
+def _hover_forces(cfg: Mapping[str, Any]) -> np.ndarray:
     """Hover forces F_j (2,) [N] of the nominal model: F1 + F2 = m g + N1 + N2, (F1 - F2) l = (N1 - N2) L."""
     w = cfg["m_nominal"] * cfg["g"] + cfg["N1"] + cfg["N2"]
     d = cfg["L"] / cfg["l"] * (cfg["N1"] - cfg["N2"])
     return np.maximum(0.5 * np.array([w + d, w - d]), 0.0)
 
 
-def _deltas(cfg: Mapping, z: np.ndarray) -> np.ndarray:
+def _deltas(cfg: Mapping[str, Any], z: np.ndarray) -> np.ndarray:
     """Magnet gaps delta_j (2,) [m] (Eq. 6) of the load-point gaps z[0], z[2], floored at gap_floor."""
     L, l = cfg["L"], cfg["l"]
     P, Q = (L + l) / (2 * L), (L - l) / (2 * L)
@@ -240,7 +241,7 @@ def _deltas(cfg: Mapping, z: np.ndarray) -> np.ndarray:
     return np.array([P * d1 + Q * d2, Q * d1 + P * d2])
 
 
-def lift_fraction(z: np.ndarray, cfg: Mapping) -> float:
+def lift_fraction(z: np.ndarray, cfg: Mapping[str, Any]) -> float:
     """Share of the load the magnets carry: sum_j K i_j^2/delta_j^2 / (m g + N1 + N2) (nominal model).
 
     ``z`` = [d1, d1', d2, d2', i1, i2] (m, m/s, A); ``cfg``: the controller group (L, l, N1, N2, g,
@@ -252,7 +253,7 @@ def lift_fraction(z: np.ndarray, cfg: Mapping) -> float:
     return float(f / (cfg["m_nominal"] * cfg["g"] + cfg["N1"] + cfg["N2"]))
 
 
-def premagnetise(z: np.ndarray, cfg: Mapping, fraction: float = PREMAG_FRACTION) -> tuple[np.ndarray, np.ndarray]:
+def premagnetise(z: np.ndarray, cfg: Mapping[str, Any], fraction: float = PREMAG_FRACTION) -> tuple[np.ndarray, np.ndarray]:
     """(i*, u) (2,), (2,) [A], [V]: the currents of ``fraction`` of the nominal hover force at the
     measured gaps, i*_j = delta_j sqrt(fraction F_j / K), and the voltages that hold them,
     u_j = R_nominal i*_j."""

@@ -7,7 +7,8 @@ how theta_hat is adapted (``mode``):
     MODE_FIXED     nonlinear decoupling with fixed theta (De-Sheng et al. 2006)
     MODE_PAPER     "A0": Eq. 36 as printed (continuous normalised LS, +P')
     MODE_PAPER_FIX "A1": 8 free theta, per-sample RLS, scaled, cone projection
-    MODE_ADAPTIVE  "A2": phi = (1/m, R, K), Gauss-Newton RLS, random walk on 1/m, bounds
+    MODE_ADAPTIVE  "A2": phi = (1/m, R, K, rho), Gauss-Newton RLS on e_c and the coil equations,
+                   random walks, bounds, integral action
     MODE_ENHANCED  "A2e": A2 + corrected leakage and dead zone of Eq. 48
 
 Per sample k (docs/manual/controllers.md, "common loop")::
@@ -30,7 +31,49 @@ The last input equals W_p^T theta_hat when u_a is the law's own unclipped output
 and the bracket is known, so filtering v_e + k1 W2^T theta_hat keeps
 e_c = xi^T (theta_hat - theta) exact under a command delay and under clipping.
 
-State arrays (all float64, owned by the caller):
+**Drifting coils: why A2 adds two things** (S5: R1 +20 %, R2 +10 % over 100 s).
+At rest the e_c rows cannot tell a resistance error from a mass error: a
+voltage error dV_j = (R_j_hat - R_j) i_j makes a constant jerk error
+-(A b_j) dV_j, a mass error a constant acceleration error, and F(s) turns
+both into constant e_c vectors (the hover equations of :mod:`.hover`: R and
+the heave combination of (mu, K) only). With the random walk on 1/m, the
+mass estimate absorbed the drift of R (m_hat 8.6 -> 10.4 kg, R_hat *falling*
+while R rose) and the plate was lost at 13.7 s. And without integral action a
+constant parameter error leaves e = W_p^T theta~ / k3: 6.5 mm per volt of coil
+error (A b_j / k3 at the 8 mm hover), so 10 um asks R to 0.4 mOhm while it
+drifts by 40 mOhm/s. Hence (A2, A2e):
+
+1. *Coil equations as regression rows.* Each coil obeys u_j = R_j i_j +
+   2K d(i_j/delta_j)/dt, linear in (R_j = R +- rho, K). Filtered by
+   lp = a/(z - (1 - a)) (a = 1 - exp(-bw T), ``coil_bandwidth``; the derivative
+   enters as lp of (b_{k+1} - b_k)/T over the period u_{a,k} was held, so no
+   current is differentiated), the residual
+
+       r_j = kappa_j (R_j_hat lp(i_j) + 2 K_hat lp(b_j') - lp(u_j)),  kappa_j = (mu_hat + c_A) |b_j| / k3
+
+   joins e_c in the least squares with weight ``coil_weight`` x kappa_j, the
+   tracking error (m) a coil misfit of 1 V would cause; its rows in (R, rho)
+   (K_hat taken as known there). R and rho are then pinned where they are observable (in the
+   current), not in the tracking error, and the random walks q_R, q_rho let
+   them follow heating. The slow bw (10 rad/s) averages out fast voltages the
+   law does not know (a 50 Hz disturbance: S4b), whose correlation with lp(i)
+   would bias R_hat.
+2. *Integral action.* The command uses v_e - ki sigma_hat with
+   sigma_hat = ((L_f^2 h)_e - y_d'') + k1 e' + k2 e + k3 E, E = int e dt
+   (state ``ie``, not integrated while the command is clipped). With
+   sigma = sigma_hat + W2^T theta~ (true acceleration) the loop is
+
+       sigma' + ki sigma = (W_p + ki W2)^T theta~,   sigma = (s^3 + k1 s^2 + k2 s + k3) E
+
+   i.e. the designed poles (s + 20)^2 (s + 30) plus one at -ki, and a constant
+   (or constantly lagging) theta~ leaves no steady error. F(s) keeps filtering
+   v_e *without* the integral term, so the e_c identity above is untouched.
+
+The paper's laws (A0, A1) and ``nonlinear_decoupling`` keep neither (baselines as published).
+Measured (100 s, kf, delay 1): S5 RMS 2.6 / 1.7 um (was: lost at 13.7 s); each part alone:
+q_R, q_rho 337 / 367 um; + coil rows 151 / 109 um; + integral action 35 / 35 um.
+
+State arrays (all float64, owned by the caller; :class:`CEState` names them, :class:`CELaw` the constants):
     theta (NTH,)  theta_hat used by the law (unscaled, Eq. 44 order, then A rho/2, B rho/2:
                   per-coil resistance R1,2 = R +- rho, see :mod:`dem_ros.core.model`)
     v (NTH,)      estimate in estimation coordinates (A0: theta; A1: theta/scale;
@@ -40,11 +83,15 @@ State arrays (all float64, owned by the caller):
     P (NTH, NTH)  covariance (A0, A1 use the leading 8x8 and keep rho = 0; A2 the leading 4x4)
     Z (3, NZ)     F(s) filter bank: 2 NTH channels of W_p, 2 of v_e + k1 W2^T theta_hat
     uh (NUH, 2)   last commands, newest first: the voltage applied now is uh[delay]
+    ie (2,)       integral of e (m s), A2 / A2e
+    coil (5, 2)   coil-equation filters per coil: lp(u), lp(i), lp(b'), previous i, b (A2 / A2e)
     cp (NCP,)     configuration vector, layout CP_* below
     diag (NDIAG,) out: m_hat, R_hat, K_hat, ec1, ec2, e1, e2, adapting, fault
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -80,8 +127,8 @@ MODE_FIXED, MODE_PAPER, MODE_PAPER_FIX, MODE_ADAPTIVE, MODE_ENHANCED = 0, 1, 2, 
     CP_MU_MIN, CP_MU_MAX, CP_R_MIN, CP_R_MAX, CP_K_MIN, CP_K_MAX,
     CP_QM, CP_QR, CP_QK, CP_ULIM, CP_DELAY,
 ) = range(27)
-CP_QRHO, CP_RHO_MAX = 27, 28
-NCP = 29
+CP_QRHO, CP_RHO_MAX, CP_KI, CP_COIL_W, CP_COIL_A = 27, 28, 29, 30, 31
+NCP = 32
 NUH = 9  # longest command delay (samples) + 1
 NTH = 10  # theta entries (8 of Eq. 44 + 2 for the coil-resistance difference)
 NZ = 2 * NTH + 2  # F(s) channels
@@ -92,12 +139,41 @@ DZ_PDOT, DZ_ERROR, DZ_OFF = 0, 1, 2
 NDIAG = 9
 
 
+class CELaw(NamedTuple):
+    """What a CE law is (fixed between ``set_params``): one argument of :func:`ce_step`.
+
+    Attributes:
+        mode: MODE_* (which adaptation).
+        cp (NCP,): configuration, layout CP_* above.
+        Ad (3, 3), Bd (3,): F(s) = 1/(s^3 + k1 s^2 + k2 s + k3) discretised with zero-order hold.
+    """
+
+    mode: int
+    cp: np.ndarray
+    Ad: np.ndarray
+    Bd: np.ndarray
+
+
+class CEState(NamedTuple):
+    """The state of a CE law (module docstring; all float64, owned by the caller)."""
+
+    theta: np.ndarray  # (NTH,)
+    v: np.ndarray  # (NTH,)
+    scale: np.ndarray  # (NTH,)
+    v0: np.ndarray  # (NTH,)
+    P: np.ndarray  # (NTH, NTH)
+    Z: np.ndarray  # (3, NZ)
+    uh: np.ndarray  # (NUH, 2)
+    ie: np.ndarray  # (2,) integral of e (m s), A2 / A2e only
+    coil: np.ndarray  # (5, 2) coil-equation filters per coil: lp(u), lp(i), lp(b'), previous i, b (A2 / A2e)
+
+
 @njit(cache=True)
 def _sym2_norm(a: float, b: float, d: float) -> float:
     """2-norm of the symmetric 2x2 [[a, b], [b, d]]."""
     h = 0.5 * (a + d)
     r = np.sqrt(0.25 * (a - d) ** 2 + b * b)
-    return max(abs(h + r), abs(h - r))
+    return float(max(abs(h + r), abs(h - r)))
 
 
 @njit(cache=True)
@@ -111,37 +187,49 @@ def physical_estimates(theta: np.ndarray, out: np.ndarray) -> None:
 
 @njit(cache=True)
 def _rls_gain(P: np.ndarray, X: np.ndarray, n: int, G: np.ndarray) -> None:
-    """G = P X (I2 + X^T P X)^{-1}; X: (n, 2), G: (n, 2)."""
-    PX = np.zeros((n, 2))
+    """G = P X (I + X^T P X)^{-1}; X: (n, m), G: (n, m) (m = 2: closed form; else a solve)."""
+    m = X.shape[1]
+    PX = np.zeros((n, m))
     for i in range(n):
-        for j in range(2):
+        for j in range(m):
             s = 0.0
             for k in range(n):
                 s += P[i, k] * X[k, j]
             PX[i, j] = s
-    s00 = 1.0
-    s01 = 0.0
-    s11 = 1.0
-    for k in range(n):
-        s00 += X[k, 0] * PX[k, 0]
-        s01 += X[k, 0] * PX[k, 1]
-        s11 += X[k, 1] * PX[k, 1]
-    det = s00 * s11 - s01 * s01
-    i00 = s11 / det
-    i01 = -s01 / det
-    i11 = s00 / det
-    for i in range(n):
-        G[i, 0] = PX[i, 0] * i00 + PX[i, 1] * i01
-        G[i, 1] = PX[i, 0] * i01 + PX[i, 1] * i11
+    if m == 2:
+        s00 = 1.0
+        s01 = 0.0
+        s11 = 1.0
+        for k in range(n):
+            s00 += X[k, 0] * PX[k, 0]
+            s01 += X[k, 0] * PX[k, 1]
+            s11 += X[k, 1] * PX[k, 1]
+        det = s00 * s11 - s01 * s01
+        i00 = s11 / det
+        i01 = -s01 / det
+        i11 = s00 / det
+        for i in range(n):
+            G[i, 0] = PX[i, 0] * i00 + PX[i, 1] * i01
+            G[i, 1] = PX[i, 0] * i01 + PX[i, 1] * i11
+        return
+    S = np.eye(m)
+    for a in range(m):
+        for b in range(m):
+            s = 0.0
+            for k in range(n):
+                s += X[k, a] * PX[k, b]
+            S[a, b] += s
+    G[:, :] = np.linalg.solve(S, np.ascontiguousarray(PX.T)).T
 
 
 @njit(cache=True)
 def _rls_cov_step(P: np.ndarray, G: np.ndarray, X: np.ndarray, n: int, dP: np.ndarray) -> None:
     """dP = G X^T P (the LS decrease); P is not modified."""
+    m = X.shape[1]
     for i in range(n):
         for j in range(n):
             s = 0.0
-            for c in range(2):
+            for c in range(m):
                 t = 0.0
                 for k in range(n):
                     t += X[k, c] * P[k, j]
@@ -150,7 +238,7 @@ def _rls_cov_step(P: np.ndarray, G: np.ndarray, X: np.ndarray, n: int, dP: np.nd
 
 
 @njit(cache=True)
-def _update_paper(cp, theta, v, P, xi, ec) -> None:
+def _update_paper(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, P: np.ndarray, xi: np.ndarray, ec: np.ndarray) -> None:
     """A0: Eq. 36 as printed, Euler-integrated: theta' = -P xi e_c / n, P' = +P xi xi^T P / n."""
     Ts = cp[CP_TS]
     Pp = np.ascontiguousarray(P[:8, :8])
@@ -169,7 +257,7 @@ def _update_paper(cp, theta, v, P, xi, ec) -> None:
 
 
 @njit(cache=True)
-def _update_paper_fixed(cp, theta, v, scale, P, xi, ec) -> None:
+def _update_paper_fixed(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np.ndarray, P: np.ndarray, xi: np.ndarray, ec: np.ndarray) -> None:
     """A1: per-sample RLS on scaled theta, decreasing P, cone projection -v5 >= |v6| + 0.01."""
     X = np.empty((8, 2))
     for i in range(8):
@@ -202,9 +290,12 @@ def _update_paper_fixed(cp, theta, v, scale, P, xi, ec) -> None:
 
 
 @njit(cache=True)
-def _update_adaptive(cp, theta, v, scale, v0, P, xi, ec, enhanced, dz_mode) -> float:
+def _update_adaptive(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np.ndarray, v0: np.ndarray, P: np.ndarray, xi: np.ndarray, ec: np.ndarray, enhanced: bool,
+                     dz_mode: int, Xc: np.ndarray, rc: np.ndarray) -> float:
     """A2 / A2e: Gauss-Newton RLS on scaled phi = (1/m, R, K, rho); returns 1.0 if adapting.
 
+    The rows are the augmented errors e_c (2) and, when ``Xc`` is not all zero, the weighted coil
+    equations: residual ``rc`` (2) and its derivative ``Xc`` (NPHI, 2) w.r.t. v (see :func:`_coil_rows`).
     A2e's dead zone gates the whole least-squares step (estimate and covariance decrease):
     outside adaptation P only grows by the random walk, so adaptation can resume.
     """
@@ -214,14 +305,28 @@ def _update_adaptive(cp, theta, v, scale, v0, P, xi, ec, enhanced, dz_mode) -> f
         phi[i] = scale[i] * v[i]
     J = np.empty((NTH, NPHI))
     theta_jacobian(phi, cp[CP_CA], J)
-    X = np.zeros((NPHI, 2))  # X = diag(phi0) J^T xi
+    coil = False
+    for i in range(NPHI):
+        if Xc[i, 0] != 0.0 or Xc[i, 1] != 0.0:
+            coil = True
+    m = 4 if coil else 2
+    X = np.zeros((NPHI, m))  # X = diag(phi0) J^T xi, then the coil rows
+    r = np.empty(m)
+    r[0] = ec[0]
+    r[1] = ec[1]
     for i in range(NPHI):
         for c in range(2):
             s = 0.0
-            for r in range(NTH):
-                s += J[r, i] * xi[r, c]
+            for k in range(NTH):
+                s += J[k, i] * xi[k, c]
             X[i, c] = scale[i] * s
-    G = np.empty((NPHI, 2))
+        if coil:
+            X[i, 2] = Xc[i, 0]
+            X[i, 3] = Xc[i, 1]
+    if coil:
+        r[2] = rc[0]
+        r[3] = rc[1]
+    G = np.empty((NPHI, m))
     _rls_gain(P, X, NPHI, G)
     dP = np.empty((NPHI, NPHI))
     _rls_cov_step(P, G, X, NPHI, dP)
@@ -233,7 +338,8 @@ def _update_adaptive(cp, theta, v, scale, v0, P, xi, ec, enhanced, dz_mode) -> f
             adapt = np.sqrt(ec[0] ** 2 + ec[1] ** 2) > cp[CP_E0]
     if adapt:
         for i in range(NPHI):
-            v[i] -= G[i, 0] * ec[0] + G[i, 1] * ec[1]
+            for c in range(m):
+                v[i] -= G[i, c] * r[c]
     if enhanced and cp[CP_W] > 0.0:
         # corrected Eq. 48b leakage towards v0: v' = -w |e_c| P (v - v0) / (1 + w^2 |P|)
         Pa = np.ascontiguousarray(P[:NPHI, :NPHI])
@@ -264,7 +370,51 @@ def _update_adaptive(cp, theta, v, scale, v0, P, xi, ec, enhanced, dz_mode) -> f
 
 
 @njit(cache=True)
-def _ydd_hat(theta, ab, N1, N2, g):
+def _coil_rows(cp: np.ndarray, scale: np.ndarray, v: np.ndarray, coil: np.ndarray, uprev: np.ndarray, i1: float, i2: float, b1: float, b2: float,
+               Xc: np.ndarray, rc: np.ndarray) -> None:
+    """The coil equations as regression rows of A2 (module docstring, "coil equations").
+
+    ``coil`` (5, 2) filter state per coil: lp(u), lp(i), lp(b'), and the previous i, b (NaN: start).
+    ``uprev`` (2,): the voltage applied over the last period (V); i_j (A), b_j = i_j/delta_j (A/m) now.
+    Advances the filters over the last period, then writes the weighted residual
+    rc_j = kappa_j (R_j_hat lp(i_j) + 2 K_hat lp(b_j') - lp(u_j)) and Xc = d rc / dv in R and rho only
+    (K_hat is taken as known here; zeros at the start).
+    """
+    Ts = cp[CP_TS]
+    a = cp[CP_COIL_A]
+    Xc[:, :] = 0.0
+    rc[0] = 0.0
+    rc[1] = 0.0
+    start = not np.isfinite(coil[3, 0])
+    ij = (i1, i2)
+    bj = (b1, b2)
+    for j in range(2):
+        if start:
+            coil[0, j] = uprev[j]
+            coil[1, j] = ij[j]
+            coil[2, j] = 0.0
+        else:
+            coil[0, j] += a * (uprev[j] - coil[0, j])
+            coil[1, j] += a * (0.5 * (coil[3, j] + ij[j]) - coil[1, j])
+            coil[2, j] += a * ((bj[j] - coil[4, j]) / Ts - coil[2, j])
+        coil[3, j] = ij[j]
+        coil[4, j] = bj[j]
+    if start or cp[CP_COIL_W] <= 0.0:
+        return
+    mu = scale[0] * v[0]
+    R = scale[1] * v[1]
+    Kc = scale[2] * v[2]
+    rho = scale[3] * v[3]
+    for j in range(2):
+        sgn = 1.0 if j == 0 else -1.0
+        kap = cp[CP_COIL_W] * (mu + cp[CP_CA]) * abs(bj[j]) / cp[CP_K3]
+        rc[j] = kap * ((R + sgn * rho) * coil[1, j] + 2.0 * Kc * coil[2, j] - coil[0, j])
+        Xc[1, j] = kap * scale[1] * coil[1, j]
+        Xc[3, j] = kap * scale[3] * sgn * coil[1, j]
+
+
+@njit(cache=True)
+def _ydd_hat(theta: np.ndarray, ab: np.ndarray, N1: float, N2: float, g: float) -> tuple[float, float]:
     """(L_f^2 h)_e = W2^T theta_hat + g (docs/manual/model.md, claim c)."""
     q1 = ab[4]
     q2 = ab[5]
@@ -274,7 +424,7 @@ def _ydd_hat(theta, ab, N1, N2, g):
 
 
 @njit(cache=True)
-def _ce_law(theta, ab, ve1, ve2, u) -> None:
+def _ce_law(theta: np.ndarray, ab: np.ndarray, ve1: float, ve2: float, u: np.ndarray) -> None:
     """u = M_hat^{-1} (v_e - (L_f^3 h)_e) (Eq. 22 corrected); NaN when M_hat is singular."""
     a1, a2, b1, b2 = ab[0], ab[1], ab[2], ab[3]
     L3_1 = 2 * (theta[0] + theta[8]) * a1 + 2 * (theta[2] - theta[9]) * a2
@@ -295,7 +445,7 @@ def _ce_law(theta, ab, ve1, ve2, u) -> None:
 
 
 @njit(cache=True)
-def _predict(mode, cp, theta, v, scale, uh, delay, x) -> bool:
+def _predict(mode: int, cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np.ndarray, uh: np.ndarray, delay: int, x: np.ndarray) -> bool:
     """Advance ``x`` by ``delay`` samples under uh[delay-1], ..., uh[0] with the estimated model."""
     est = np.empty(3)
     if mode == MODE_PAPER or mode == MODE_PAPER_FIX:  # noqa: SIM109 (numba)
@@ -333,13 +483,27 @@ def _predict(mode, cp, theta, v, scale, uh, delay, x) -> bool:
         ua[0] = uh[j, 0]
         ua[1] = uh[j, 1]
         rk4(x, ua, p, cp[CP_TS], 2)
-    return np.all(np.isfinite(x))
+    return bool(np.all(np.isfinite(x)))
 
 
 @njit(cache=True)
-def ce_step(mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, meas, ref, u, diag) -> None:
-    """One sample of the CE family. ``meas`` = [d1, d1', d2, d2', i1, i2], ``ref`` = reference (8,).
+def _integral_term(cp: np.ndarray, ydd1: float, ydd2: float, rd: np.ndarray, xd: np.ndarray, E1: float, E2: float, out: np.ndarray) -> None:
+    """sigma_hat_j = (y_j''_e - y_dj'') + k1 e_j' + k2 e_j + k3 E_j, E_j = int e_j dt (module docstring).
 
+    ``rd`` (8,): reference per magnet (y, y', y'', y'''), ``xd`` (6,): the state the law acts on.
+    """
+    k1 = cp[CP_K1]
+    k2 = cp[CP_K2]
+    k3 = cp[CP_K3]
+    out[0] = (ydd1 - rd[4]) + k1 * (xd[1] - rd[2]) + k2 * (xd[0] - rd[0]) + k3 * E1
+    out[1] = (ydd2 - rd[5]) + k1 * (xd[3] - rd[3]) + k2 * (xd[2] - rd[1]) + k3 * E2
+
+
+@njit(cache=True)
+def ce_step(law: CELaw, st: CEState, meas: np.ndarray, ref: np.ndarray, u: np.ndarray, diag: np.ndarray) -> None:
+    """One sample of the CE family: ``law`` a :class:`CELaw`, ``st`` a :class:`CEState` (updated in place).
+
+    ``meas`` = [d1, d1', d2, d2', i1, i2], ``ref`` = reference (8,), ``u`` (2,) out: the command (V).
     A non-finite measurement or reference leaves every state untouched: ``u`` keeps the
     previous command and the fault flag is set (the caller decides whether to send it).
     """
@@ -347,16 +511,26 @@ def ce_step(mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, meas, ref, u, diag)
         diag[D_FAULT] = 1.0
         diag[D_ADAPT] = 0.0
         return
+    mode = law.mode
+    cp = law.cp
+    theta = st.theta
+    v = st.v
+    scale = st.scale
+    uh = st.uh
+    Z = st.Z
     k1 = cp[CP_K1]
     k2 = cp[CP_K2]
     k3 = cp[CP_K3]
     N1 = cp[CP_N1]
     N2 = cp[CP_N2]
     g = cp[CP_G]
+    ki = cp[CP_KI] if (mode == MODE_ADAPTIVE or mode == MODE_ENHANCED) else 0.0  # noqa: SIM109 (numba)
     d1 = max(meas[0], cp[CP_FLOOR])
     d2 = max(meas[2], cp[CP_FLOOR])
     i1 = meas[4]
     i2 = meas[5]
+    ab = np.empty(6)
+    lie_terms(d1, d2, i1, i2, cp[CP_P], cp[CP_Q], ab)
     xi = np.empty((NTH, 2))
     for r in range(NTH):
         xi[r, 0] = Z[0, 2 * r]
@@ -373,23 +547,28 @@ def ce_step(mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, meas, ref, u, diag)
                 s += xi[r, j] * theta[r]
             ec[j] = s
         if mode == MODE_PAPER:
-            _update_paper(cp, theta, v, P, xi, ec)
+            _update_paper(cp, theta, v, st.P, xi, ec)
             adapting = 1.0
         elif mode == MODE_PAPER_FIX:
-            _update_paper_fixed(cp, theta, v, scale, P, xi, ec)
+            _update_paper_fixed(cp, theta, v, scale, st.P, xi, ec)
             adapting = 1.0
         else:
-            adapting = _update_adaptive(cp, theta, v, scale, v0, P, xi, ec, mode == MODE_ENHANCED, int(cp[CP_DZ]))
-    ab = np.empty(6)
-    lie_terms(d1, d2, i1, i2, cp[CP_P], cp[CP_Q], ab)
+            Xc = np.zeros((NPHI, 2))
+            rc = np.zeros(2)
+            _coil_rows(cp, scale, v, st.coil, uh[int(cp[CP_DELAY])], i1, i2, ab[2], ab[3], Xc, rc)
+            adapting = _update_adaptive(cp, theta, v, scale, st.v0, st.P, xi, ec, mode == MODE_ENHANCED, int(cp[CP_DZ]),
+                                        Xc, rc)
     # v_e at the measured state: enters the error filter whatever the law does
     ydd1, ydd2 = _ydd_hat(theta, ab, N1, N2, g)
     ve1 = ref[6] - k1 * (ydd1 - ref[4]) - k2 * (meas[1] - ref[2]) - k3 * e[0]
     ve2 = ref[7] - k1 * (ydd2 - ref[5]) - k2 * (meas[3] - ref[3]) - k3 * e[1]
     delay = int(cp[CP_DELAY])
     fault = 0.0
+    sig = np.zeros(2)
     if delay == 0:
-        _ce_law(theta, ab, ve1, ve2, u)
+        if ki > 0.0:
+            _integral_term(cp, ydd1, ydd2, ref, meas, st.ie[0], st.ie[1], sig)
+        _ce_law(theta, ab, ve1 - ki * sig[0], ve2 - ki * sig[1], u)
     else:
         # delay compensation: our command acts d samples from now, so compute it for the
         # state predicted there (estimated model, commands already in the pipe) and the
@@ -416,16 +595,24 @@ def ce_step(mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, meas, ref, u, diag)
         y1, y2 = _ydd_hat(theta, abp, N1, N2, g)
         vp1 = rp[6] - k1 * (y1 - rp[4]) - k2 * (xp[1] - rp[2]) - k3 * (xp[0] - rp[0])
         vp2 = rp[7] - k1 * (y2 - rp[5]) - k2 * (xp[3] - rp[3]) - k3 * (xp[2] - rp[1])
-        _ce_law(theta, abp, vp1, vp2, u)
+        if ki > 0.0:  # E predicted over the delay with the error of now
+            _integral_term(cp, y1, y2, rp, xp, st.ie[0] + tau * e[0], st.ie[1] + tau * e[1], sig)
+        _ce_law(theta, abp, vp1 - ki * sig[0], vp2 - ki * sig[1], u)
     lim = cp[CP_ULIM]
+    clipped = False
     for j in range(2):
         if not np.isfinite(u[j]):
             u[j] = 0.0
             fault = 1.0
         elif u[j] > lim:
             u[j] = lim
+            clipped = True
         elif u[j] < -lim:
             u[j] = -lim
+            clipped = True
+    if ki > 0.0 and fault == 0.0 and not clipped:  # anti-windup: no integration while the command is clipped
+        st.ie[0] += cp[CP_TS] * e[0]
+        st.ie[1] += cp[CP_TS] * e[1]
     # the voltage applied over this sample: our command of `delay` samples ago
     ua = np.empty(2)
     if delay == 0:
@@ -440,6 +627,7 @@ def ce_step(mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, meas, ref, u, diag)
     uh[0, 0] = u[0]
     uh[0, 1] = u[1]
     # regressor with the applied u, then advance F(s) on W_p and v_e + k1 W2^T theta_hat
+    # (v_e without the integral term: the e_c identity holds whatever the command was)
     W3 = np.empty((NTH, 2))
     W2 = np.empty((NTH, 2))
     regressors(ab, ua, N1, N2, W3, W2)
@@ -454,7 +642,7 @@ def ce_step(mode, cp, theta, v, scale, v0, P, Z, uh, Ad, Bd, meas, ref, u, diag)
         for r in range(NTH):
             s += k1 * W2[r, j] * theta[r]
         w[2 * NTH + j] += s
-    filter_step(Z, Ad, Bd, w)
+    filter_step(Z, law.Ad, law.Bd, w)
     # diagnostics
     est = np.empty(3)
     if mode == MODE_ADAPTIVE or mode == MODE_ENHANCED:  # noqa: SIM109 (numba)
@@ -482,7 +670,7 @@ NPID = 8
 
 
 @njit(cache=True)
-def pid_step(cp, integ, meas, ref, u, diag) -> None:
+def pid_step(cp: np.ndarray, integ: np.ndarray, meas: np.ndarray, ref: np.ndarray, u: np.ndarray, diag: np.ndarray) -> None:
     """i_ref = y_m sqrt(F0/K) + kp e + kd (d' - y_m') + ki int e;  u = R i_ref + kc (i_ref - i).
 
     A non-finite measurement or reference leaves the integrators untouched and sets the fault flag.

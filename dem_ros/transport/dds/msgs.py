@@ -113,10 +113,10 @@ class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::Diagnost
     values: sequence[KeyValue] = field(default_factory=list)
 
 
-DiagnosticStatus.OK = 0  # type: ignore[attr-defined]
-DiagnosticStatus.WARN = 1  # type: ignore[attr-defined]
-DiagnosticStatus.ERROR = 2  # type: ignore[attr-defined]
-DiagnosticStatus.STALE = 3  # type: ignore[attr-defined]
+DiagnosticStatus.OK = 0
+DiagnosticStatus.WARN = 1
+DiagnosticStatus.ERROR = 2
+DiagnosticStatus.STALE = 3
 
 
 @strict
@@ -322,7 +322,7 @@ def _make_gid_types(size: int) -> dict[str, type[Any]]:
     @strict
     @dataclass
     class Gid(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
-        data: array[uint8, size] = field(default_factory=lambda: [0] * size)  # type: ignore[valid-type]
+        data: array[uint8, size] = field(default_factory=lambda: [0] * size)
 
     @strict
     @dataclass
@@ -377,7 +377,7 @@ MESSAGES: dict[str, type[Any]] = {
 }
 
 #: service name suffix -> (ROS service type, request class, response class)
-SERVICES: dict[str, tuple] = {
+SERVICES: dict[str, tuple[str, type[Any], type[Any]]] = {
     "get_parameters": ("rcl_interfaces/srv/GetParameters", GetParameters_Request, GetParameters_Response),
     "set_parameters": ("rcl_interfaces/srv/SetParameters", SetParameters_Request, SetParameters_Response),
     "set_parameters_atomically": (

@@ -9,6 +9,11 @@ samples of every reader and runs the callbacks and due timers one at a time.
 Graph visibility: the participant publishes ``ros_discovery_info``
 (rmw_dds_common ParticipantEntitiesInfo: node name, namespace, reader and
 writer GIDs), so ``ros2 node list`` and ``ros2 topic info -v`` see the nodes.
+Sources: :meth:`DdsNode.subscribe_with_source` hands each sample's writer GID (its
+``publication_handle`` looked up among the reader's matched publications, cached per handle) to
+the callback, and :meth:`DdsNode.publisher_gids` joins the live writers of a topic (the
+DCPSPublication built-in topic) with the writer GIDs each node announces in
+``ros_discovery_info`` (as ``rmw_dds_common``'s graph cache does).
 Parameters are served over the six ``rcl_interfaces`` services
 (``rq/<node>/<srv>Request`` / ``rr/<node>/<srv>Reply``) and changes are
 announced on ``/parameter_events``.
@@ -16,12 +21,10 @@ announced on ``/parameter_events``.
 
 from __future__ import annotations
 
-import contextlib
-import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
-from typing import Any, ClassVar
+from typing import Any
 
 from cyclonedds._clayer import ddspy_write
 from cyclonedds.core import ReadCondition
@@ -33,7 +36,17 @@ from cyclonedds.topic import Topic as DdsTopic
 from ... import contract
 from ...contract import QoS, Topic
 from .. import paramvalue as pv
-from ..api import CallbackGuard, OnChange, RawCallback, ServiceCallback, TransportError
+from ..api import (
+    CallbackGuard,
+    OnChange,
+    RawCallback,
+    ServiceCallback,
+    SourcedCallback,
+    TransportError,
+    gid16,
+    node_fqn,
+)
+from ..logger import NodeLogger
 from ..parameters import ParameterStore
 from ..rosargs import RosArgs, initial_parameters, parse_ros_args
 from . import fastcdr, msgs, srvs, wire
@@ -46,6 +59,10 @@ QOS_SERVICES = QoS(reliable=True, transient_local=False, depth=10)
 QOS_ROSOUT = QoS(reliable=True, transient_local=True, depth=1000)
 #: how often an intra-process publisher re-reads its count of remote subscribers
 _REMOTE_CHECK_NS = 100_000_000
+#: writer GIDs cached per publication handle and sourced reader (a graph's writers on one topic: a few)
+_SOURCE_CACHE = 256
+#: at most this many live writers are read from the DCPSPublication built-in topic per query
+_MAX_WRITERS = 100_000
 
 
 def _guid_bytes(entity: Any) -> bytes:
@@ -82,6 +99,9 @@ class Participant:
         self._info_writer = DataWriter(
             self.dp, self.topic("ros_discovery_info", self._PEI), qos=wire.dds_qos(info_qos, ud)
         )
+        self._graph_readers: tuple[Any, Any, Any] | None = None  # made by the first graph query
+        #: participant GID -> {node /ns/name -> writer GIDs}, from ros_discovery_info
+        self._node_writers: dict[bytes, dict[str, set[bytes]]] = {}
 
     # -- process singleton ---------------------------------------------------------
     @classmethod
@@ -141,6 +161,37 @@ class Participant:
         if not self._nodes:
             self.remove_node(None)  # type: ignore[arg-type]
 
+    def _graph(self) -> tuple[Any, Any, Any]:
+        """(ros_discovery_info reader, DCPSPublication reader, its alive-instances condition), made once."""
+        if self._graph_readers is None:
+            from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
+            from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState
+            from cyclonedds.qos import Policy, Qos
+            from cyclonedds.util import duration
+
+            # ros_discovery_info is keyless: keep every sample until taken (each participant's newest wins)
+            qos = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.Durability.TransientLocal,
+                      Policy.History.KeepAll)
+            info = DataReader(self.dp, self.topic("ros_discovery_info", self._PEI), qos=qos)
+            pubs = BuiltinDataReader(self.dp, BuiltinTopicDcpsPublication)
+            alive = ReadCondition(pubs, SampleState.Any | ViewState.Any | InstanceState.Alive)
+            self._graph_readers = (info, pubs, alive)
+        return self._graph_readers
+
+    def publisher_gids(self, dds_topic: str, node: str) -> frozenset[bytes]:
+        """GIDs (16 bytes) of the live writers on ``dds_topic`` that node ``node`` (``/ns/name``) announces."""
+        info, pubs, alive = self._graph()
+        for pei in info.take(N=4096):
+            self._node_writers[gid16(pei.gid.data)] = {
+                node_fqn(n.node_name, n.node_namespace): {gid16(g.data) for g in n.writer_gid_seq}
+                for n in pei.node_entities_info_seq
+            }
+        mine = set().union(*(nodes.get(node, ()) for nodes in self._node_writers.values()))
+        if not mine:
+            return frozenset()
+        live = {gid16(p.key.bytes) for p in pubs.read(N=_MAX_WRITERS, condition=alive) if p.topic_name == dds_topic}
+        return frozenset(mine & live)
+
     def publish_graph(self) -> None:
         """Publish ParticipantEntitiesInfo naming every node and its endpoint GIDs."""
         g = self._Gid
@@ -165,8 +216,9 @@ class DdsPublisher:
     """
 
     def __init__(self, writer: DataWriter, cls: type, local: list[LocalSubscription] | None = None,
-                 queue: Any = None):
+                 queue: Any = None, gid: bytes = b""):
         self.writer = writer
+        self.gid = gid  # this writer's GID (16 bytes), handed to intra-process sourced subscriptions
         self._writer = writer
         self._cls = cls
         self.ref = self._ref = writer._ref
@@ -201,6 +253,8 @@ class DdsPublisher:
                     if data is None:
                         data = self._cdr(msg)
                     queue.append((sub, data))
+                elif sub.__class__ is SourcedLocalSubscription:
+                    queue.append((sub, (msg, self.gid)))
                 else:
                     queue.append((sub, msg))
             if not self._remote_subscribers():
@@ -224,37 +278,10 @@ class DdsPublisher:
         return len(self._writer.get_matched_subscriptions()) + len(self._local or ())
 
 
-class _Logger:
-    _LEVELS: ClassVar[dict[str, int]] = {"DEBUG": 10, "INFO": 20, "WARN": 30, "ERROR": 40, "FATAL": 50}
+class SourcedLocalSubscription(LocalSubscription):
+    """An intra-process subscription whose callback takes ``(msg, writer_gid)`` as one tuple."""
 
-    def __init__(self, node: DdsNode):
-        self._node = node
-        self._rosout: DdsPublisher | None = None
-
-    def _log(self, level: str, text: str) -> None:
-        t = time.time_ns()
-        sys.stderr.write(f"[{level}] [{t // 10**9}.{t % 10**9:09d}] [{self._node.logger_name}]: {text}\n")
-        sys.stderr.flush()
-        if self._rosout is not None:
-            with contextlib.suppress(Exception):  # logging must never raise
-                self._rosout.publish(msgs.Log(
-                    stamp=msgs.Time(sec=t // 10**9, nanosec=t % 10**9), level=self._LEVELS[level],
-                    name=self._node.logger_name, msg=text, file="", function="", line=0,
-                ))
-
-    def debug(self, msg: str) -> None:
-        pass
-
-    def info(self, msg: str) -> None:
-        self._log("INFO", msg)
-
-    def warn(self, msg: str) -> None:
-        self._log("WARN", msg)
-
-    warning = warn
-
-    def error(self, msg: str) -> None:
-        self._log("ERROR", msg)
+    __slots__ = ()
 
 
 class DdsNode:
@@ -285,12 +312,18 @@ class DdsNode:
         self._params: ParameterStore | None = None
         self._guard = CallbackGuard(lambda: self.logger)
         self._p.add_node(self)
-        self.logger = _Logger(self)
+        self.logger = NodeLogger(lambda: self.logger_name)
         self._p.publish_graph()
         self._rosout_pub = self._make_writer("/rosout", "rcl_interfaces/msg/Log", QOS_ROSOUT)
-        self.logger._rosout = self._rosout_pub
+        self.logger.sink = self._rosout
         self._events_pub = self.publisher(contract.PARAMETER_EVENTS)
         self._csid = 0
+
+    def _rosout(self, level: str, name: str, text: str, t_ns: int) -> None:
+        """One log record on /rosout (rcl_interfaces/msg/Log, as rcl publishes it)."""
+        self._rosout_pub.publish(msgs.Log(
+            stamp=msgs.Time(sec=t_ns // 10**9, nanosec=t_ns % 10**9), level=NodeLogger.LEVELS[level],
+            name=name, msg=text, file="", function="", line=0))
 
     # -- names -----------------------------------------------------------------------
     @property
@@ -316,11 +349,12 @@ class DdsNode:
         dds_name = dds_name or wire.topic_name(self.resolve(ros_name))
         ud = wire.user_data_for_endpoint(ros_type, self._p.settings.distro, extra_ud)
         w = DataWriter(self._p.dp, self._p.topic(dds_name, cls), qos=_qos(qos, ud, intra))
-        self._writer_gids.append(self._p.gid_of(w))
+        gid = self._p.gid_of(w)
+        self._writer_gids.append(gid)
         self._p.publish_graph()
         if intra:
-            return DdsPublisher(w, cls, self._ex.local_subscriptions(dds_name), self._ex.queue)
-        return DdsPublisher(w, cls)
+            return DdsPublisher(w, cls, self._ex.local_subscriptions(dds_name), self._ex.queue, gid16(gid))
+        return DdsPublisher(w, cls, gid=gid16(gid))
 
     def _make_reader(self, dds_name: str, ros_type: str, cls: type, qos: QoS,
                      handler: Callable[[bytes, Any], None], extra_ud: str = "", intra: bool = False) -> DataReader:
@@ -361,6 +395,41 @@ class DdsNode:
     def subscribe_raw(self, topic: Topic, callback: RawCallback) -> None:
         """Deliver the CDR bytes as received (no decode): what rosbag2 stores."""
         self._subscribe(topic, callback, raw=True)
+
+    def subscribe_with_source(self, topic: Topic, callback: SourcedCallback) -> None:
+        """``callback(msg, writer_gid)``: the writer's GID from the sample's publication handle (remote)
+        or from the publisher itself (intra-process); ``b""`` for a writer no longer matched."""
+        cls = msgs.message_class(topic.type)
+        resolved = self.resolve(topic.name)
+        dds_name = wire.topic_name(resolved)
+        intra = self._ex.intra_process
+        what = f"subscription {resolved}"
+        if intra:
+            self._ex.local_subscriptions(dds_name).append(
+                SourcedLocalSubscription(self, self._guard.wrap(what, lambda pair: callback(*pair)), False))
+        deser = fastcdr.decoder(cls)
+        gids: dict[int, bytes] = {}
+        box: list[DataReader] = []
+
+        def handler(data: bytes, info: Any) -> None:
+            h = info.publication_handle
+            gid = gids.get(h)
+            if gid is None:
+                try:
+                    gid = gid16(box[0].get_matched_publication_data(h).key.bytes)
+                except Exception:  # unmatched meanwhile (the writer left): no source to vouch for
+                    gid = b""
+                if gid:
+                    if len(gids) >= _SOURCE_CACHE:
+                        gids.clear()
+                    gids[h] = gid
+            callback(deser(data), gid)
+
+        box.append(self._make_reader(dds_name, topic.type, cls, topic.qos, self._guard.wrap(what, handler), intra=intra))
+
+    def publisher_gids(self, topic: Topic, node: str) -> frozenset[bytes]:
+        """GIDs of ``node``'s live writers on ``topic``: DCPSPublication joined with ros_discovery_info."""
+        return self._p.publisher_gids(wire.topic_name(self.resolve(topic.name)), node_fqn(node, self.namespace))
 
     def timer(self, period_s: float, callback: Callable[[], object]) -> DdsTimer:
         t = DdsTimer(period_s, self._guard.wrap(f"timer {period_s:g} s", callback), self)

@@ -1,0 +1,102 @@
+"""The estimator node's plausibility, convergence and diagnostics (real node code, in-memory transport)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dem_ros import contract
+from dem_ros.core.model import hover_state
+from dem_ros.core.params import default_config
+from dem_ros.nodes.common import ERROR, OK, WARN, joint_state, stamp_ns
+from dem_ros.nodes.estimator import EstimatorNode
+from dem_ros.transport.memory import MemoryBus
+
+T = 1_000_000  # ns
+EC = default_config()["estimator"]
+X0, U0 = hover_state(default_config()["plant_sim"], 0.008)
+
+
+def _level(st) -> int:
+    return st.level if isinstance(st.level, int) else int.from_bytes(bytes(st.level), "little")
+
+
+def _graph(*ros_args: str):
+    bus = MemoryBus()
+    node = EstimatorNode(bus.node("estimator", ["--ros-args", *ros_args]))
+    est: dict[int, list[float]] = {}
+    diags: list = []
+    probe = bus.node("probe")
+    probe.subscribe(contract.ESTIMATE, lambda m: est.__setitem__(stamp_ns(m), list(m.position)))
+    probe.subscribe(contract.DIAGNOSTICS, lambda m: diags.extend(
+        (_level(s), s.message, {kv.key: kv.value for kv in s.values}) for s in m.status if s.name == "estimator"))
+    return bus, node, est, diags
+
+
+def _feed(bus, k: int, gaps=(X0[0], X0[2]), frame=contract.FRAME, position=None) -> int:
+    JS = bus.msg("sensor_msgs/msg/JointState")
+    t = bus.now_ns + k * T
+    bus.publish(contract.APPLIED, joint_state(JS, t, effort=U0))
+    pos = position if position is not None else gaps
+    bus.publish(contract.MEASUREMENT, joint_state(JS, t, position=pos, velocity=(0.0, 0.0), effort=(X0[4], X0[5]),
+                                                  frame=frame))
+    bus.spin_once()
+    return t
+
+
+def test_a_restart_publishes_only_once_converged():
+    bus, node, est, _ = _graph()
+    n = EC["converge_samples"]
+    stamps = [_feed(bus, k) for k in range(n + 10)]
+    assert sorted(est) == stamps[n - 1:], (len(est), n)  # the n-th sample in a row that passed the gates is the first out
+    assert node.counts["withheld"] == n - 1
+    assert any("converged after" in line[2] for line in bus.log)
+
+
+def test_a_start_in_the_preroll_publishes_at_once():
+    bus, node, est, _ = _graph()
+    t = _feed(bus, 0, frame=contract.FRAME_PREROLL)
+    assert list(est) == [t] and node.counts["withheld"] == 0
+
+
+def test_spikes_are_held_counted_and_warned_and_a_dead_sensor_is_an_error():
+    bus, _node, est, diags = _graph()
+    k = 0
+    for _ in range(200):
+        _feed(bus, k)
+        k += 1
+    bus.advance(1.0)
+    assert diags[-1][0] == OK, diags[-1]
+    t_spike = _feed(bus, k, gaps=(X0[0] + 0.010, X0[2]))  # a 10 mm spike on gap 1
+    k += 1
+    t_far = _feed(bus, k, gaps=(X0[0], 0.050))  # a 50 mm reading of gap 2
+    k += 1
+    assert abs(est[t_spike][0] - X0[0]) < 1e-6 and abs(est[t_far][1] - X0[2]) < 1e-6  # the prediction held
+    bus.advance(1.0)
+    level, message, values = diags[-1]
+    assert level == WARN and "gap1_innovation +1" in message and "gap2_out_of_range +1" in message, diags[-1]
+    assert values["gap1_innovation"] == "1" and values["gap2_out_of_range"] == "1"
+    for _ in range(EC["fault_samples"]):
+        _feed(bus, k, gaps=(X0[0], 0.0))  # gap sensor 2 dead
+        k += 1
+    bus.spin_once()
+    level, message, values = diags[-1]
+    assert level == ERROR and message.startswith("gap sensor 2:"), diags[-1]  # published at once
+    assert sum("fault: gap sensor 2" in line[2] for line in bus.log) == 1
+    _feed(bus, k)  # estimates go on (from the other sensor, the currents and the model)
+    assert len(est) == 200 - EC["converge_samples"] + 1 + 2 + EC["fault_samples"] + 1
+
+
+def test_malformed_measurements_are_dropped_and_settings_retune_without_a_restart():
+    bus, node, est, diags = _graph()
+    for k in range(150):
+        _feed(bus, k)
+    _feed(bus, 150, position=[0.008])  # one gap: dropped, counted
+    assert node.counts["malformed"] == 1 and node.node.callback_errors == {}
+    assert node.node.set_parameters({"sigma_gap": 2e-5}) is None
+    n = len(est)
+    _feed(bus, 151)
+    assert len(est) == n + 1 and node.counts["restarts"] == 1  # still publishing: no re-convergence
+    assert "cannot change" in (node.node.set_parameters({"type": "none"}) or "")
+    bus.advance(1.0)
+    assert diags[-1][0] == WARN and "malformed +1" in diags[-1][1]
+    assert np.isclose(node.est.rm[0], 4e-10)

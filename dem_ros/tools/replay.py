@@ -93,13 +93,18 @@ def plot_what_if(res: dict[str, Any], out: Path) -> Path:
     """``what_if.png``: the recorded commands and the re-run law's, per coil [V]."""
     from .plots import figure, save
 
-    fig, ax = figure(2, 1)
+    fig, ax = figure(3, 1, 2.4)
     t = np.array(res["t"])
+    old, new = np.array(res["u_recorded"]), np.array(res["u_replayed"])
     for j in range(2):
-        ax[j].plot(t, np.array(res["u_recorded"])[:, j], lw=0.8, label=f"recorded ({res['recorded_law']})")
-        ax[j].plot(t, np.array(res["u_replayed"])[:, j], "--", lw=0.8, label=f"re-run: {res['law']}")
+        ax[j].plot(t, old[:, j], lw=0.8, label=f"recorded ({res['recorded_law']})")
+        ax[j].plot(t, new[:, j], "--", lw=0.8, label=f"re-run: {res['law']}")
         ax[j].set_ylabel(f"u{j + 1} [V]")
         ax[j].legend(loc="upper right", fontsize=8)
+    for j in range(2):  # the difference: often millivolts on a scale of 80 V
+        ax[2].plot(t, (new[:, j] - old[:, j]) * 1e3, lw=0.8, label=f"u{j + 1}")
+    ax[2].set_ylabel("re-run - recorded [mV]")
+    ax[2].legend(loc="upper right", fontsize=8)
     ax[-1].set_xlabel("t [s] (0: start of the scenario; t < 0: the closed-loop pre-roll)")
     changes = ", ".join(res["changes"]) or "no parameter changes"
     ax[0].set_title(f"what-if replay: {res['law']} ({changes}) on the recorded inputs")

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from itertools import pairwise
+import itertools
 
 import numpy as np
 import pytest
@@ -308,16 +308,16 @@ def _covariance_increments(name: str, cc: dict, n: int, dims: int):
 def test_A0_covariance_grows():
     """A0 (paper): P' = +P xi xi^T P/(1 + |xi^T P xi|) (erratum 13): every increment is PSD and P grows."""
     Ps = _covariance_increments("paper", CC, 60, 8)
-    for P0, P1 in pairwise(Ps):
+    for P0, P1 in itertools.pairwise(Ps):
         assert np.linalg.eigvalsh(P1 - P0).min() >= -1e-12 * np.abs(P1).max()
     assert np.trace(Ps[-1]) > np.trace(Ps[0]) * (1 + 1e-9)
 
 
 @pytest.mark.parametrize("name,dims", [("paper_fixed", 8), ("adaptive", 3), ("adaptive_enhanced", 3)])
 def test_least_squares_covariance_is_non_increasing(name, dims):
-    cc = {**CC, "q_m": 0.0, "q_R": 0.0, "q_K": 0.0}
+    cc = {**CC, "q_m": 0.0, "q_R": 0.0, "q_K": 0.0, "q_rho": 0.0}
     Ps = _covariance_increments(name, cc, 400, dims)
-    for P0, P1 in pairwise(Ps):
+    for P0, P1 in itertools.pairwise(Ps):
         assert np.linalg.eigvalsh(P1 - P0).max() <= 1e-9 * np.abs(P0).max()
     assert np.trace(Ps[-1]) < np.trace(Ps[0])
 
@@ -325,7 +325,7 @@ def test_least_squares_covariance_is_non_increasing(name, dims):
 def test_A2_process_noise_lets_the_mass_covariance_grow():
     """Control for the test above: with q_m > 0 (the default) P_mm is not monotone."""
     Ps = _covariance_increments("adaptive", CC, 400, 3)
-    assert any(P1[0, 0] > P0[0, 0] for P0, P1 in pairwise(Ps))
+    assert any(P1[0, 0] > P0[0, 0] for P0, P1 in itertools.pairwise(Ps))
 
 
 # ---------------------------------------------------------------------------

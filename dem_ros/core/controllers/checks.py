@@ -50,7 +50,7 @@ reference, published one period ahead, may lead by ``max_age`` + T.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -140,7 +140,7 @@ class InputChecks:
             return "future"
         return ""
 
-    def reference(self, t_ns: int, ref: Sequence[float] | np.ndarray) -> ReferenceVerdict:
+    def reference(self, t_ns: int, ref: np.ndarray) -> ReferenceVerdict:
         """Check a received reference (8+ values) stamped ``t_ns``; accepted ones become ``last_ref``."""
         y1, y2, d1, d2 = float(ref[0]), float(ref[1]), float(ref[2]), float(ref[3])
         if not all(np.isfinite(np.asarray(ref[:8], float))):

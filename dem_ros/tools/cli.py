@@ -13,6 +13,7 @@
     dem-ros hw        arm | disarm | estop | status of the running hardware driver
     dem-ros config    print the parameter schema or the default params file
     dem-ros study     robustness over plant truth x controllers, on Dask distributed
+    dem-ros faults    the fault catalogue (#12) injected into the real graph: outcome per fault
 
 Bad input ends with a one-line error and exit status 2, never a traceback.
 """
@@ -29,7 +30,7 @@ from .. import __version__
 from ..core.params import SCHEMA, ConfigError
 from ..nodes import NODES
 from ..transport import param_get, param_set
-from . import bench, launcher, node_main, replay, study
+from . import bench, faults, launcher, node_main, replay, study
 from .common import (
     CONTROLLER_TYPES,
     ESTIMATOR_TYPES,
@@ -49,7 +50,7 @@ from .runmetrics import RunMetrics
 __all__ = ["build_parser", "main"]
 
 #: commands that join a DDS domain (and so read ROS_DOMAIN_ID)
-_DDS_COMMANDS = ("launch", "node", "param", "hw", "bench", "replay")
+_DDS_COMMANDS = ("launch", "node", "param", "hw", "bench", "replay", "faults")
 _TRANSPORTS = ("auto", "rclpy", "dds")
 
 
@@ -313,6 +314,10 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--set", action="append", metavar="NAME=VALUE", help="what-if: change a controller parameter")
     rp.add_argument("--publish", action="store_true", help="play the bag back onto the graph at its recorded rate")
     rp.set_defaults(func=replay.cmd_replay)
+
+    ft = sub.add_parser("faults", help="inject the fault catalogue into the real graph; a table of outcomes")
+    faults.add_arguments(ft)
+    ft.set_defaults(func=faults.cmd_faults)
 
     bg = sub.add_parser("bag", help="inspect bags")
     bg.add_argument("action", choices=["check", "info"],

@@ -21,7 +21,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Collection, Sequence
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -36,6 +36,10 @@ from .runmetrics import RunMetrics
 __all__ = ["GraphError", "StartupError", "cmd_launch", "launch", "run_graph", "write_params_file"]
 
 NODES = ("recorder", "reference", "estimator", "controller", "plant_sim")
+
+
+#: ``run_graph``'s hook: (wall s since t = 0 or None, node processes, restart(name)) -> names that may be down
+Supervise = Callable[[float | None, dict[str, subprocess.Popen], Callable[[str], None]], Collection[str]]
 
 
 class GraphError(RuntimeError):
@@ -100,7 +104,8 @@ def _node_cmd(name: str, transport: str, params: Path, extra: list[str]) -> list
 
 def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, meta: dict,
               domain_id: int | None = None, status: bool = True, workdir: Path | None = None,
-              compose: bool = False, hardware: str | None = None, faults: Sequence[str] = ()) -> dict:
+              compose: bool = False, hardware: str | None = None, faults: Sequence[str] = (),
+              supervise: Supervise | None = None) -> dict:
     """Start the graph, wait for the plant to finish ``duration`` s, stop everything; return raw facts.
 
     ``compose``: all nodes in one ``container`` process (intra-process topics)
@@ -108,6 +113,11 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     ``plant_sim``, on the link ``udp://HOST:PORT`` or ``serial:///dev/...``; ``rig``
     (UDP on loopback) or ``rig-serial`` (a pty pair) also start the emulator
     ``dem-ros rig`` with ``faults`` (see :mod:`dem_ros.hardware.rig`).
+
+    ``supervise(t, procs, restart)`` (``dem-ros faults``) is called every 0.1 s with the wall time
+    since t = 0 (None before), the node processes by name (it may kill them) and ``restart(name)``
+    (starts that node again, its log appended); it returns the names that may be down now. Any
+    other node that exits ends the run with a :class:`GraphError` (the run was cut short).
     """
     workdir = workdir or Path(tempfile.mkdtemp(prefix="dem_ros_launch_"))
     workdir.mkdir(parents=True, exist_ok=True)
@@ -175,9 +185,18 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
         buf = ""
         tty = sys.stderr.isatty()
         last_status = 0.0
+        t_zero: float | None = None
+
+        def restart(name: str) -> None:
+            with open(logs[name], "ab") as out:
+                procs[name] = subprocess.Popen(_node_cmd(name, transport, params, []), env=env, stdout=out,
+                                               stderr=subprocess.STDOUT, start_new_session=True)
+
         while plant.poll() is None and not interrupted and time.monotonic() < limit:
+            may_be_down = supervise(None if t_zero is None else time.monotonic() - t_zero, procs, restart) \
+                if supervise is not None else ()
             for name, p in procs.items():
-                if name != lead and p.poll() is not None:
+                if name != lead and name not in may_be_down and p.poll() is not None:
                     raise GraphError(f"node {name} exited early with code {p.returncode}; see {logs[name]}")
             time.sleep(0.1)
             try:
@@ -192,6 +211,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
                 buf = lines[-1]
                 for line in lines[:-1]:
                     if line.startswith("t =") and cpu_start is None:  # the run (t >= 0) has begun
+                        t_zero = time.monotonic()
                         boot.close(f"dem-ros launch: the nodes were ready in {boot.elapsed:.0f} s")
                         cpu_start = {n: _cpu_seconds(p.pid) for n, p in procs.items()}
                         started = {n: time.monotonic() for n in procs}
@@ -318,7 +338,7 @@ def _config_from_args(args: Any) -> tuple[dict[str, dict[str, Any]], Scenario, f
     return cfg, sc, duration
 
 
-def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any]]:
+def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None) -> tuple[RunMetrics, dict[str, Any]]:
     """Run the graph as ``dem-ros launch`` does: (metrics read back from the bag, launch facts).
 
     The facts: ``composed``, ``offline_rms_error_um`` (the same configuration
@@ -368,7 +388,8 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
     try:
         facts = run_graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id,
                           status=not quiet, workdir=(bag.parent / (bag.name + "_logs")) if record else None,
-                          compose=compose, hardware=hardware, faults=getattr(args, "fault", None) or ())
+                          compose=compose, hardware=hardware, faults=getattr(args, "fault", None) or (),
+                          supervise=supervise)
         with Progress("dem-ros launch", None, enabled=not quiet) as bar:
             bar.stage(f"reading the bag for the metrics ({bag.name})")
             metrics = RunMetrics.from_bag(bag)

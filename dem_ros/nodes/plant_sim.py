@@ -75,10 +75,10 @@ class PlantSimNode:
         self.node = node
         self.cfg = node.declare_parameters("plant_sim", self.on_change)
         c = self.cfg
-        self.dt_ns = int(round(c["dt"] * 1e9))
+        self.dt_ns = round(c["dt"] * 1e9)
         self.early_ns = self.dt_ns // 2  # a tick this much before ``due`` publishes the sample
         self.plant = DemPlant(c, c["duration"])
-        self.n_end = int(round(c["duration"] / c["dt"])) if c["duration"] > 0 else 0
+        self.n_end = round(c["duration"] / c["dt"]) if c["duration"] > 0 else 0
         warm_up()  # kernels resident before we subscribe (no slow first samples)
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
@@ -106,7 +106,7 @@ class PlantSimNode:
         self.k_next = 0
         self.epoch = 0  # stamp of sample 0 (t = 0 of the experiment), plant clock
         self.due = 0  # wall time (monotonic ns) at which sample k_next is due
-        self.wait_since = None  # lockstep: wall time we started waiting for the current sample
+        self.wait_since: int | None = None  # lockstep: wall time we started waiting for the current sample
         self.wall0 = 0
         self.cpu0: float | None = None  # process CPU time at t = 0
         self.t_boot = time.monotonic()
@@ -135,7 +135,7 @@ class PlantSimNode:
             self.node.logger.warn("non-finite command ignored")
             return
         t = stamp_ns(msg)
-        k = int(round((t - self.epoch) / self.dt_ns))
+        k = round((t - self.epoch) / self.dt_ns)
         slot = k % RING
         self.cmd_stamp[slot] = t
         self.cmd_u[slot] = u
@@ -164,7 +164,7 @@ class PlantSimNode:
             if not self._ready():
                 return
             self.started = True
-            self.n_pre = int(round(self.cfg["preroll"] / self.cfg["dt"]))
+            self.n_pre = round(self.cfg["preroll"] / self.cfg["dt"])
             self.k_next = -self.n_pre
             self.epoch = self.node.now_ns() + self.n_pre * self.dt_ns
             self.due = now

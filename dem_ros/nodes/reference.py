@@ -31,7 +31,7 @@ from .. import contract
 from ..core.reference import ReferenceModel, command, hover_start
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import WARN, Diagnostics, JointStates, stamp_ns
+from .common import OK, WARN, Diagnostics, JointStates, stamp_ns
 
 __all__ = ["ReferenceNode", "main"]
 
@@ -55,13 +55,12 @@ class ReferenceNode:
         self.next_k = 0
         self.refused = 0
         self._last_warn = 0
-        # /diagnostics "reference" once a second: WARN after refused measurements and while resting after a restart
-        self.diag = Diagnostics(node, "reference", warn_on=("refused",), values=lambda: {
-            "refused": self.refused, "next_sample": self.next_k, "epoch_ns": self.epoch if self.epoch is not None else ""})
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.REFERENCE_NAMES)  # shared by every message published (never modified)
         self.pub = node.publisher(contract.REFERENCE)
+        # /diagnostics "reference" once a second: WARN after refused measurements and while resting after a restart
+        self.diag = Diagnostics(node, "reference", warn_on=("refused",), values=self._diag_values)
         node.subscribe(contract.MEASUREMENT, self.on_measurement)
         node.subscribe(contract.DIAGNOSTICS, self.on_diagnostics)
         node.logger.info("ready")
@@ -85,6 +84,14 @@ class ReferenceNode:
     def _send(self, t_ns: int, vec: list[float], frame: str = contract.FRAME) -> None:
         """Publish [y_d (8), r (2)] stamped ``t_ns`` (see ``contract.REFERENCE_NAMES``)."""
         self.pub.publish(self.js.make(self.js.header(t_ns, frame), self.names, vec))
+
+    def _diag_values(self) -> dict:
+        resting = self.epoch is None and self.resting_at is not None
+        self.diag.set_condition(WARN if resting else OK, "restarted after t = 0: resting until the plant's epoch is"
+                                " known" if resting else "schedule" if self.epoch is not None else "pre-roll")
+        t = (self.next_k - 1) * self.cfg["dt"] if self.epoch is not None else None
+        return {"refused": self.refused, "schedule_t_s": "none" if t is None else round(t, 3),
+                "epoch_ns": self.epoch if self.epoch is not None else "none"}
 
     def _refuse(self, why: str) -> None:
         self.refused += 1

@@ -93,13 +93,18 @@ def plot_what_if(res: dict[str, Any], out: Path) -> Path:
     """``what_if.png``: the recorded commands and the re-run law's, per coil [V]."""
     from .plots import figure, save
 
-    fig, ax = figure(2, 1)
+    fig, ax = figure(3, 1, 2.4)
     t = np.array(res["t"])
+    old, new = np.array(res["u_recorded"]), np.array(res["u_replayed"])
     for j in range(2):
-        ax[j].plot(t, np.array(res["u_recorded"])[:, j], lw=0.8, label=f"recorded ({res['recorded_law']})")
-        ax[j].plot(t, np.array(res["u_replayed"])[:, j], "--", lw=0.8, label=f"re-run: {res['law']}")
+        ax[j].plot(t, old[:, j], lw=0.8, label=f"recorded ({res['recorded_law']})")
+        ax[j].plot(t, new[:, j], "--", lw=0.8, label=f"re-run: {res['law']}")
         ax[j].set_ylabel(f"u{j + 1} [V]")
         ax[j].legend(loc="upper right", fontsize=8)
+    for j in range(2):  # the difference: often millivolts on a scale of 80 V
+        ax[2].plot(t, (new[:, j] - old[:, j]) * 1e3, lw=0.8, label=f"u{j + 1}")
+    ax[2].set_ylabel("re-run - recorded [mV]")
+    ax[2].legend(loc="upper right", fontsize=8)
     ax[-1].set_xlabel("t [s] (0: start of the scenario; t < 0: the closed-loop pre-roll)")
     changes = ", ".join(res["changes"]) or "no parameter changes"
     ax[0].set_title(f"what-if replay: {res['law']} ({changes}) on the recorded inputs")
@@ -125,6 +130,14 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     series ``t`` [s] (experiment clock: t = 0 at the scenario's start, negative in the pre-roll),
     ``u_replayed``, ``u_recorded`` (K, 2) [V]. ``progress``: report on stderr (a long bag takes a while).
     """
+    bar = Progress("dem-ros replay", None, "samples", stage=f"reading the recorded inputs of {bag}", enabled=progress)
+    try:
+        return _what_if(bag, controller, sets, bar)
+    finally:
+        bar.close()
+
+
+def _what_if(bag: Path, controller: str | None, sets: list[str] | None, bar: Progress) -> dict:
     from ..bag import BagError, BagReader
     from ..core.controllers import make_controller
     from ..core.params import SCHEMA, apply_overrides, default_config, parse_assignment
@@ -166,7 +179,7 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     ctrl = make_controller(ccfg, name)
     started = False
     u_new, u_old, stamps = [], [], []
-    bar = Progress("dem-ros replay", len(est["stamp_ns"]), "samples", enabled=progress)
+    bar.total = len(est["stamp_ns"])
     bar.stage(f"re-running {name}")
     for i, t in enumerate(est["stamp_ns"]):
         bar.step()
@@ -191,7 +204,6 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
         u_new.append(np.clip(u, -ccfg["voltage_limit"], ccfg["voltage_limit"]))
         u_old.append(cmd["effort"][cmd_by[t], :2])
         stamps.append(t)
-    bar.close()
     if not stamps:
         raise BagError(f"{bag}: no sample on which the controller acted")
     epoch = _epoch_ns(r)
@@ -220,8 +232,8 @@ def publish(bag: Path, rate: float = 1.0, progress: bool = True) -> dict:
     total = sum(r.topics[n].count for n in names)
     node = make_node("dem_ros_player", transport="dds", args=[])
     pubs = {n: node.publisher(topics[n]) for n in names}
-    bar = Progress("dem-ros replay --publish", total, "messages", enabled=progress, quiet=0.0)
-    bar.stage("waiting 1 s for subscribers to discover the player")
+    bar = Progress("dem-ros replay --publish", total, "messages", stage="waiting 1 s for subscribers to discover the player",
+                   enabled=progress, quiet=0.0)
     time.sleep(1.0)  # discovery
     bar.stage(f"playing {len(pubs)} topics at the recorded rate")
     sent = 0

@@ -333,8 +333,8 @@ _CONTROLLERS = ("adaptive", "adaptive_enhanced", "paper", "paper_fixed", "nonlin
 
 SCHEMA = Schema(
     groups={
-        "plant_sim": _geometry("true ")
-        + (
+        "plant_sim": (
+            *_geometry("true "),
             ParamSpec("m", float, TABLE2["m"], "kg", "true mass of the suspended module", 0.1, 1e4),
             ParamSpec("R", float, TABLE2["R"], "ohm", "true coil resistance", 0.01, 1e4),
             ParamSpec("K", float, TABLE2["K"], "N*m^2/A^2", "true force coefficient, F = K i^2/delta^2", 1e-7, 1.0),
@@ -373,8 +373,8 @@ SCHEMA = Schema(
             ParamSpec("start_delay", float, 3.0, "s", "graph: wait at least this long after start-up before t = 0 (discovery)", 0.0, 600.0),
             ParamSpec("min_subscribers", int, 2, "", "graph: wait (up to 30 s) until this many readers match /dem/measurement (estimator, reference)", 0, 100),
             COMMAND_SOURCE,
-        )
-        + SAFETY_SPECS,
+            *SAFETY_SPECS,
+        ),
         "reference": (
             ParamSpec("b0", float, 0.25, "s^-3", "reference model numerator, M(s) = b0/(s^3+a2 s^2+a1 s+a0) (Eq. 46)", 1e-9, 1e9),
             ParamSpec("a2", float, 2.0, "s^-1", "reference model denominator coefficient", 1e-9, 1e9),
@@ -404,9 +404,7 @@ SCHEMA = Schema(
             ParamSpec("fault_samples", int, 20, "samples", "this many rejected samples of one gap sensor in a row declare it faulty (latched; ERROR on /diagnostics)", 1, 100000),
             ParamSpec("converge_samples", int, 100, "samples", "after a (re)start the node publishes no estimate until this many samples in a row passed the gates", 1, 100000),
             ParamSpec("dt", float, 1e-3, "s", "sample period", 1e-5, 0.1, read_only=True),
-        )
-        + _geometry("model ")
-        + (
+            *_geometry("model "),
             ParamSpec("m", float, TABLE2["m"], "kg", "model mass used by the filter", 0.1, 1e4),
             ParamSpec("R", float, TABLE2["R"], "ohm", "model coil resistance used by the filter", 0.01, 1e4),
             ParamSpec("K", float, TABLE2["K"], "N*m^2/A^2", "model force coefficient used by the filter", 1e-7, 1.0),
@@ -420,9 +418,7 @@ SCHEMA = Schema(
             ParamSpec("coil_weight", float, 1.0, "", "adaptive / adaptive_enhanced: weight of the coil equations u_j = R_j i_j + 2K d(i_j/delta_j)/dt in the least squares, relative to the tracking error a coil-voltage misfit causes (0: off)", 0.0, 1e6),
             ParamSpec("coil_bandwidth", float, 10.0, "rad/s", "low-pass bw/(s + bw) of the coil equations' signals (no differentiated current; slow: averages out unknown fast voltages such as a 50 Hz disturbance, which would bias R)", 0.1, 1e4),
             ParamSpec("ki", float, 10.0, "s^-1", "integral action of adaptive / adaptive_enhanced: error dynamics (s + ki)(s^3 + k1 s^2 + k2 s + k3) on int e (0: off)", 0.0, 1e4),
-        )
-        + _geometry("model ")
-        + (
+            *_geometry("model "),
             ParamSpec("m_init", float, 10.0, "kg", "initial mass estimate (paper: 10)", 0.1, 1e4),
             ParamSpec("R_init", float, 15.0, "ohm", "initial resistance estimate (paper: 15)", 0.01, 1e4),
             ParamSpec("K_init", float, 3.0618e-4, "N*m^2/A^2", "initial force-coefficient estimate (docs/manual/model.md: 0.7 K)", 1e-7, 1.0),

@@ -30,7 +30,7 @@ import sys
 import numpy as np
 
 from .. import contract
-from ..core.estimator import KalmanEstimator, make_estimator
+from ..core.estimator import Estimator, KalmanEstimator, make_estimator
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
 from .common import WARN, Diagnostics, JointStates, all_finite, meas_into, stamp_ns
@@ -44,7 +44,7 @@ class EstimatorNode:
     def __init__(self, node: Node):
         self.node = node
         self.cfg = node.declare_parameters("estimator", self.on_change)
-        self.est = None
+        self.est: Estimator | None = None
         self.has_v: bool | None = None
         self.u_prev: np.ndarray | None = None  # the newest applied voltage (a row of ``u_ring``)
         # applied voltages by stamp, the newest KEEP: stamp -> row of u_ring (V), filled in place

@@ -48,7 +48,7 @@ __all__ = ["HwDriverNode", "main"]
 RING = 256  # receive times kept by sample number (latency: sample received -> command sent)
 #: link and board counters whose growth makes the next /diagnostics report a WARN
 WARN_ON = ("lost", "duplicated", "reordered", "late", "corrupt", "hold_samples", "commands_dropped", "sensor_holds",
-           "link_loss", "watchdog")
+           "link_loss", "watchdog", "commands_foreign")
 #: board modes that are reported as a standing WARN (the board is landing or has landed the plate)
 BOARD_DOWN = (Mode.LAND, Mode.LANDED, Mode.FAULT)
 

@@ -293,15 +293,17 @@ def _kill_hook(spec: FaultSpec, inj: Injector) -> Callable[..., Collection[str]]
 
 def _launch_args(scenario: str, duration: float, compose: bool, free_run: bool, bag_dir: Path, domain_id: int,
                  sets: list[str]) -> argparse.Namespace:
-    from .cli import build_parser
-
-    argv = ["launch", "--scenario", scenario, "--duration", str(duration), "--bag-dir", str(bag_dir),
+    argv = ["--scenario", scenario, "--duration", str(duration), "--bag-dir", str(bag_dir),
             "--domain-id", str(domain_id), "--transport", "dds"]
     argv += ["--compose"] if compose else []
     argv += ["--free-run"] if free_run else []
     for s in sets:
         argv += ["--set", s]
-    return build_parser().parse_args(argv)
+    from .launcher import add_arguments
+
+    parser = argparse.ArgumentParser(prog="dem-ros faults")
+    add_arguments(parser)
+    return parser.parse_args(argv)
 
 
 def _log_levels(logs: dict[str, str], since_ns: int) -> dict[str, int]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from _symbolic import lie_numeric, plant, values
@@ -129,7 +131,7 @@ def _augmented_error_run(dt: float, delay: int = 0, T: float = 1.5):
         cc["command_delay"] = delay
     ctrl = make_controller(cc, "nonlinear_decoupling")
     th_hat = ctrl.theta.copy()
-    n = int(round(T / dt))
+    n = round(T / dt)
     _, yd = reference_trajectory({**EARLY_STEPS, "dt": dt}, n)
     ec = np.empty((n, 2))
     rhs = np.empty((n, 2))
@@ -306,16 +308,16 @@ def _covariance_increments(name: str, cc: dict, n: int, dims: int):
 def test_A0_covariance_grows():
     """A0 (paper): P' = +P xi xi^T P/(1 + |xi^T P xi|) (erratum 13): every increment is PSD and P grows."""
     Ps = _covariance_increments("paper", CC, 60, 8)
-    for P0, P1 in zip(Ps, Ps[1:]):
+    for P0, P1 in itertools.pairwise(Ps):
         assert np.linalg.eigvalsh(P1 - P0).min() >= -1e-12 * np.abs(P1).max()
     assert np.trace(Ps[-1]) > np.trace(Ps[0]) * (1 + 1e-9)
 
 
 @pytest.mark.parametrize("name,dims", [("paper_fixed", 8), ("adaptive", 3), ("adaptive_enhanced", 3)])
 def test_least_squares_covariance_is_non_increasing(name, dims):
-    cc = {**CC, "q_m": 0.0, "q_R": 0.0, "q_K": 0.0}
+    cc = {**CC, "q_m": 0.0, "q_R": 0.0, "q_K": 0.0, "q_rho": 0.0}
     Ps = _covariance_increments(name, cc, 400, dims)
-    for P0, P1 in zip(Ps, Ps[1:]):
+    for P0, P1 in itertools.pairwise(Ps):
         assert np.linalg.eigvalsh(P1 - P0).max() <= 1e-9 * np.abs(P0).max()
     assert np.trace(Ps[-1]) < np.trace(Ps[0])
 
@@ -323,7 +325,7 @@ def test_least_squares_covariance_is_non_increasing(name, dims):
 def test_A2_process_noise_lets_the_mass_covariance_grow():
     """Control for the test above: with q_m > 0 (the default) P_mm is not monotone."""
     Ps = _covariance_increments("adaptive", CC, 400, 3)
-    assert any(P1[0, 0] > P0[0, 0] for P0, P1 in zip(Ps, Ps[1:]))
+    assert any(P1[0, 0] > P0[0, 0] for P0, P1 in itertools.pairwise(Ps))
 
 
 # ---------------------------------------------------------------------------
@@ -343,7 +345,7 @@ def test_make_controller_rejects_unknown_names():
     assert "'mrac'" in str(exc.value) and "adaptive" in str(exc.value)
     with pytest.raises(ConfigError):
         CEController(CC, "decentralized_pid")
-    with pytest.raises(ConfigError, match="controller.k1"):
+    with pytest.raises(ConfigError, match=r"controller\.k1"):
         make_controller({**CC, "k1": -1.0}, "adaptive")
 
 

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -105,13 +106,13 @@ class InputChecks:
         last_ref_t: its stamp [ns] (None before the first).
     """
 
-    def __init__(self, cfg: Mapping):
+    def __init__(self, cfg: Mapping[str, Any]):
         self.t_plant: int | None = None
         self.last_ref = np.zeros(8)
         self.last_ref_t: int | None = None
         self.configure(cfg)
 
-    def configure(self, cfg: Mapping) -> None:
+    def configure(self, cfg: Mapping[str, Any]) -> None:
         """Take (validated) settings; acts from the next call."""
         self.dt_ns = round(cfg["dt"] * 1e9)
         self.max_age_ns = round(cfg["max_age"] * 1e9)
@@ -139,7 +140,7 @@ class InputChecks:
             return "future"
         return ""
 
-    def reference(self, t_ns: int, ref) -> ReferenceVerdict:
+    def reference(self, t_ns: int, ref: np.ndarray) -> ReferenceVerdict:
         """Check a received reference (8+ values) stamped ``t_ns``; accepted ones become ``last_ref``."""
         y1, y2, d1, d2 = float(ref[0]), float(ref[1]), float(ref[2]), float(ref[3])
         if not all(np.isfinite(np.asarray(ref[:8], float))):

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -225,14 +226,14 @@ LIFTOFF_MIN_S = 0.5  # s: the shortest lift-off blend
 LIFTOFF_CLEARANCE = 1e-3  # m: the lift-off takes the plate at least this far off its support
 
 
-def _hover_forces(cfg: Mapping) -> np.ndarray:
+def _hover_forces(cfg: Mapping[str, Any]) -> np.ndarray:
     """Hover forces F_j (2,) [N] of the nominal model: F1 + F2 = m g + N1 + N2, (F1 - F2) l = (N1 - N2) L."""
     w = cfg["m_nominal"] * cfg["g"] + cfg["N1"] + cfg["N2"]
     d = cfg["L"] / cfg["l"] * (cfg["N1"] - cfg["N2"])
     return np.maximum(0.5 * np.array([w + d, w - d]), 0.0)
 
 
-def _deltas(cfg: Mapping, z: np.ndarray) -> np.ndarray:
+def _deltas(cfg: Mapping[str, Any], z: np.ndarray) -> np.ndarray:
     """Magnet gaps delta_j (2,) [m] (Eq. 6) of the load-point gaps z[0], z[2], floored at gap_floor."""
     L, l = cfg["L"], cfg["l"]
     P, Q = (L + l) / (2 * L), (L - l) / (2 * L)
@@ -240,7 +241,7 @@ def _deltas(cfg: Mapping, z: np.ndarray) -> np.ndarray:
     return np.array([P * d1 + Q * d2, Q * d1 + P * d2])
 
 
-def lift_fraction(z: np.ndarray, cfg: Mapping) -> float:
+def lift_fraction(z: np.ndarray, cfg: Mapping[str, Any]) -> float:
     """Share of the load the magnets carry: sum_j K i_j^2/delta_j^2 / (m g + N1 + N2) (nominal model).
 
     ``z`` = [d1, d1', d2, d2', i1, i2] (m, m/s, A); ``cfg``: the controller group (L, l, N1, N2, g,
@@ -252,7 +253,7 @@ def lift_fraction(z: np.ndarray, cfg: Mapping) -> float:
     return float(f / (cfg["m_nominal"] * cfg["g"] + cfg["N1"] + cfg["N2"]))
 
 
-def premagnetise(z: np.ndarray, cfg: Mapping, fraction: float = PREMAG_FRACTION) -> tuple[np.ndarray, np.ndarray]:
+def premagnetise(z: np.ndarray, cfg: Mapping[str, Any], fraction: float = PREMAG_FRACTION) -> tuple[np.ndarray, np.ndarray]:
     """(i*, u) (2,), (2,) [A], [V]: the currents of ``fraction`` of the nominal hover force at the
     measured gaps, i*_j = delta_j sqrt(fraction F_j / K), and the voltages that hold them,
     u_j = R_nominal i*_j."""

@@ -91,7 +91,8 @@ APPLIED = Topic(
 ESTIMATE = Topic(
     "/dem/state_estimate", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "estimator",
     ("controller", "recorder"),
-    "position: estimated gaps [m]; velocity: estimated gap rates [m/s]; effort: estimated currents [A]",
+    "position: estimated gaps [m]; velocity: estimated gap rates [m/s]; effort: estimated currents [A]; "
+    "none after a (re)start until the filter has converged (a start in the pre-roll publishes at once)",
 )
 REFERENCE = Topic(
     "/dem/reference", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "reference",
@@ -102,7 +103,8 @@ REFERENCE = Topic(
 COMMAND = Topic(
     "/dem/command", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "controller",
     ("plant_sim | hardware driver", "recorder"),
-    "effort: coil voltages u1, u2 [V]; stamp = stamp of the measurement it was computed from",
+    "effort: coil voltages u1, u2 [V]; stamp = stamp of the measurement it was computed from; taken only from "
+    "the writers of the node named by the subscriber's command_source (others dropped, counted, reported)",
 )
 CONTROLLER_STATE = Topic(
     "/dem/controller/state", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "controller",
@@ -113,7 +115,9 @@ CONTROLLER_STATE = Topic(
 DIAGNOSTICS = Topic(
     "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", QOS_STREAM, 1.0, "every node",
     ("recorder", "rqt_robot_monitor"),
-    "loop statistics (cycles, deadline misses, latency), stale/invalid input counts, faults",
+    "one status per node at 1 Hz (named after the node; the loop's 'plant_sim: loop' / 'hw_driver: loop'): "
+    "counters, loop statistics (cycles, deadline misses, latency), rejected input; WARN after a counted "
+    "problem, ERROR on a fault (latched, published at once)",
 )
 RUN_INFO = Topic(
     "/dem/run_info", "std_msgs/msg/String", QOS_LATCHED, None, "launcher",

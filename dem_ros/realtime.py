@@ -590,3 +590,32 @@ def tty_workers_fifo(priority: int) -> Iterator[list[int]]:
         for tid, policy, prio in changed:
             with contextlib.suppress(OSError):
                 os.sched_setscheduler(tid, policy, os.sched_param(prio))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m dem_ros.realtime --tty-workers-fifo N -- COMMAND ...``: run COMMAND with the
+    kernel's tty workers at SCHED_FIFO N (:func:`tty_workers_fifo`), restored when it ends; e.g.
+    ``... -- dem-ros launch --hardware rig-serial --compose --scenario S1``."""
+    import argparse
+    import subprocess
+
+    p = argparse.ArgumentParser(prog="python -m dem_ros.realtime", description=main.__doc__.splitlines()[0]
+                                if main.__doc__ else None)
+    p.add_argument("--tty-workers-fifo", type=int, required=True, metavar="N", help="SCHED_FIFO priority 1..99")
+    p.add_argument("command", nargs=argparse.REMAINDER, help="-- COMMAND [ARGS...]")
+    a = p.parse_args(argv)
+    cmd = a.command[1:] if a.command[:1] == ["--"] else a.command
+    if not cmd or not 1 <= a.tty_workers_fifo <= 99:
+        p.error("give --tty-workers-fifo 1..99 and a command after --")
+    with tty_workers_fifo(a.tty_workers_fifo) as changed:
+        print(f"tty workers: {len(changed)} kworker/u thread(s) at SCHED_FIFO {a.tty_workers_fifo}" if changed
+              else "tty workers: not permitted (needs root / CAP_SYS_NICE); running the command anyway", file=sys.stderr)
+        try:
+            return subprocess.call(cmd)
+        except OSError as exc:
+            print(f"error: {cmd[0]}: {exc.strerror}", file=sys.stderr)
+            return 127
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -7,6 +7,7 @@ The fallback is tested for real: a child process runs without CAP_SYS_NICE / CAP
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -263,3 +264,35 @@ def test_leave_loop_is_idempotent_and_counts_what_it_changed():
     assert r.returncode == 0, r.stderr
     line = next(ln for ln in r.stdout.splitlines() if ln.startswith("CHILD")).split()
     assert line[1] == ("True" if os.geteuid() == 0 else "False") and line[2] == "0" and int(line[3]) == os.SCHED_OTHER
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="changing kernel threads' scheduling needs root (CAP_SYS_NICE)")
+def test_tty_workers_run_at_fifo_meanwhile_and_get_their_policy_back():
+    from dem_ros.realtime import TTY_WORKERS_PREFIX, tty_workers_fifo
+
+    def workers() -> dict[int, int]:
+        out = {}
+        for pid in os.listdir("/proc"):
+            with contextlib.suppress(OSError):
+                if pid.isdigit() and Path(f"/proc/{pid}/comm").read_text().startswith(TTY_WORKERS_PREFIX):
+                    out[int(pid)] = os.sched_getscheduler(int(pid))
+        return out
+
+    pre = workers()
+    with tty_workers_fifo(1) as changed:
+        during = workers()
+    if not changed:
+        pytest.skip("this kernel has no kworker/u threads right now")
+    assert all(during[t] == os.SCHED_FIFO for t in changed if t in during), during
+    post = workers()
+    assert {t: post[t] for t in changed if t in post and t in pre} == {t: pre[t] for t in changed if t in post and t in pre}
+
+
+def test_the_tty_workers_wrapper_runs_the_command_and_passes_its_exit_code():
+    r = subprocess.run([sys.executable, "-m", "dem_ros.realtime", "--tty-workers-fifo", "1", "--", sys.executable, "-c",
+                        "raise SystemExit(7)"], env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True,
+                       text=True, timeout=120, cwd=ROOT)
+    assert r.returncode == 7 and "tty workers:" in r.stderr, r.stderr
+    r = subprocess.run([sys.executable, "-m", "dem_ros.realtime", "--tty-workers-fifo", "1"],
+                       env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert r.returncode == 2 and "a command after --" in r.stderr and "Traceback" not in r.stderr

@@ -73,6 +73,7 @@ does not publish before that (see docs/manual/topics.md).
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -80,7 +81,7 @@ from numba import njit
 from .model import IK, IP, IQ, dynamics, plant_vector
 from .params import SCHEMA
 
-__all__ = ["GATE_SIZE", "KalmanEstimator", "PassThrough", "make_estimator"]
+__all__ = ["GATE_SIZE", "Estimator", "KalmanEstimator", "PassThrough", "make_estimator"]
 
 NS = 10
 
@@ -152,7 +153,7 @@ def jacobian(s: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def _init_cov(P, rm, w0) -> None:
+def _init_cov(P: np.ndarray, rm: np.ndarray, w0: float) -> None:
     """P of a (re)start: the measurement variances on [d, d', i], 1 (m/s^2)^2 on beta, ``w0`` V^2 on w."""
     P[:, :] = 0.0
     for i in range(6):
@@ -164,7 +165,7 @@ def _init_cov(P, rm, w0) -> None:
 
 
 @njit(cache=True)
-def _gate(s, P, z, use, rm, gate) -> bool:
+def _gate(s: np.ndarray, P: np.ndarray, z: np.ndarray, use: np.ndarray, rm: np.ndarray, gate: np.ndarray) -> bool:
     """Range and chi^2 gates of the module docstring on each gap sensor; clears ``use`` of a rejected
     sensor's gap and rate and counts. True when every gap was accepted."""
     good = True
@@ -195,12 +196,13 @@ def _gate(s, P, z, use, rm, gate) -> bool:
 
 
 @njit(cache=True)
-def _finite(a) -> bool:
+def _finite(a: np.ndarray) -> bool:
     return bool(np.all(np.isfinite(a)))
 
 
 @njit(cache=True)
-def ekf_step(s, P, z, mask, u_prev, p, T, qc, rm, out, gate=None) -> None:
+def ekf_step(s: np.ndarray, P: np.ndarray, z: np.ndarray, mask: np.ndarray, u_prev: np.ndarray, p: np.ndarray,
+             T: float, qc: np.ndarray, rm: np.ndarray, out: np.ndarray, gate: np.ndarray | None = None) -> None:
     """One predict + update. ``z`` (6,) measured [d1, d1', d2, d2', i1, i2]; ``mask`` (6,) 1 = measured.
 
     ``qc`` = (sigma_accel^2, sigma_voltage^2, sigma_bias^2, sigma_voltage_bias^2), ``rm`` (6,) measurement variances.
@@ -296,7 +298,7 @@ class KalmanEstimator:
 
     name = "kf"
 
-    def __init__(self, cfg: Mapping, measure_velocity: bool = True):
+    def __init__(self, cfg: Mapping[str, Any], measure_velocity: bool = True):
         self.mask = np.array([1.0, float(measure_velocity), 1.0, float(measure_velocity), 1.0, 1.0])
         self.s = np.zeros(NS)
         self.P = np.eye(NS)
@@ -305,14 +307,14 @@ class KalmanEstimator:
         self.started = False
         self.configure(cfg)
 
-    def configure(self, cfg: Mapping) -> None:
+    def configure(self, cfg: Mapping[str, Any]) -> None:
         """Take new settings (noise levels, model, gates) without restarting: state and covariance stay."""
         from scipy.stats import chi2
 
         self.cfg = SCHEMA.validate_group("estimator", dict(cfg))
         c = self.cfg
         self.p = plant_vector(c)
-        self.T = c["dt"]
+        self.T = float(c["dt"])
         self.qc = np.array([c["sigma_accel"] ** 2, c["sigma_voltage"] ** 2, c["sigma_bias"] ** 2,
                             c["sigma_voltage_bias"] ** 2])
         self.rm = np.array([c["sigma_gap"], c["sigma_rate"], c["sigma_gap"], c["sigma_rate"],
@@ -371,6 +373,12 @@ class KalmanEstimator:
         return self.started and self.gate[G_GOOD] >= self.cfg["converge_samples"]
 
     @property
+    def faulty(self) -> bool:
+        """A sensor fault is latched (cheap: for the 1 kHz path; :attr:`faults` says why)."""
+        g = self.gate
+        return bool(g[G_FAULT] or g[G_FAULT + 1] or g[G_BFAULT] or g[G_BFAULT + 1])
+
+    @property
     def faults(self) -> list[str]:
         """Why each faulty gap sensor was declared faulty (latched), e.g. ``"gap sensor 1: 20 rejections in a row"``."""
         g = self.gate
@@ -393,7 +401,7 @@ class KalmanEstimator:
         out["reinitialised"] = int(g[G_REINIT])
         return out
 
-    def kernel_args(self) -> tuple:
+    def kernel_args(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
         return (self.s, self.P, self.mask, self.p, self.T, self.qc, self.rm)
 
 
@@ -414,7 +422,11 @@ class PassThrough:
         return self.out
 
 
-def make_estimator(cfg: Mapping, kind: str | None = None, measure_velocity: bool = True):
+#: what :func:`make_estimator` makes: ``reset(z0)``, ``step(z, u_prev) -> x_hat`` (6,)
+Estimator = KalmanEstimator | PassThrough
+
+
+def make_estimator(cfg: Mapping[str, Any], kind: str | None = None, measure_velocity: bool = True) -> Estimator:
     kind = kind or cfg["type"]
     if kind == "kf":
         return KalmanEstimator(cfg, measure_velocity)

@@ -280,7 +280,7 @@ _GAP_POLY = (0.0, 2.5e-7, 8.0e-13, 0.0)
 SAFETY_SPECS = (
     ParamSpec("u_max", float, 200.0, "V", "coil driver bus: applied voltages are clipped to +-this (hover 50-80 V, transients ~120 V, scenario S4b asks 155 V)", 1.0, 1e4),
     ParamSpec("i_max", float, 10.0, "A", "coil current trip: above this the board latches a fault and lands the plate", 0.1, 1e3),
-    ParamSpec("trip_gap_min", float, 0.0015, "m", "gap trip toward the rail: an estimated load-point gap below this latches a fault and lands", 0.0, 0.1),
+    ParamSpec("trip_gap_min", float, 0.0015, "m", "gap trip toward the rail: the board brakes, latches a fault and lands when the gap where the plate would stop if it braked now (core/safety.py braking bound) falls below this; the driver trips on measured gaps below it", 0.0, 0.1),
     ParamSpec("trip_gap_max", float, 0.013, "m", "gap trip away from the rail: an estimated gap above this latches a fault (the plate is on its support or falling)", 1e-4, 1.0),
     ParamSpec("hold_timeout", float, 0.05, "s", "a sample without a fresh command holds the last voltage at most this long, then the board lands the plate (unstable poles: e-folding 17-20 ms)", 1e-3, 1.0),
     ParamSpec("landing_gap", float, 0.011, "m", "landing position: the plate rests on its support at this load-point gap (larger gap = away from the rail)", 1e-4, 0.1),

@@ -9,30 +9,92 @@ Modes (:class:`Mode`, the values of the device link's mode byte)::
 
     OFF --fresh command--> RUN --no fresh command--> HOLD --held > hold_timeout--> LAND --gaps >= landing_gap--> LANDED
                            RUN <--fresh command----- HOLD
-    RUN/HOLD --limit trip, estop(), land(), requested LAND/OFF--> LAND        (latched)
+    RUN/HOLD --limit trip, predicted gap trip, estop(), land(), requested LAND/OFF--> LAND   (latched)
     any --non-finite sensor--> FAULT (0 V: nothing left to control with)     (latched)
     LAND/LANDED/FAULT --clear()--> OFF
 
 * **RUN**: the applied voltage is the command clipped to ``[-u_max, u_max]`` (the
-  coil driver's bus; counted in ``clipped``). A coil current above ``i_max`` or a
-  load-point gap outside ``[trip_gap_min, trip_gap_max]`` (on the observer's
-  estimate, so sensor noise alone does not trip) latches a fault and lands.
+  coil driver's bus; counted in ``clipped``). A coil current above ``i_max``, an
+  estimated load-point gap above ``trip_gap_max``, or a *predicted stopping gap*
+  below ``trip_gap_min`` (the braking bound below: where the plate would stop, at
+  either end, if the board applied this command for one more sample and then
+  braked) latches a fault and lands; the landing starts by braking.
 * **HOLD**: a sample without a fresh command (late, lost, non-finite) holds the
   last applied voltage. Holding the voltage of an unstable plant is a small
   perturbation for a few samples only: with the voltages held the DEM has two real
   poles at +47..+62 rad/s (notes: hardware-and-realtime), a deviation grows by e
   every 17-20 ms. ``hold_timeout`` bounds it (default 50 ms: x ~15); then LAND.
 * **LAND**: the landing law below lowers the plate away from the rail (a larger
-  gap; y is positive down, ``dem_ros.core.model``) to ``landing_gap`` at no more
-  than ``landing_speed``; commands are ignored until ``clear()``.
+  gap; y is positive down, ``dem_ros.core.model``: the magnets are above the plate
+  and attract it, the rail is gap 0, gravity and the loads pull toward larger gaps)
+  to ``landing_gap`` at no more than ``landing_speed``; commands are ignored until
+  ``clear()``. The landing law's voltage passes the same braking check: while it
+  fails, or while either end still approaches the rail after a brake, the board
+  *brakes* (below) instead; when the brake releases, the landing restarts from the
+  state the brake left (reference at the estimate, current integral at zero).
 * **LANDED**: the plate is on its support at ``landing_gap``; the current is
   driven to zero (a 0 V cut is safe only here, never at hover).
 * **FAULT**: a non-finite gap or current: the board cannot control, 0 V.
 
 Faults latch with a reason (``fault``); ``reason`` explains the current mode;
 ``counters`` count samples and events (``holds``, ``hold_events``, ``clipped``,
-``rejected``, ``landings``, ``trips``, ``estops``, ``landed``) and keep ``longest_hold_us``
-(the longest hold that ended without a landing, or is still going).
+``rejected``, ``landings``, ``trips``, ``estops``, ``landed``, ``brakes``: braked samples,
+``brake_events``) and keep ``longest_hold_us`` (the longest hold that ended without a
+landing, or is still going). ``stop_gap`` (2,) [m] is the last predicted stopping gap per
+end and ``min_stop_gap`` [m] the smallest one checked (both in ``snapshot()``, in mm).
+
+The braking bound (where the plate stops if the board brakes)
+--------------------------------------------------------------
+Geometry: both magnets attract the plate toward the rail (smaller gap); nothing but
+gravity and the loads pulls it away. So the one way to stop a plate approaching the
+rail is to remove the magnets' flux, as fast as the bus allows. With the flux linkage
+lambda_j = 2 K i_j / delta_j [V s] (Eq. 5's coil: u_j = R i_j + d lambda_j/dt) the force
+is F_j = lambda_j^2 / (4 K) [N], a function of the flux alone, whatever the gap does.
+
+*Brake* (the board's fast de-energise): per coil, the voltage that brings the current
+to zero in one sample, ``u_j = R i_j - (2K/delta_j) i_j / T``, clipped to the available
+voltage U = min(u_max, bus) [V] (the bus the board measures, when it does). While
+clipped, d|lambda_j|/dt = -(U + R |i_j|) <= -U; the last sample brings it to zero
+linearly, so |lambda_j(t)| <= lambda_j (1 - t/tau_j)^+ with tau_j = lambda_j / U + T [s].
+
+*Bound*, per load point j (the other one k), from what the board has: the observer's
+gap p_j [m] and rate v_j [m/s] (approach speed w_j = -v_j), the measured currents i
+[A], the candidate voltage u_c (2,) [V] (the command, or the landing law's) for the
+next sample, and the nominal m, K, L, l, I, N1, N2, g widened by ``BOUND_MARGIN`` e::
+
+    K_b = (1 + e) K                                   (a stronger magnet than the datasheet)
+    A_b = (1 + e)/m + L l/I,  B_b = max((1 + e)/m - L l/I, 0)      [1/kg] (a lighter plate)
+    n_j = g + min(0, (L^2/I)(N_j - N_k))              [m/s^2] (pull away from the rail: gravity and
+                                                       the loads, whatever the mass; must be > 0)
+    lambda+_j = 2 K_b |i_j| / delta_j + T |u_c,j|     [V s]  (flux after the candidate sample:
+                                                       |d lambda/dt| <= |u| as R i opposes the flux)
+    F+_j = lambda+_j^2 / (4 K_b)                      [N]
+    G_j  = A_b F+_j + B_b F+_k                        [m/s^2] (the magnets' pull on end j)
+    tau  = max(lambda+) / U + T                       [s]    (lambda+_j alone when B_b = 0)
+    phase 0, the candidate sample:   a0 = G_j - n_j,  s0 = w_j^+ T + a0^+ T^2/2,  w1 = w_j + a0 T
+    phase 1-2, braking: approach acceleration <= G_j (1 - t/tau)^+2 - n_j, so the approach
+        speed <= w1 + G_j tau/3 - n_j t and the distance still travelled toward the rail
+    D_j  = s0 + (w1 + G_j tau / 3)^+2 / (2 n_j)       [m]
+    stop_gap_j = p_j - D_j                            [m]
+
+Trip when min_j stop_gap_j < ``trip_gap_min``. Invariance: each sample checks "this
+command for one sample, then brake"; when the check of sample k fails, braking from
+sample k is what the check of sample k - 1 proved safe. So with the model inside the
+margins, the plate stops at least ``trip_gap_min`` from the rail (``gap_min`` of the
+plant, rail contact, lies below it: the rest is the estimate's error). The bound
+neglects the resistive decay R i (it only helps) and bounds the magnets' pull by its
+impulse G tau/3 delivered at once (over-estimates by at most G tau^2/12).
+
+Numbers (Table 2, e = 0.25, U = 200 V, T = 1 ms, n = g): hovering at 8 mm (4.0 A) under
+the 80 V hover command, lambda+ = 0.547 + 0.080 = 0.627 V s, F+ = 180 N, A_b = 0.173 /kg,
+G = 31.1 m/s^2, tau = 4.1 ms, G tau/3 = 43 mm/s: at rest D = 0.22 mm, approaching at 45
+mm/s D = 0.66 mm, at 100 mm/s D = 1.49 mm (tests/core/test_safety.py). So a plate rising
+at 100 mm/s is braked above 3.0 mm and stops above 1.5 mm; the old gap-only trip (p < 1.5
+mm) could not stop a 45 mm/s approach (rail contact, #11). The bound errs on the early side:
+against the true plant (approaching at 50-100 mm/s at the hover current) it is 2.5-5x the
+distance travelled (up to 7x for a 21.6 kg plate, whose larger hover current the board reads
+as a stronger pull), and up to 15x at twice the hover current, where the neglected R i decays
+the flux as fast as the bus does.
 
 The landing law (uses only what a board has: measured gaps y (2,) [m] and coil
 currents i (2,) [A], nominal parameters m, R, K, L, l, I, N1, N2, g)
@@ -47,13 +109,17 @@ Per load point j, the model acceleration at the measured currents (Eqs. 3-8)::
    nominal model misses [m/s^2]: mass, K, R errors, added load)::
 
        predict:  p- = p + T v + T^2/2 (a_m + b),  v- = v + T (a_m + b),  b- = b
-       correct:  s  = s- + Lo (y - p-)
+       correct:  s  = s- + Lo (y - p-)    (one sample with |y - p-| > INNOVATION_LIMIT: s = s-)
 
    ``Lo`` (3,) places the error poles of (I - Lo C) A at exp(-w_obs T) (double,
    ``OBS_BANDWIDTH``) and exp(-w_b T) (``BIAS_BANDWIDTH``, slower: b is a second
    derivative of the sensor noise); b makes v unbiased under constant model errors
    and is the disturbance the outer loop cancels. At LAND entry b already holds
-   the hover's model error, so the transfer is bumpless.
+   the hover's model error, so the transfer is bumpless. The prediction misses the
+   true motion by the unmodelled acceleration times T^2/2 (micrometres), so an
+   innovation above 0.5 mm is a wild sample: one such sample alone is set aside (it must
+   not fake a 190 mm/s approach, which the braking check would act on); a second in a
+   row is real (a step, the plate hitting its support) and is taken.
 2. *Reference*: from the estimate at LAND entry, r_j accelerates at ``REF_ACCEL`` to
    ``v_ref = SPEED_FRACTION * landing_speed`` (down, away from the rail) and stops
    ``LANDING_OVERSHOOT`` beyond ``landing_gap`` (each load point: a tilted plate
@@ -101,7 +167,9 @@ from numba import njit
 
 __all__ = [
     "BIAS_BANDWIDTH",
+    "BOUND_MARGIN",
     "CURRENT_BANDWIDTH",
+    "INNOVATION_LIMIT",
     "LANDING_OVERSHOOT",
     "OBS_BANDWIDTH",
     "OUTER_BANDWIDTH",
@@ -128,6 +196,8 @@ SPEED_FRACTION = 0.4  # the reference descends at this fraction of landing_speed
 REF_ACCEL = 0.2  # m/s^2, the reference's acceleration to v_ref
 LANDING_OVERSHOOT = 3e-4  # m: the reference stops this far beyond landing_gap (the support)
 I_OFF = 0.02  # A: below this, LANDED applies 0 V
+BOUND_MARGIN = 0.25  # the braking bound's model margin e: K up to (1 + e) K, 1/m up to (1 + e)/m
+INNOVATION_LIMIT = 5e-4  # m: a single sample this far off the observer's prediction is set aside as wild
 
 
 class Mode(enum.IntEnum):
@@ -164,7 +234,9 @@ def observer_gains(T: float, w: float, w_bias: float) -> np.ndarray:
 
 # kernel parameter vector
 _P, _Q, _A, _B, _C, _D, _K, _R, _N1, _N2, _G, _T, _KP, _KD, _KC, _UMAX, _ILIM, _DMIN, _VREF, _AREF, _RSTOP, _KI = range(22)
-_NP = 22
+_KB, _AB, _BB, _NB1, _NB2 = range(22, 27)  # the braking bound's widened model (module docstring)
+_EMAX = 27  # observer innovation limit [m]
+_NP = 28
 
 
 @njit(cache=True)
@@ -185,14 +257,20 @@ def _deltas(p: np.ndarray, y1: float, y2: float) -> tuple[float, float]:
 
 @njit(cache=True)
 def _observe(p: np.ndarray, Lo: np.ndarray, s: np.ndarray, a: np.ndarray, y0: float, y1: float, i0: float,
-             i1: float) -> None:
-    """One observer step. s (3, 2): [p, v, b] per load point; a (2,): model acceleration of the last step (updated)."""
+             i1: float, gated: np.ndarray) -> None:
+    """One observer step. s (3, 2): [p, v, b] per load point; a (2,): model acceleration of the last step (updated);
+    gated (2,): per load point, 1 when the last sample was set aside as wild (updated)."""
     T = p[_T]
     for j in range(2):
         acc = a[j] + s[2, j]
         pp = s[0, j] + T * s[1, j] + 0.5 * T * T * acc
         vp = s[1, j] + T * acc
         e = (y0 if j == 0 else y1) - pp
+        if abs(e) > p[_EMAX] and gated[j] == 0.0:
+            gated[j] = 1.0  # one wild sample is set aside (prediction only); a second in a row is real
+            e = 0.0
+        else:
+            gated[j] = 0.0
         s[0, j] = pp + Lo[0] * e
         s[1, j] = vp + Lo[1] * e
         s[2, j] = s[2, j] + Lo[2] * e
@@ -256,6 +334,43 @@ def _land_law(p: np.ndarray, s: np.ndarray, ref: np.ndarray, ui: np.ndarray, i: 
             ui[j] += T * p[_KI] * kK / de * e
 
 
+@njit(cache=True)
+def _stop_gaps(p: np.ndarray, s: np.ndarray, i: np.ndarray, uc: np.ndarray, U: float, out: np.ndarray) -> None:
+    """Predicted stopping gaps out (2,) [m]: candidate uc (2,) [V] for one sample, then brake at U [V].
+
+    s (3, 2): observer state; i (2,): measured currents [A]. The bound of the module docstring.
+    """
+    T = p[_T]
+    de1, de2 = _deltas(p, s[0, 0], s[0, 1])
+    lam1 = 2.0 * p[_KB] * abs(i[0]) / de1 + T * abs(uc[0])  # lambda+ [V s]
+    lam2 = 2.0 * p[_KB] * abs(i[1]) / de2 + T * abs(uc[1])
+    F1 = lam1 * lam1 / (4.0 * p[_KB])
+    F2 = lam2 * lam2 / (4.0 * p[_KB])
+    for j in range(2):
+        Fj, Fk = (F1, F2) if j == 0 else (F2, F1)
+        lj, lk = (lam1, lam2) if j == 0 else (lam2, lam1)
+        n = p[_NB1] if j == 0 else p[_NB2]
+        G = p[_AB] * Fj + p[_BB] * Fk
+        lam = max(lj, lk) if p[_BB] > 0.0 else lj
+        tau = lam / U + T
+        w = -s[1, j]
+        a0 = G - n
+        s0 = max(w, 0.0) * T + max(a0, 0.0) * 0.5 * T * T
+        w1 = w + a0 * T + G * tau / 3.0
+        D = s0 + (w1 * w1 / (2.0 * n) if w1 > 0.0 else 0.0)
+        out[j] = s[0, j] - D
+
+
+@njit(cache=True)
+def _brake(p: np.ndarray, s: np.ndarray, i: np.ndarray, U: float, u: np.ndarray) -> None:
+    """The brake u (2,) [V]: each coil's current to zero in one sample (u = R i - (2K/delta) i/T), clipped to +-U."""
+    de1, de2 = _deltas(p, s[0, 0], s[0, 1])
+    for j in range(2):
+        de = de1 if j == 0 else de2
+        v = p[_R] * i[j] - 2.0 * p[_K] / de * i[j] / p[_T]
+        u[j] = min(max(v, -U), U)
+
+
 class Supervisor:
     """The board: hard limits, command watchdog, landing law (see the module docstring).
 
@@ -274,6 +389,8 @@ class Supervisor:
         u (2,): the voltages applied by the last ``step`` [V] (the array ``step`` returned;
             the board may return it again, never changes it in place).
         estimate (3, 2): observer state [gap m, rate m/s, missed acceleration m/s^2] per load point.
+        stop_gap (2,): the last predicted stopping gap per load point [m] (the braking bound).
+        min_stop_gap: the smallest predicted stopping gap checked so far [m].
     """
 
     def __init__(self, cfg: Mapping[str, Any], dt: float, mode: Mode = Mode.OFF, u0: np.ndarray | None = None):
@@ -318,6 +435,16 @@ class Supervisor:
         p[_AREF] = REF_ACCEL
         p[_RSTOP] = c["landing_gap"] + LANDING_OVERSHOOT
         p[_KI] = CURRENT_BANDWIDTH**2 / 5.0
+        e = BOUND_MARGIN
+        p[_EMAX] = INNOVATION_LIMIT
+        p[_KB] = (1 + e) * c["K"]
+        p[_AB] = (1 + e) / m + L * l / In
+        p[_BB] = max((1 + e) / m - L * l / In, 0.0)
+        p[_NB1] = c["g"] + min(0.0, L * L / In * (c["N1"] - c["N2"]))
+        p[_NB2] = c["g"] + min(0.0, L * L / In * (c["N2"] - c["N1"]))
+        if not min(p[_NB1], p[_NB2]) > 0:
+            raise SafetyError(f"no braking away from the rail: with N1 = {c['N1']:g} N, N2 = {c['N2']:g} N the pull "
+                              f"away from the rail at the ends is {p[_NB1]:.3g}, {p[_NB2]:.3g} m/s^2 (must be > 0)")
         self._p = p
         self._Lo = observer_gains(self.dt, OBS_BANDWIDTH, BIAS_BANDWIDTH)
         self._u_max = c["u_max"]
@@ -330,14 +457,19 @@ class Supervisor:
         self._ui = np.zeros(2)
         self._obs_ready = False
         self.u = np.zeros(2) if u0 is None else np.asarray(u0, float).copy()
-        self._u_last = self.u.copy()
+        self._u_last: np.ndarray = self.u.copy()
         self._t_fresh: int | None = None
+        self._braking = False
+        self._gated = np.zeros(2)
+        self.stop_gap = np.full(2, math.inf)
+        self.min_stop_gap = math.inf
         self.mode = Mode(mode)
         self.reason = ""
         self.fault = ""
         self._load_kernels()
         self.counters = dict.fromkeys(
-            ("holds", "hold_events", "longest_hold_us", "clipped", "rejected", "landings", "trips", "estops", "landed"), 0)
+            ("holds", "hold_events", "longest_hold_us", "clipped", "rejected", "landings", "trips", "estops", "landed",
+             "brakes", "brake_events"), 0)
 
     def _load_kernels(self) -> None:
         """Load (or compile: seconds) the numba kernels now, on scratch data, never in a sample."""
@@ -345,8 +477,10 @@ class Supervisor:
         s[0, :] = self.cfg["landing_gap"]
         de1, de2 = _deltas(self._p, s[0, 0], s[0, 1])
         _model_accel(self._p, de1, de2, 1.0, 1.0, a)
-        _observe(self._p, self._Lo, s, a, s[0, 0], s[0, 1], 1.0, 1.0)
+        _observe(self._p, self._Lo, s, a, s[0, 0], s[0, 1], 1.0, 1.0, np.zeros(2))
         _land_law(self._p, s, np.zeros((3, 2)), np.zeros(2), np.ones(2), False, np.zeros(2))
+        _stop_gaps(self._p, s, np.ones(2), np.ones(2), self._u_max, np.zeros(2))
+        _brake(self._p, s, np.ones(2), self._u_max, np.zeros(2))
 
     # -- commands from outside -------------------------------------------------------------
     def land(self, reason: str) -> None:
@@ -359,12 +493,16 @@ class Supervisor:
         self.mode = Mode.LAND
         self.reason = reason
         self.counters["landings"] += 1
+        self._start_reference()
+        # bumpless: the current loop's integral starts at what the nominal R misses of the last voltage
+        self._ui[:] = self._u_last - self._p[_R] * np.asarray(self._i_last)
+
+    def _start_reference(self) -> None:
+        """The landing reference starts at the estimate, with the plate's own downward speed (<= v_ref)."""
         s, r = self.estimate, self._ref
         r[0, :] = s[0, :]
         r[1, :] = np.clip(s[1, :], 0.0, self._p[_VREF])
         r[2, :] = REF_ACCEL
-        # bumpless: the current loop's integral starts at what the nominal R misses of the last voltage
-        self._ui[:] = self._u_last - self._p[_R] * np.asarray(self._i_last)
 
     def estop(self, reason: str) -> None:
         """Emergency stop: a latched fault that lands the plate (never a 0 V cut at hover)."""
@@ -377,6 +515,7 @@ class Supervisor:
         self.reason = ""
         self.fault = ""
         self._t_fresh = None
+        self._braking = False
 
     def _trip(self, reason: str) -> None:
         if not self.fault:
@@ -385,8 +524,9 @@ class Supervisor:
         self.land(reason)
 
     # -- the sample ---------------------------------------------------------------------------
-    def step(self, t_ns: int, y: Sequence[float], i: Sequence[float], u_cmd: Sequence[float] | None,
-             requested: Mode = Mode.RUN) -> np.ndarray:
+    def step(self, t_ns: int, y: Sequence[float] | np.ndarray, i: Sequence[float] | np.ndarray,
+             u_cmd: Sequence[float] | np.ndarray | None,
+             requested: Mode = Mode.RUN, bus: float | None = None) -> np.ndarray:
         """Voltages (2,) [V] to apply over [t, t + T).
 
         Args:
@@ -395,6 +535,8 @@ class Supervisor:
             i (2,): measured coil currents [A] (any sequence of two numbers).
             u_cmd (2,): a command that arrived for this sample [V], or None.
             requested: the mode the commander asks for (RUN; LAND or OFF start a landing).
+            bus: the coil drivers' measured bus voltage [V], when the board measures it: the brake
+                can apply at most min(u_max, bus) (None: u_max).
         """
         y0, y1, i0, i1 = float(y[0]), float(y[1]), float(i[0]), float(i[1])
         if not (math.isfinite(y0) and math.isfinite(y1) and math.isfinite(i0) and math.isfinite(i1)):
@@ -414,11 +556,12 @@ class Supervisor:
             self.estimate[2, :] = -self._acc  # bumpless: at rest, the model misses -a_m
             self._obs_ready = True
         else:
-            _observe(self._p, self._Lo, self.estimate, self._acc, y0, y1, i0, i1)
+            _observe(self._p, self._Lo, self.estimate, self._acc, y0, y1, i0, i1, self._gated)
         mode = self.mode
         if mode == Mode.FAULT:
             self.u = np.zeros(2)
             return self.u
+        U = self._u_max if bus is None else max(min(self._u_max, float(bus)), 1e-6)  # what the bridge can apply
         fresh = u_cmd is not None
         if fresh:
             a, b = float(u_cmd[0]), float(u_cmd[1])  # type: ignore[index]
@@ -433,8 +576,6 @@ class Supervisor:
             worst = max(abs(i0), abs(i1))
             if worst > self._i_max:
                 self._trip(f"coil current {worst:.2f} A above i_max = {self._i_max:g} A")
-            elif min(g[0], g[1]) < self.cfg["trip_gap_min"]:
-                self._trip(f"gap {min(g[0], g[1]) * 1e3:.3f} mm below trip_gap_min = {self.cfg['trip_gap_min'] * 1e3:g} mm")
             elif max(g[0], g[1]) > self.cfg["trip_gap_max"]:
                 self._trip(f"gap {max(g[0], g[1]) * 1e3:.3f} mm above trip_gap_max = {self.cfg['trip_gap_max'] * 1e3:g} mm")
             mode = self.mode
@@ -445,44 +586,84 @@ class Supervisor:
                 self.u = np.zeros(2)
                 return self.u
         if mode in (Mode.RUN, Mode.HOLD):
-            if fresh:
-                lim = self._u_max
-                ua = min(max(a, -lim), lim)
-                ub = min(max(b, -lim), lim)
-                if ua != a or ub != b:
-                    self.counters["clipped"] += 1
-                self._u_last = np.array((ua, ub))
-                self._t_fresh = t_ns
-                if mode == Mode.HOLD:
-                    self.mode, self.reason = Mode.RUN, ""
-                self.u = self._u_last
-                return self.u
-            if self._t_fresh is None:
-                self._t_fresh = t_ns
-            if mode == Mode.RUN:
-                self.mode, self.reason = Mode.HOLD, "command missing"
-                self.counters["hold_events"] += 1
-            held = t_ns - self._t_fresh
-            if held <= self._hold_ns:
-                self.counters["holds"] += 1
-                if held > self.counters["longest_hold_us"] * 1000:
-                    self.counters["longest_hold_us"] = held // 1000
-                self.u = self._u_last
-                return self.u
-            self.land(f"no command for {(t_ns - self._t_fresh) * 1e-6:.1f} ms (hold_timeout "
-                      f"{self._hold_ns * 1e-6:g} ms)")
+            cand = self._run_candidate(t_ns, mode, fresh, a if fresh else 0.0, b if fresh else 0.0)
             mode = self.mode
+            if cand is not None:
+                if self._safe(cand, U):
+                    self.u = cand
+                    return cand
+                j = int(np.argmin(self.stop_gap))
+                self._trip(f"predicted stopping gap {self.stop_gap[j] * 1e3:.3f} mm below trip_gap_min = "
+                           f"{self.cfg['trip_gap_min'] * 1e3:g} mm at end {j + 1} (gap {self.estimate[0, j] * 1e3:.3f} mm, "
+                           f"rate {self.estimate[1, j] * 1e3:+.1f} mm/s)")
+                mode = self.mode
         u = np.empty(2)
         if mode == Mode.LAND and min(self.estimate[0, 0], self.estimate[0, 1]) >= self.cfg["landing_gap"]:
             self.mode = mode = Mode.LANDED
             self.counters["landed"] += 1
-        if mode == Mode.LANDED and max(abs(i0), abs(i1)) < I_OFF:
-            u[:] = 0.0
-        else:
-            _land_law(self._p, self.estimate, self._ref, self._ui, np.array(self._i_last), mode == Mode.LANDED, u)
+            self._braking = False
+        if mode == Mode.LANDED:
+            if max(abs(i0), abs(i1)) < I_OFF:
+                u[:] = 0.0
+            else:
+                _land_law(self._p, self.estimate, self._ref, self._ui, np.array(self._i_last), True, u)
+            self.u = u
+            return u
+        i_now = np.array(self._i_last)
+        _land_law(self._p, self.estimate, self._ref, self._ui, i_now, False, u)
+        safe = self._safe(u, U)
+        if not safe or (self._braking and min(self.estimate[1, 0], self.estimate[1, 1]) < 0.0):
+            if not self._braking:
+                self.counters["brake_events"] += 1
+            self._braking = True
+            self.counters["brakes"] += 1
+            _brake(self._p, self.estimate, i_now, U, u)
+        elif self._braking:  # released: land from the state the brake left
+            self._braking = False
+            self._start_reference()
+            self._ui[:] = 0.0
+            _land_law(self._p, self.estimate, self._ref, self._ui, i_now, False, u)
         self.u = u
         return u
 
+    def _run_candidate(self, t_ns: int, mode: Mode, fresh: bool, a: float, b: float) -> np.ndarray | None:
+        """RUN/HOLD: the fresh command clipped to u_max, or the held one; None once the hold timed out (LAND)."""
+        if fresh:
+            lim = self._u_max
+            ua = min(max(a, -lim), lim)
+            ub = min(max(b, -lim), lim)
+            if ua != a or ub != b:
+                self.counters["clipped"] += 1
+            self._u_last = np.array((ua, ub))
+            self._t_fresh = t_ns
+            if mode == Mode.HOLD:
+                self.mode, self.reason = Mode.RUN, ""
+            return self._u_last
+        if self._t_fresh is None:
+            self._t_fresh = t_ns
+        if mode == Mode.RUN:
+            self.mode, self.reason = Mode.HOLD, "command missing"
+            self.counters["hold_events"] += 1
+        held = t_ns - self._t_fresh
+        if held <= self._hold_ns:
+            self.counters["holds"] += 1
+            if held > self.counters["longest_hold_us"] * 1000:
+                self.counters["longest_hold_us"] = held // 1000
+            return self._u_last
+        self.land(f"no command for {held * 1e-6:.1f} ms (hold_timeout {self._hold_ns * 1e-6:g} ms)")
+        return None
+
+    def _safe(self, cand: np.ndarray, U: float) -> bool:
+        """Does the plate stop at least trip_gap_min from the rail at both ends if ``cand`` is applied for one
+        sample, then the brake? Updates ``stop_gap`` and ``min_stop_gap``."""
+        _stop_gaps(self._p, self.estimate, np.array(self._i_last), cand, U, self.stop_gap)
+        low = float(min(self.stop_gap[0], self.stop_gap[1]))
+        if low < self.min_stop_gap:
+            self.min_stop_gap = low
+        return low >= self.cfg["trip_gap_min"]
+
     def snapshot(self) -> dict[str, Any]:
         """Mode, reasons and counters as plain values (for /diagnostics and summaries)."""
-        return {"mode": self.mode.name, "reason": self.reason, "fault": self.fault, **self.counters}
+        return {"mode": self.mode.name, "reason": self.reason, "fault": self.fault, **self.counters,
+                "stop_gap_mm": [round(float(g) * 1e3, 4) if math.isfinite(g) else None for g in self.stop_gap],
+                "min_stop_gap_mm": round(self.min_stop_gap * 1e3, 4) if math.isfinite(self.min_stop_gap) else None}

@@ -229,7 +229,8 @@ class HwDriver:
         self.counters["frames"] += 1
         self.last_rx_steady = steady_ns
         if isinstance(frame, Hello):
-            return self._on_hello(frame), None
+            self._on_hello(frame)
+            return None, None
         if isinstance(frame, SensorFrame):
             return self._on_sensor(frame, ros_ns, steady_ns)
         self.counters["corrupt"] += 1  # a command frame never comes from the board
@@ -271,7 +272,7 @@ class HwDriver:
             bits = self.status_counts
             for flag in Status:
                 if f.status & flag:
-                    bits[flag.name] = bits.get(flag.name, 0) + 1
+                    bits[str(flag.name)] = bits.get(str(flag.name), 0) + 1
         self.bus_v = f.bus_v
         board_ns = int(f.board_time_us) * 1000
         if self.offset_ns is None:
@@ -325,7 +326,7 @@ class HwDriver:
         self._over["board"] = self._over.get("board", 0) + 1 if hw else 0
         if self._over["board"] >= c["trip_samples"]:
             self.counters["trips"] += 1
-            self.fault("board reports " + ", ".join(f.name for f in Status if f & hw) + f" for {self._over['board']} samples")
+            self.fault("board reports " + ", ".join(str(f.name) for f in Status if f & hw) + f" for {self._over['board']} samples")
         elif self._over["current"] >= c["trip_samples"]:
             self.counters["trips"] += 1
             self.fault(f"current limit: |i| = {np.max(np.abs(s.current)):.3f} A > i_max = {c['i_max']:g} A")

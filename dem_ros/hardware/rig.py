@@ -9,9 +9,10 @@ Every period n (t_n = n T on the board's clock)::
     1. read every command frame received since the last tick (non-blocking)
     2. sample: gaps and currents of the plant at t_n -> sensor models -> ADC counts
     3. send SensorFrame(seq=n, board_time, counts, applied voltage over [t_n-1, t_n], bus, status, mode)
-    4. the Supervisor (dem_ros.core.safety, the board's limits, hold and landing law) turns the
-       command answering sample n - d (d = ``hw_driver.command_delay``; none: it holds, then
-       lands) into voltages -> actuator models -> the coils
+    4. the Supervisor (dem_ros.core.safety, the board's limits, braking check, hold and landing
+       law) turns the command answering sample n - d (d = ``hw_driver.command_delay``; none: it
+       holds, then lands) into voltages, braking with at most the bus it measures -> actuator
+       models -> the coils
     5. integrate the plant over [t_n, t_n+1] with those voltages held (zero-order hold)
 
 so a command computed from sample k acts over [t_k+d, t_k+d+1), as in ``plant_sim``.
@@ -156,12 +157,14 @@ class Board:
 
     def __init__(self, pc: Mapping[str, Any], rig: Mapping[str, Any], hw: Mapping[str, Any],
                  faults: list[Fault] | None = None, preroll: float | None = None):
+        from ..core.model import IP, IQ
         from ..core.plant import DemPlant
         from ..core.safety import Supervisor
 
         self.pc, self.rc = dict(pc), dict(rig)
         self.dt = pc["dt"]
         self.plant = DemPlant(pc, 0.0)
+        self._pq = (float(self.plant.p[IP]), float(self.plant.p[IQ]))  # magnet gap delta = P d_near + Q d_far
         self.sup = Supervisor(pc, self.dt)
         self.faults = list(faults or [])
         self.rng = np.random.default_rng(rig["seed"])
@@ -189,6 +192,7 @@ class Board:
         self.streaming = False
         self.c = BoardCounters()
         self.failed: str | None = None  # the plant's failure (rail contact): the emulation stops moving
+        self.min_gap = math.inf  # the true plate's smallest load-point or magnet gap since the release [m]
 
     def _gap_table(self, hw: Mapping[str, Any]) -> None:
         n = np.arange(self.full + 1, dtype=float)
@@ -277,7 +281,7 @@ class Board:
         meas_y = self._board_gaps(self._gaps_from_counts(gc), st)  # the board sees what its ADC sees
         meas_i = self.i_gain * (np.asarray(cc, float) - self.i_offset)
         u_cmd = np.array(cmd.u, float) if fresh else None
-        u = self.sup.step(int(n * self.dt * 1e9), meas_y, meas_i, u_cmd, requested)
+        u = self.sup.step(int(n * self.dt * 1e9), meas_y, meas_i, u_cmd, requested, bus=bus)
         mode = Mode(self.sup.mode)
         if mode == Mode.RUN and self.released_at is None:
             self.released_at = n
@@ -322,6 +326,9 @@ class Board:
         else:
             p.advance(self.applied)
         x = p.x
+        if self.released_at is not None:
+            P, Q = self._pq
+            self.min_gap = min(self.min_gap, x[0], x[2], P * x[0] + Q * x[2], Q * x[0] + P * x[2])
         sup = self.rc["support_gap"]
         for j in (0, 2):  # the support: the plate cannot move beyond it
             if x[j] >= sup:
@@ -426,8 +433,9 @@ class Board:
                 "rx_reasons": dict(c.rx_reasons), "commands_fresh": c.commands_fresh, "hellos": c.hellos,
                 "overruns": c.overruns, "corrupted_tx": c.corrupted_tx, "link_lost_ticks": c.link_lost_ticks,
                 "mode": Mode(self.sup.mode).name, "reason": getattr(self.sup, "reason", ""),
-                "supervisor": dict(getattr(self.sup, "counters", {})),
+                "supervisor": self.sup.snapshot(),
                 "gaps_mm": [round(x[0] * 1e3, 4), round(x[2] * 1e3, 4)], "failed": self.failed or "",
+                "min_gap_mm": round(self.min_gap * 1e3, 4) if math.isfinite(self.min_gap) else None,
                 "faults": [{"kind": f.kind, "channel": f.channel, "start": f.start, "hits": f.hits} for f in self.faults]}
 
 

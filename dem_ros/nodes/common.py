@@ -4,6 +4,7 @@ the nodes (no control math)."""
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -15,6 +16,7 @@ __all__ = [
     "ERROR",
     "OK",
     "WARN",
+    "CommandSource",
     "Diagnostics",
     "JointStates",
     "LatencyStats",
@@ -293,3 +295,61 @@ class Diagnostics:
             vals = {**values, **{k: v for k, v in vals.items() if k not in values}}
         self.reports += 1
         self._pub.publish(diag_array(*self._cls, self.node.now_ns(), self.name, lv, msg, vals))
+
+
+class CommandSource:
+    """The command source lock of a node that drives the coils (``plant_sim``, ``hw_driver``).
+
+    ``/dem/command`` counts only from the writers that the ROS graph attributes to the node ``source``
+    (``command_source``: a name in the node's namespace or ``/ns/name``), recognised by each sample's
+    writer GID (:meth:`~dem_ros.transport.api.Node.subscribe_with_source`). :meth:`accepts` answers for
+    one sample; a writer not yet known is looked up again at most every ``refresh_s`` (a restarted
+    controller's graph information can trail its first samples by a few ms); any other writer's sample
+    is counted (``commands_foreign``) and logged once per writer. :attr:`matched` tells whether the
+    source's writer is on the graph (a run must not start before).
+
+    What it protects against: a second controller, a test or replay publisher, a stray tool on the
+    same domain. What it does not: without DDS-Security (the PyPI cyclonedds wheel has none) any
+    process can forge a GID or announce itself under the source's name.
+    """
+
+    def __init__(self, node: Any, source: str, *, refresh_s: float = 0.1, topic: Any = None):
+        from ..contract import COMMAND
+
+        self.node = node
+        self.source = source
+        self.topic = topic or COMMAND
+        self.refresh_s = float(refresh_s)
+        self.gids: frozenset[bytes] = frozenset()  # the source's writers on the topic, as last looked up
+        self.checked = -math.inf  # monotonic time of the last look-up (s)
+        self.foreign = 0
+        self._logged: set[bytes] = set()  # foreign writers already logged (at most 64)
+
+    def values(self) -> dict[str, Any]:
+        """For /diagnostics: ``command_source``, ``command_writers`` (the source's), ``commands_foreign``."""
+        return {"command_source": self.source, "command_writers": len(self.gids), "commands_foreign": self.foreign}
+
+    def _lookup(self) -> frozenset[bytes]:
+        self.checked = time.monotonic()
+        self.gids = self.node.publisher_gids(self.topic, self.source)
+        return self.gids
+
+    @property
+    def matched(self) -> bool:
+        """The source has a writer on the topic (looked up at most every ``refresh_s`` while it has none)."""
+        if not self.gids and time.monotonic() - self.checked >= self.refresh_s:
+            self._lookup()
+        return bool(self.gids)
+
+    def accepts(self, gid: bytes) -> bool:
+        """True for a sample of the source's writers; another writer's is counted (and logged once)."""
+        if gid in self.gids:
+            return True
+        if time.monotonic() - self.checked >= self.refresh_s and gid in self._lookup():
+            return True
+        self.foreign += 1
+        if gid not in self._logged and len(self._logged) < 64:
+            self._logged.add(gid)
+            self.node.logger.warn(f"{self.topic.name} from writer {gid.hex() or '(unknown)'}, not {self.source!r}'s:"
+                                  " dropped (further samples are counted)")
+        return False

@@ -56,7 +56,7 @@ from ..core.controllers.hover import (
 )
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import JointStates, all_finite, clipped, diag_array, meas_into, stamp_ns
+from .common import OK, WARN, Diagnostics, JointStates, all_finite, clipped, meas_into, stamp_ns
 
 __all__ = ["ControllerNode", "main"]
 
@@ -95,22 +95,19 @@ class ControllerNode:
                                      "reference_mismatch", "reference_range", "reference_rate", "reference_future",
                                      "reference_invalid", "reference_held", "waiting_for_applied", "starts",
                                      "liftoffs", "landed_stops"), 0)
-        self._reported = dict.fromkeys(_WARN_KEYS, 0)
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
         self.names_state = list(contract.CONTROLLER_STATE_NAMES)
-        self.D = (node.msg("diagnostic_msgs/msg/DiagnosticArray"), node.msg("diagnostic_msgs/msg/DiagnosticStatus"),
-                  node.msg("diagnostic_msgs/msg/KeyValue"))
         self.pub_cmd = node.publisher(contract.COMMAND)
         self.pub_state = node.publisher(contract.CONTROLLER_STATE)
-        self.pub_diag = node.publisher(contract.DIAGNOSTICS)
+        self.diag = Diagnostics(node, "controller", warn_on=_WARN_KEYS, values=self._diag_values)
+        self.diag.set_condition(WARN, "waiting to start")
         # the plant's clock first: an executor that drains reader by reader then never sees a reference or
         # estimate ahead of the newest applied voltage it has (a queue behind is seen as behind)
         node.subscribe(contract.APPLIED, self.on_applied)
         node.subscribe(contract.REFERENCE, self.on_reference)
         node.subscribe(contract.ESTIMATE, self.on_estimate)
-        node.timer(1.0, self.publish_diag)
         node.logger.info("ready")
 
     # -- parameters ----------------------------------------------------------
@@ -326,18 +323,14 @@ class ControllerNode:
         if n in (1, 10, 100, 1000) or n % 10000 == 0:
             self.node.logger.warn(f"{text} ({n} so far)")
 
-    def publish_diag(self) -> None:
-        grew = [k for k in _WARN_KEYS if self.counts[k] > self._reported[k]]
-        for k in _WARN_KEYS:
-            self._reported[k] = self.counts[k]
+    def _diag_values(self) -> dict:
+        """The once-a-second report: the counters, the law and its phase (``Diagnostics`` adds the rest)."""
         phase = ("running" if self.started else "premagnetised, waiting for the board" if self.landed
                  else "waiting to start")
-        msg = f"{self.ctrl.name}: {phase}" + (f"; in the last second: {', '.join(grew)}" if grew else "")
-        v_max = self.checks.v_max
-        values = {**self.counts, "law": self.ctrl.name, "phase": phase, "lifting_off": self.liftoff is not None,
-                  "max_age_s": self.cfg["max_age"], "reference_max_speed_mm_s": round(v_max * 1e3, 4),
-                  "ref_lag": self.ref_lag if math.isfinite(self.ref_lag) else "none"}
-        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), "controller", 1 if grew else 0, msg, values))
+        self.diag.set_condition(OK if self.started else WARN, f"{self.ctrl.name}: {phase}")
+        return {**self.counts, "law": self.ctrl.name, "phase": phase, "lifting_off": self.liftoff is not None,
+                "max_age_s": self.cfg["max_age"], "reference_max_speed_mm_s": round(self.checks.v_max * 1e3, 4),
+                "ref_lag": self.ref_lag if math.isfinite(self.ref_lag) else "none"}
 
 
 def main(args=None) -> int:

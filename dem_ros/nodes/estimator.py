@@ -30,10 +30,10 @@ import sys
 import numpy as np
 
 from .. import contract
-from ..core.estimator import KalmanEstimator, make_estimator
+from ..core.estimator import Estimator, KalmanEstimator, make_estimator
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import WARN, Diagnostics, JointStates, all_finite, meas_into, stamp_ns
+from .common import OK, WARN, Diagnostics, JointStates, all_finite, meas_into, stamp_ns
 
 __all__ = ["EstimatorNode", "main"]
 
@@ -44,7 +44,7 @@ class EstimatorNode:
     def __init__(self, node: Node):
         self.node = node
         self.cfg = node.declare_parameters("estimator", self.on_change)
-        self.est = None
+        self.est: Estimator | None = None
         self.has_v: bool | None = None
         self.u_prev: np.ndarray | None = None  # the newest applied voltage (a row of ``u_ring``)
         # applied voltages by stamp, the newest KEEP: stamp -> row of u_ring (V), filled in place
@@ -157,13 +157,12 @@ class EstimatorNode:
         if not self.publishing:
             if est.converged:
                 self.publishing = True
-                self.diag.set_condition(0)
+                self.diag.set_condition(OK)
                 self.node.logger.info(f"converged after {self.counts['withheld']} samples: publishing estimates")
             else:
                 self.diag.set_condition(WARN, "converging: no estimate published yet")
-        faults = est.faults
-        if faults and self.diag.faulted is None:
-            self.diag.fault("; ".join(faults))
+        if est.faulty and self.diag.faulted is None:
+            self.diag.fault("; ".join(est.faults))
 
 
 def main(args=None) -> int:

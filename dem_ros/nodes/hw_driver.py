@@ -30,6 +30,8 @@ import select
 import sys
 import threading
 import time
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -39,11 +41,16 @@ from ..hardware.driver import DriverState, HwDriver, Sample
 from ..hardware.link import HELLO_REQUEST, Mode, encode
 from ..realtime import config_from_env
 from ..transport import Node, TransportError, run_node
-from .common import LatencyStats, diag_array, joint_state, stamp_ns
+from .common import OK, WARN, CommandSource, Diagnostics, LatencyStats, diag_array, joint_state, stamp_ns
 
 __all__ = ["HwDriverNode", "main"]
 
 RING = 256  # receive times kept by sample number (latency: sample received -> command sent)
+#: link and board counters whose growth makes the next /diagnostics report a WARN
+WARN_ON = ("lost", "duplicated", "reordered", "late", "corrupt", "hold_samples", "commands_dropped", "sensor_holds",
+           "link_loss", "watchdog", "commands_foreign")
+#: board modes that are reported as a standing WARN (the board is landing or has landed the plate)
+BOARD_DOWN = (Mode.LAND, Mode.LANDED, Mode.FAULT)
 
 
 class HwDriverNode:
@@ -62,13 +69,17 @@ class HwDriverNode:
                   node.msg("diagnostic_msgs/msg/KeyValue"))
         self.pub_meas = node.publisher(contract.MEASUREMENT)
         self.pub_applied = node.publisher(contract.APPLIED)
-        self.pub_diag = node.publisher(contract.DIAGNOSTICS)
+        # /diagnostics (hw_driver: loop) through the one reporter: 1 Hz (status()), WARN when a link counter
+        # grew, a latched ERROR while the driver is in FAULT (published at once)
+        self.diag = Diagnostics(node, contract.HW_LOOP_STATUS, warn_on=WARN_ON, values=self.stats, timer=False)
         self.pub_state = node.publisher(contract.HW_STATE)
-        node.subscribe(contract.COMMAND, self.on_command)
+        # the command source lock: /dem/command only from command_source's writers (nodes/common.CommandSource)
+        self.source = CommandSource(node, c["command_source"])
+        node.subscribe_with_source(contract.COMMAND, self.on_command)
         node.subscribe(contract.HW_REQUEST, self.on_request)
         node.subscribe(contract.HW_ESTOP, self.on_estop)
         for verb in ("arm", "disarm", "estop", "status"):  # ~/arm ... (std_srvs/Trigger), as the request topic
-            node.service(verb, "std_srvs/srv/Trigger", lambda req, res, verb=verb: self.on_service(verb, res))
+            node.service(verb, "std_srvs/srv/Trigger", self._service(verb))
         self.n_pre = round(c["preroll"] / c["dt"])
         self.n_end = round(c["duration"] / c["dt"]) if c["duration"] > 0 else 0
         self.epoch_seq: int | None = None  # first sample of the experiment (t = 0)
@@ -121,6 +132,10 @@ class HwDriverNode:
                 self.answer = f"unknown request {msg.data!r}: arm, disarm, clear, estop [reason], status"
         self.node.logger.info(f"request {msg.data!r}: {self.answer}")
         self.publish_state(force=True)
+
+    def _service(self, verb: str) -> Callable[[Any, Any], Any]:
+        """The service callback (request, response) -> response of ``verb``."""
+        return lambda req, res: self.on_service(verb, res)
 
     def on_service(self, verb: str, res):
         with self.lock:
@@ -202,8 +217,8 @@ class HwDriverNode:
         self.pub_applied.publish(joint_state(JS, s.stamp_ns, effort=s.applied, frame=frame))
         self.pub_meas.publish(joint_state(JS, s.stamp_ns, position=s.gap, effort=s.current, frame=frame))
 
-    def on_command(self, msg) -> None:
-        if len(msg.effort) < 2:
+    def on_command(self, msg, gid: bytes) -> None:
+        if not self.source.accepts(gid) or len(msg.effort) < 2:
             return
         t = stamp_ns(msg)
         with self.lock:
@@ -213,6 +228,8 @@ class HwDriverNode:
                 return
             self.ch.send(data)
             seq = self.drv.last_cmd_seq
+            if seq is None:  # pragma: no cover - command() set it when it returned a frame
+                return
             self.lat.add(time.monotonic_ns() - int(self.rx_ns[seq % RING]))
             if was == DriverState.ARMED and self.epoch_seq is None:
                 self.epoch_seq = seq + 1 + self.n_pre  # the board applies it from sample seq + 1
@@ -220,12 +237,26 @@ class HwDriverNode:
 
     # -- timers -------------------------------------------------------------------------------------
     def tick(self) -> None:
-        """10 Hz: hello until the board answers; state on /dem/hw/state; the end of the run."""
+        """10 Hz: hello until the board answers; state on /dem/hw/state; faults to /diagnostics; the end of the run."""
         if self.drv.hello is None:
             self.ch.send(encode(HELLO_REQUEST))
         self.publish_state()
+        self.report_faults()
         if self.finished and (self.drv.board_mode in (Mode.OFF, Mode.LANDED) or time.monotonic() - self.t_finish > 5.0):
             self.finish()
+
+    def report_faults(self) -> None:
+        """The driver's latched fault is a latched ERROR on /diagnostics (at once); the board landing, a WARN."""
+        d = self.drv
+        if d.state == DriverState.FAULT:
+            self.diag.fault(d.reason or "fault")
+        elif self.diag.faulted is not None:
+            self.diag.clear_fault()  # re-armed
+        board = Mode(d.board_mode)
+        if board in BOARD_DOWN:
+            self.diag.set_condition(WARN, f"{d.state.name.lower()}, board {board.name.lower()}")
+        else:
+            self.diag.set_condition(OK, d.state.name.lower())
 
     def publish_state(self, force: bool = False) -> None:
         d = self.drv
@@ -242,7 +273,7 @@ class HwDriverNode:
         if self.drv.state == DriverState.FAULT:
             return 2
         c = self.drv.counters
-        return 1 if (c["lost"] or c["corrupt"] or c["hold_samples"]) else 0
+        return 1 if (c["lost"] or c["corrupt"] or c["hold_samples"] or self.source.foreign) else 0
 
     def stats(self) -> dict:
         with self.lock:
@@ -256,7 +287,8 @@ class HwDriverNode:
                 **epoch, "realtime_factor": 1.0, "lockstep": False,
                 "cpu_s": round(cpu, 3), "wall_s": round(wall, 3),
                 "latency_p50_us": round(lat["p50"], 1), "latency_p99_us": round(lat["p99"], 1),
-                "latency_max_us": round(lat["max"], 1), "failed": bool(self.failed), "fault": self.failed, **st}
+                "latency_max_us": round(lat["max"], 1), "failed": bool(self.failed), "fault": self.failed, **st,
+                **self.source.values()}
 
     def status(self) -> None:
         s = self.stats()
@@ -265,8 +297,8 @@ class HwDriverNode:
             print(f"t = {s['t_sim_s']:7.1f} s  gaps {g[0] * 1e3:6.3f} / {g[1] * 1e3:6.3f} mm  {s['state']}"
                   f" (board {s['board_mode']})  lost {s['lost']} late {s['late']} corrupt {s['corrupt']} holds {s['hold_samples']}"
                   f"  latency p50 {s['latency_p50_us']:.0f} us p99 {s['latency_p99_us']:.0f} us", flush=True)
-        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), contract.HW_LOOP_STATUS, self._level(),
-                                         s["state"] + (f": {s['reason']}" if s["reason"] else ""), s))
+        self.report_faults()
+        self.diag.publish()
 
     def finish(self) -> None:
         if self.stop.is_set():
@@ -275,8 +307,7 @@ class HwDriverNode:
         s = self.stats()
         msg = f"finished {self.cfg['duration']:g} s; board {s['board_mode']}" + (f"; fault: {self.failed}" if self.failed else "")
         self.node.logger.info(msg)
-        self.pub_diag.publish(diag_array(*self.D, self.node.now_ns(), contract.HW_LOOP_STATUS, 2 if self.failed else 0,
-                                         "finished: " + msg, s))
+        self.diag.publish(2 if self.failed else 0, "finished: " + msg, s)
         self.publish_state(force=True)
         self.node.timer(0.3, self.node.shutdown)
 

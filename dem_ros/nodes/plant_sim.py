@@ -32,17 +32,14 @@ Before t = 0 the plant levitates in closed loop for ``preroll`` seconds
 (the simulated plate starts in exact equilibrium, so that costs nothing); from
 then on a missing command is held at most ``hold_timeout``: a graph that cannot
 keep up lands the plate.
-Command source lock: ``/dem/command`` is taken only from the writers that the ROS graph
-attributes to the node ``command_source`` (default ``controller``; read-only), by each sample's
-writer GID (:meth:`~dem_ros.transport.api.Node.subscribe_with_source`). A command from any other
-writer is dropped, counted (``commands_foreign``), logged once per writer and reported (WARN) on
-``/diagnostics``. A writer not yet known (a restarted controller whose graph information trails its
-first samples) is looked up again at most every ``SOURCE_REFRESH_S``. The run does not start
-(either timing mode) before that node's ``/dem/command`` writer is on the graph: until then the
-plant waits, reporting WARN "waiting for ...". What the lock protects against: a second controller,
-a test or replay publisher, a stray tool on the same domain. What it does not: without DDS-Security
-(the PyPI cyclonedds wheel has none) any process can forge a GID or announce itself as the
-controller; only DDS-Security (authenticated participants, signed discovery) would close that.
+Command source lock (:class:`~dem_ros.nodes.common.CommandSource`): ``/dem/command`` is taken only
+from the writers that the ROS graph attributes to the node ``command_source`` (default
+``controller``; read-only), by each sample's writer GID. A command from any other writer is
+dropped, counted (``commands_foreign``), logged once per writer and reported (WARN) on
+``/diagnostics``. The run does not start (either timing mode) before that node's ``/dem/command``
+writer is on the graph: until then the plant waits, reporting WARN "waiting for ...". What the
+lock protects against and what it does not (no DDS-Security: any process can forge a GID): see
+that class.
 
 Latency = receive time of a command - publish time of the measurement it
 answers. A hardware driver replaces this node by honouring the same topics.
@@ -62,7 +59,7 @@ from ..core.plant import DemPlant
 from ..core.safety import SAFETY_KEYS, Mode, Supervisor
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import ERROR, OK, WARN, Diagnostics, JointStates, LatencyStats, all_finite, stamp_ns
+from .common import ERROR, OK, WARN, CommandSource, Diagnostics, JointStates, LatencyStats, all_finite, stamp_ns
 
 __all__ = ["PlantSimNode", "main"]
 
@@ -71,8 +68,6 @@ RING = 256  # commands / publish times kept by sample index
 # this many samples. The simulated plate starts in exact equilibrium; with the voltage held, rounding
 # errors (~1e-18 m) grow by e^(62 rad/s * 0.3 s) ~ 1e8 in 300 ms: still far below 1 nm.
 START_GRACE_SAMPLES = 300
-#: a command from a writer not (yet) known as the command source's looks the graph up again at most this often
-SOURCE_REFRESH_S = 0.1
 
 
 class PlantSimNode:
@@ -80,10 +75,10 @@ class PlantSimNode:
         self.node = node
         self.cfg = node.declare_parameters("plant_sim", self.on_change)
         c = self.cfg
-        self.dt_ns = int(round(c["dt"] * 1e9))
+        self.dt_ns = round(c["dt"] * 1e9)
         self.early_ns = self.dt_ns // 2  # a tick this much before ``due`` publishes the sample
         self.plant = DemPlant(c, c["duration"])
-        self.n_end = int(round(c["duration"] / c["dt"])) if c["duration"] > 0 else 0
+        self.n_end = round(c["duration"] / c["dt"]) if c["duration"] > 0 else 0
         warm_up()  # kernels resident before we subscribe (no slow first samples)
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
@@ -94,11 +89,7 @@ class PlantSimNode:
         # /diagnostics "plant_sim: loop": published by status() once a second and at once on board events
         self.diag = Diagnostics(node, contract.LOOP_STATUS, warn_on=("commands_foreign",), values=self.stats,
                                 timer=False)
-        self.source = c["command_source"]
-        self.source_gids: frozenset[bytes] = frozenset()  # the command source's /dem/command writers
-        self.source_checked = -math.inf  # monotonic time of the last graph look-up (s)
-        self.foreign_seen: set[bytes] = set()  # writers already logged as foreign
-        self.diag.counters.update(commands_foreign=0, command_writers=0)
+        self.source = CommandSource(node, c["command_source"])
         node.subscribe_with_source(contract.COMMAND, self.on_command)
         self.cmd_stamp = np.full(RING, -1, dtype=np.int64)  # stamp of the command held in each slot
         self.cmd_u = np.zeros((RING, 2))
@@ -115,7 +106,7 @@ class PlantSimNode:
         self.k_next = 0
         self.epoch = 0  # stamp of sample 0 (t = 0 of the experiment), plant clock
         self.due = 0  # wall time (monotonic ns) at which sample k_next is due
-        self.wait_since = None  # lockstep: wall time we started waiting for the current sample
+        self.wait_since: int | None = None  # lockstep: wall time we started waiting for the current sample
         self.wall0 = 0
         self.cpu0: float | None = None  # process CPU time at t = 0
         self.t_boot = time.monotonic()
@@ -136,35 +127,15 @@ class PlantSimNode:
         self.plant.pc.update(values)  # disturbances and noise act from the next sample
         return None
 
-    def _source_writers(self) -> frozenset[bytes]:
-        """The command source's /dem/command writers, looked up on the graph now."""
-        self.source_checked = time.monotonic()
-        self.source_gids = self.node.publisher_gids(contract.COMMAND, self.source)
-        self.diag.counters["command_writers"] = len(self.source_gids)
-        return self.source_gids
-
-    def _from_source(self, gid: bytes) -> bool:
-        """True for a writer of the command source; a foreign one is counted and logged once."""
-        if gid in self.source_gids:
-            return True
-        if time.monotonic() - self.source_checked >= SOURCE_REFRESH_S and gid in self._source_writers():
-            return True
-        self.diag.count("commands_foreign")
-        if gid not in self.foreign_seen and len(self.foreign_seen) < 64:
-            self.foreign_seen.add(gid)
-            self.node.logger.warn(f"/dem/command from writer {gid.hex() or '(unknown)'}, not {self.source!r}'s:"
-                                  " dropped (further samples are counted)")
-        return False
-
     def on_command(self, msg, gid: bytes) -> None:
-        if not self._from_source(gid) or not self.started or len(msg.effort) < 2:
+        if not self.source.accepts(gid) or not self.started or len(msg.effort) < 2:
             return
         u = msg.effort[:2]
         if not all_finite(u):
             self.node.logger.warn("non-finite command ignored")
             return
         t = stamp_ns(msg)
-        k = int(round((t - self.epoch) / self.dt_ns))
+        k = round((t - self.epoch) / self.dt_ns)
         slot = k % RING
         self.cmd_stamp[slot] = t
         self.cmd_u[slot] = u
@@ -177,9 +148,8 @@ class PlantSimNode:
         waited = time.monotonic() - self.t_boot
         if waited < c["start_delay"]:
             return False
-        if not self.source_gids and (time.monotonic() - self.source_checked < SOURCE_REFRESH_S
-                                     or not self._source_writers()):
-            self.diag.set_condition(WARN, f"waiting for {self.source!r}'s /dem/command writer")
+        if not self.source.matched:
+            self.diag.set_condition(WARN, f"waiting for {self.source.source!r}'s /dem/command writer")
             return False  # never start without the controller: its first command would come too late
         self.diag.set_condition(OK)
         count = self.pub_meas.subscription_count
@@ -194,7 +164,7 @@ class PlantSimNode:
             if not self._ready():
                 return
             self.started = True
-            self.n_pre = int(round(self.cfg["preroll"] / self.cfg["dt"]))
+            self.n_pre = round(self.cfg["preroll"] / self.cfg["dt"])
             self.k_next = -self.n_pre
             self.epoch = self.node.now_ns() + self.n_pre * self.dt_ns
             self.due = now
@@ -324,7 +294,7 @@ class PlantSimNode:
         cpu = time.process_time() - self.cpu0 if self.cpu0 is not None else 0.0
         return {
             "cycles": k, "t_sim_s": round(k * self.cfg["dt"], 3), "deadline_misses": self.misses,
-            "preroll_misses": self.preroll_misses, **self.board_stats(),
+            "preroll_misses": self.preroll_misses, **self.board_stats(), **self.source.values(),
             "lockstep": self.cfg["lockstep"], "realtime_factor": round(k * self.cfg["dt"] / wall, 3) if k else 0.0,
             "epoch_ns": self.epoch, "cpu_s": round(cpu, 3), "wall_s": round(wall if k else 0.0, 3),
             "latency_p50_us": round(lat["p50"], 1), "latency_p99_us": round(lat["p99"], 1), "latency_max_us": round(lat["max"], 1),

@@ -16,8 +16,10 @@ import argparse
 import json
 import os
 import sys
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 from .. import __version__, contract
 from ..bag import Recorder
@@ -57,12 +59,20 @@ class RecorderNode:
             # sharing the process with the loop: take the message objects (no copy) and let the
             # writer thread serialize them, so the loop's thread does no recording work
             on_object = self.rec.on_object
+
+            def objects_of(name: str) -> Callable[[Any], object]:
+                return lambda msg: on_object(name, now(), msg, serialize)
+
             for t in deep:
-                node.subscribe(t, lambda msg, name=t.name: on_object(name, now(), msg, serialize))
+                node.subscribe(t, objects_of(t.name))
         else:
             on_message = self.rec.on_message
+
+            def bytes_of(name: str) -> Callable[[bytes], object]:
+                return lambda data: on_message(name, now(), data)
+
             for t in deep:
-                node.subscribe_raw(t, lambda data, name=t.name: on_message(name, now(), data))
+                node.subscribe_raw(t, bytes_of(t.name))
         String = node.msg("std_msgs/msg/String")
         info = String()
         info.data = json.dumps(meta)

@@ -31,7 +31,7 @@ from .. import contract
 from ..core.reference import ReferenceModel, command, hover_start
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import JointStates, stamp_ns
+from .common import OK, WARN, Diagnostics, JointStates, stamp_ns
 
 __all__ = ["ReferenceNode", "main"]
 
@@ -59,6 +59,8 @@ class ReferenceNode:
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.REFERENCE_NAMES)  # shared by every message published (never modified)
         self.pub = node.publisher(contract.REFERENCE)
+        # /diagnostics "reference" once a second: WARN after refused measurements and while resting after a restart
+        self.diag = Diagnostics(node, "reference", warn_on=("refused",), values=self._diag_values)
         node.subscribe(contract.MEASUREMENT, self.on_measurement)
         node.subscribe(contract.DIAGNOSTICS, self.on_diagnostics)
         node.logger.info("ready")
@@ -82,6 +84,14 @@ class ReferenceNode:
     def _send(self, t_ns: int, vec: list[float], frame: str = contract.FRAME) -> None:
         """Publish [y_d (8), r (2)] stamped ``t_ns`` (see ``contract.REFERENCE_NAMES``)."""
         self.pub.publish(self.js.make(self.js.header(t_ns, frame), self.names, vec))
+
+    def _diag_values(self) -> dict:
+        resting = self.epoch is None and self.resting_at is not None
+        self.diag.set_condition(WARN if resting else OK, "restarted after t = 0: resting until the plant's epoch is"
+                                " known" if resting else "schedule" if self.epoch is not None else "pre-roll")
+        t = (self.next_k - 1) * self.cfg["dt"] if self.epoch is not None else None
+        return {"refused": self.refused, "schedule_t_s": "none" if t is None else round(t, 3),
+                "epoch_ns": self.epoch if self.epoch is not None else "none"}
 
     def _refuse(self, why: str) -> None:
         self.refused += 1
@@ -143,6 +153,7 @@ class ReferenceNode:
         if self.resting_at is None:
             self.resting_at = np.array([float(msg.position[0]), float(msg.position[1])])
             self.model.reset(self.resting_at)
+            self.diag.set_condition(WARN, "resting at the measured gaps until the plant reports t = 0")
             self.node.logger.warn(f"started after t = 0: resting at the measured {self.resting_at[0] * 1e3:.3f} /"
                                   f" {self.resting_at[1] * 1e3:.3f} mm until the plant reports the experiment's t = 0")
         epoch = self.plant_epoch
@@ -151,6 +162,7 @@ class ReferenceNode:
             self._send(t + self.dt_ns, y.tolist() + self.model.r_rest.tolist())
             return False
         self.epoch = epoch
+        self.diag.set_condition(0)
         self.next_k = round((t - epoch) / self.dt_ns) + 1
         self.node.logger.info(f"resumed the schedule at t = {(t - epoch) * 1e-9:.3f} s of the experiment"
                               " (epoch from the plant's loop status), gliding from the measured gaps")

@@ -159,7 +159,9 @@ def _peer(cfg, duration: float, ref_arrays):
     return X, time.perf_counter() - t0
 
 
-def bench_sim(batch: int = 64, peer_duration: float = 5.0) -> dict:
+def bench_sim(batch: int = 64, peer_duration: float = 5.0, bar: Any = None) -> dict:
+    """The simulator's speed; ``bar``: a :class:`.progress.Progress` told each phase (minutes on a busy machine)."""
+    say = bar.stage if bar is not None else (lambda _what: None)
     from ..core.controllers import make_controller
     from ..core.model import hover_state
     from ..core.scenarios import get_scenario
@@ -168,6 +170,7 @@ def bench_sim(batch: int = 64, peer_duration: float = 5.0) -> dict:
     cfg = get_scenario("S1").config()
     simulate(cfg, controller="adaptive", estimator="none", duration=1.0)  # compile / load the cache
     walls = []
+    say("S1, 100 s, 3 runs (the best counts)")
     for _ in range(3):
         res = simulate(cfg, controller="adaptive", estimator="none", duration=100.0)
         walls.append(res.wall_time)
@@ -177,6 +180,7 @@ def bench_sim(batch: int = 64, peer_duration: float = 5.0) -> dict:
     out["realtime_factor"] = 100.0 / wall
 
     # controller step as the nodes call it (Python -> compiled kernel)
+    say("controller step from Python, 20 000 calls")
     pc = cfg["plant_sim"]
     x0, u0 = hover_state(pc, pc["gap0"])
     _, ref = prepare(cfg, 20.0)[1:3]
@@ -191,6 +195,7 @@ def bench_sim(batch: int = 64, peer_duration: float = 5.0) -> dict:
     out["controller_step_us"] = {"p50": float(np.percentile(times, 50) / 1e3), "p99": float(np.percentile(times, 99) / 1e3)}
 
     offsets = np.linspace(0.0, 3.0, batch)
+    say(f"batch of {batch} plants x 100 s")
     simulate_batch(cfg, offsets[:2], controller="adaptive", duration=1.0)  # compile
     t_batch = time.perf_counter()
     simulate_batch(cfg, offsets, controller="adaptive", duration=100.0)
@@ -198,6 +203,7 @@ def bench_sim(batch: int = 64, peer_duration: float = 5.0) -> dict:
     out["batch"] = {"plants": batch, "wall_s": bw}
     out["batch_runs_per_s"] = batch / bw
 
+    say(f"the scipy solve_ivp peer, {peer_duration:g} s")
     ours = simulate(cfg, controller="adaptive", estimator="none", duration=peer_duration)
     Xp, pw = _peer(cfg, peer_duration, prepare(cfg, peer_duration)[1:3])
     diff = np.max(np.abs(Xp[:, [0, 2]] - ours.x[:, [0, 2]])) * 1e6
@@ -532,7 +538,12 @@ def bench_record(args: argparse.Namespace) -> dict[str, Any]:
 def run(what: str, args: argparse.Namespace) -> dict[str, Any]:
     """Run benchmark ``what`` (sim, loop, record), print its figures, return them."""
     if what == "sim":
-        r = bench_sim(args.batch, args.peer_duration)
+        from .common import warm_kernels
+        from .progress import Progress
+
+        warm_kernels("dem-ros bench sim")  # compiled (a first run) or loaded with progress, not inside the timing
+        with Progress("dem-ros bench sim", None, stage="a 1 s warm-up run") as bar:
+            r = bench_sim(args.batch, args.peer_duration, bar)
         _print_sim(r)
         return r
     if what == "loop":

@@ -13,6 +13,7 @@
     dem-ros hw        arm | disarm | estop | status of the running hardware driver
     dem-ros config    print the parameter schema or the default params file
     dem-ros study     robustness over plant truth x controllers, on Dask distributed
+    dem-ros faults    the fault catalogue (#12) injected into the real graph: outcome per fault
 
 Bad input ends with a one-line error and exit status 2, never a traceback.
 """
@@ -29,7 +30,7 @@ from .. import __version__
 from ..core.params import SCHEMA, ConfigError
 from ..nodes import NODES
 from ..transport import param_get, param_set
-from . import bench, launcher, node_main, replay, study
+from . import bench, faults, launcher, node_main, replay, study
 from .common import (
     CONTROLLER_TYPES,
     ESTIMATOR_TYPES,
@@ -49,7 +50,7 @@ from .runmetrics import RunMetrics
 __all__ = ["build_parser", "main"]
 
 #: commands that join a DDS domain (and so read ROS_DOMAIN_ID)
-_DDS_COMMANDS = ("launch", "node", "param", "hw", "bench", "replay")
+_DDS_COMMANDS = ("launch", "node", "param", "hw", "bench", "replay", "faults")
 _TRANSPORTS = ("auto", "rclpy", "dds")
 
 
@@ -259,30 +260,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_config)
 
     lg = sub.add_parser("launch", help="run the node graph (each node its own process), record a bag, print a summary")
-    lg.add_argument("--scenario", default="S1", help="scenario name from config/scenarios.yaml (default S1; "
-                    "see dem-ros sim --scenario): plant truth, reference steps and perturbations of the run")
-    lg.add_argument("--controller", default=None, choices=CONTROLLER_TYPES, help="control law (default: config, 'adaptive')")
-    lg.add_argument("--estimator", default=None, choices=ESTIMATOR_TYPES, help="state estimator (default: config, 'kf')")
-    lg.add_argument("--duration", type=seconds, default=None, help="seconds (default: the scenario's)")
-    lg.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"],
-                    help="auto (rclpy when it imports, else dds) | rclpy | dds (no ROS install needed)")
-    lg.add_argument("--compose", action="store_true",
-                    help="all nodes in one process on one executor, topics between them in memory (dds); "
-                         "the real-time configuration")
-    lg.add_argument("--free-run", action="store_true",
-                    help="free-running plant (plant_sim.lockstep false): hardware-like timing, a late command is held "
-                         "at most hold_timeout, then the simulated board lands the plate; default: lockstep (exact)")
-    lg.add_argument("--params", default=None, help="ROS 2 params file")
-    lg.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE", help="override a parameter, e.g. k1=60")
-    lg.add_argument("--bag-dir", type=out_dir, default="bags", help="where the run's bag goes (default ./bags)")
-    lg.add_argument("--no-record", action="store_true", help="do not record a bag")
-    lg.add_argument("--json", type=out_file, default=None, help="write the summary as JSON")
-    lg.add_argument("--domain-id", type=domain_id, default=None, help="ROS_DOMAIN_ID for this run")
-    lg.add_argument("--hardware", default=None, metavar="LINK",
-                    help="hw_driver instead of plant_sim, on udp://HOST:PORT or serial:///dev/PATH; 'rig' (UDP) or "
-                         "'rig-serial' (a pty pair) also start the emulator 'dem-ros rig'")
-    lg.add_argument("--fault", action="append", default=None, metavar="SPEC",
-                    help="with --hardware rig: inject a rig fault, e.g. linkloss@10+0.05 (dem-ros rig --help-faults)")
+    launcher.add_arguments(lg)
     lg.set_defaults(func=launcher.cmd_launch)
 
     from ..hardware import rig
@@ -313,6 +291,10 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--set", action="append", metavar="NAME=VALUE", help="what-if: change a controller parameter")
     rp.add_argument("--publish", action="store_true", help="play the bag back onto the graph at its recorded rate")
     rp.set_defaults(func=replay.cmd_replay)
+
+    ft = sub.add_parser("faults", help="inject the fault catalogue into the real graph; a table of outcomes")
+    faults.add_arguments(ft)
+    ft.set_defaults(func=faults.cmd_faults)
 
     bg = sub.add_parser("bag", help="inspect bags")
     bg.add_argument("action", choices=["check", "info"],

@@ -10,6 +10,7 @@ is complete), and prints a summary read back from the bag: tracking metrics
 
 from __future__ import annotations
 
+import argparse
 import io
 import json
 import os
@@ -21,7 +22,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Collection, Sequence
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -29,13 +30,31 @@ from typing import Any
 from .. import __version__
 from ..core.params import SCHEMA
 from ..core.scenarios import Scenario
-from .common import UsageError, env_domain_id, fmt_pair, load_config, warm_kernels, write_json, yaml_scalar
+from .common import (
+    CONTROLLER_TYPES,
+    ESTIMATOR_TYPES,
+    UsageError,
+    domain_id,
+    env_domain_id,
+    fmt_pair,
+    load_config,
+    out_dir,
+    out_file,
+    seconds,
+    warm_kernels,
+    write_json,
+    yaml_scalar,
+)
 from .progress import Progress
 from .runmetrics import RunMetrics
 
 __all__ = ["GraphError", "StartupError", "cmd_launch", "launch", "run_graph", "write_params_file"]
 
 NODES = ("recorder", "reference", "estimator", "controller", "plant_sim")
+
+
+#: ``run_graph``'s hook: (wall s since t = 0 or None, node processes, restart(name)) -> names that may be down
+Supervise = Callable[[float | None, dict[str, subprocess.Popen], Callable[[str], None]], Collection[str]]
 
 
 class GraphError(RuntimeError):
@@ -100,7 +119,8 @@ def _node_cmd(name: str, transport: str, params: Path, extra: list[str]) -> list
 
 def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, meta: dict,
               domain_id: int | None = None, status: bool = True, workdir: Path | None = None,
-              compose: bool = False, hardware: str | None = None, faults: Sequence[str] = ()) -> dict:
+              compose: bool = False, hardware: str | None = None, faults: Sequence[str] = (),
+              supervise: Supervise | None = None) -> dict:
     """Start the graph, wait for the plant to finish ``duration`` s, stop everything; return raw facts.
 
     ``compose``: all nodes in one ``container`` process (intra-process topics)
@@ -108,6 +128,11 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     ``plant_sim``, on the link ``udp://HOST:PORT`` or ``serial:///dev/...``; ``rig``
     (UDP on loopback) or ``rig-serial`` (a pty pair) also start the emulator
     ``dem-ros rig`` with ``faults`` (see :mod:`dem_ros.hardware.rig`).
+
+    ``supervise(t, procs, restart)`` (``dem-ros faults``) is called every 0.1 s with the wall time
+    since t = 0 (None before), the node processes by name (it may kill them) and ``restart(name)``
+    (starts that node again, its log appended); it returns the names that may be down now. Any
+    other node that exits ends the run with a :class:`GraphError` (the run was cut short).
     """
     workdir = workdir or Path(tempfile.mkdtemp(prefix="dem_ros_launch_"))
     workdir.mkdir(parents=True, exist_ok=True)
@@ -157,56 +182,68 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
             if name == "container" and hardware is not None:
                 extra = [*extra, "--nodes", "estimator,controller,reference"]
             logs[name] = workdir / f"{name}.log"
-            out = subprocess.PIPE if name == lead else open(logs[name], "wb")
             node_params = params
             if name == "hw_driver" and hardware in ("rig", "rig-serial"):  # the emulator starts last, with the driver
                 rig, cfg["hw_driver"]["url"] = _start_rig(cfg, hardware, faults, workdir)
                 node_params = write_params_file(cfg, workdir / "hw_driver_params.yaml")
-            procs[name] = subprocess.Popen(_node_cmd(name, transport, node_params, extra), env=env, stdout=out,
-                                           stderr=subprocess.STDOUT, start_new_session=True,
-                                           text=(name == lead))
+            with open(logs[name], "wb") as log_file:  # the child writes through its own descriptor
+                procs[name] = subprocess.Popen(_node_cmd(name, transport, node_params, extra), env=env,
+                                               stdout=subprocess.PIPE if name == lead else log_file,
+                                               stderr=subprocess.STDOUT, start_new_session=True,
+                                               text=(name == lead))
             started[name] = time.monotonic()
             if name == "controller" or (name == "container" and hardware is not None):  # wait for their "ready"
                 _wait_ready({n: logs[n] for n in procs if n != plant_node}, procs, timeout=120.0)
         plant = procs[lead]
-        plant_log = open(logs[lead], "w")
-        limit = time.monotonic() + 60.0 + 10.0 * (duration + cfg["plant_sim"]["preroll"])  # lockstep may run below real time
-        os.set_blocking(plant.stdout.fileno(), False)
-        buf = ""
-        tty = sys.stderr.isatty()
-        last_status = 0.0
-        while plant.poll() is None and not interrupted and time.monotonic() < limit:
-            for name, p in procs.items():
-                if name != lead and p.poll() is not None:
-                    raise GraphError(f"node {name} exited early with code {p.returncode}; see {logs[name]}")
-            time.sleep(0.1)
-            try:
-                chunk = plant.stdout.read()
-            except (BlockingIOError, TypeError):
-                chunk = None
-            if chunk:
-                plant_log.write(chunk)
-                plant_log.flush()  # users (and tests) follow the run in the log
-                buf += chunk
-                lines = buf.split("\n")
-                buf = lines[-1]
-                for line in lines[:-1]:
-                    if line.startswith("t =") and cpu_start is None:  # the run (t >= 0) has begun
-                        boot.close(f"dem-ros launch: the nodes were ready in {boot.elapsed:.0f} s")
-                        cpu_start = {n: _cpu_seconds(p.pid) for n, p in procs.items()}
-                        started = {n: time.monotonic() for n in procs}
-                    if status and line.startswith("t ="):
-                        if tty:  # redrawn in place on a terminal; a log gets a line every 5 s
-                            print("\r  " + line.strip(), end="", file=sys.stderr, flush=True)
-                        elif time.monotonic() - last_status >= 5.0:
-                            print("  " + line.strip(), file=sys.stderr, flush=True)
-                            last_status = time.monotonic()
-        if status and tty:
-            print(file=sys.stderr)
-        rest = plant.stdout.read() if plant.poll() is not None else None
-        if rest:
-            plant_log.write(rest)
-        plant_log.close()
+        assert plant.stdout is not None  # a pipe (stdout=PIPE above)
+        plant_out = plant.stdout
+        with open(logs[lead], "w") as plant_log:
+            limit = time.monotonic() + 60.0 + 10.0 * (duration + cfg["plant_sim"]["preroll"])  # lockstep may run below real time
+            os.set_blocking(plant_out.fileno(), False)
+            buf = ""
+            tty = sys.stderr.isatty()
+            last_status = 0.0
+            t_zero: float | None = None
+
+            def restart(name: str) -> None:
+                with open(logs[name], "ab") as out:
+                    procs[name] = subprocess.Popen(_node_cmd(name, transport, params, []), env=env, stdout=out,
+                                                   stderr=subprocess.STDOUT, start_new_session=True)
+
+            while plant.poll() is None and not interrupted and time.monotonic() < limit:
+                may_be_down = supervise(None if t_zero is None else time.monotonic() - t_zero, procs, restart) \
+                    if supervise is not None else ()
+                for name, p in procs.items():
+                    if name != lead and name not in may_be_down and p.poll() is not None:
+                        raise GraphError(f"node {name} exited early with code {p.returncode}; see {logs[name]}")
+                time.sleep(0.1)
+                try:
+                    chunk = plant_out.read()
+                except (BlockingIOError, TypeError):
+                    chunk = None
+                if chunk:
+                    plant_log.write(chunk)
+                    plant_log.flush()  # users (and tests) follow the run in the log
+                    buf += chunk
+                    lines = buf.split("\n")
+                    buf = lines[-1]
+                    for line in lines[:-1]:
+                        if line.startswith("t =") and cpu_start is None:  # the run (t >= 0) has begun
+                            t_zero = time.monotonic()
+                            boot.close(f"dem-ros launch: the nodes were ready in {boot.elapsed:.0f} s")
+                            cpu_start = {n: _cpu_seconds(p.pid) for n, p in procs.items()}
+                            started = {n: time.monotonic() for n in procs}
+                        if status and line.startswith("t ="):
+                            if tty:  # redrawn in place on a terminal; a log gets a line every 5 s
+                                print("\r  " + line.strip(), end="", file=sys.stderr, flush=True)
+                            elif time.monotonic() - last_status >= 5.0:
+                                print("  " + line.strip(), file=sys.stderr, flush=True)
+                                last_status = time.monotonic()
+            if status and tty:
+                print(file=sys.stderr)
+            rest = plant_out.read() if plant.poll() is not None else None
+            if rest:
+                plant_log.write(rest)
     finally:
         boot.close()
         wall = time.monotonic() - t0
@@ -216,17 +253,12 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
         halt.stage("stopping the nodes (the recorder last, so the bag is complete)")
         # stop: plant (if still running) and controllers first, recorder last
         for name in ("container", "plant_sim", "hw_driver", "controller", "estimator", "reference", "recorder"):
-            p = procs.get(name)
-            if p is None or p.poll() is not None:
+            proc = procs.get(name)
+            if proc is None or proc.poll() is not None:
                 continue
             if name == "recorder":
                 time.sleep(0.3)  # last samples in flight
-            p.send_signal(signal.SIGINT)
-            try:
-                p.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+            _interrupt(proc)
         rig_summary = _stop_rig(rig)
         halt.close()
         for s, h in old.items():
@@ -279,17 +311,22 @@ def _start_rig(cfg: dict, kind: str, faults: Sequence[str], workdir: Path) -> tu
     raise StartupError(f"dem-ros rig did not start (code {proc.returncode}); see {log}")
 
 
+def _interrupt(proc: subprocess.Popen, timeout: float = 10.0) -> None:
+    """Ctrl-C for a node or the emulator (it shuts down cleanly); killed if not gone within ``timeout`` [s]."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
 def _stop_rig(proc: subprocess.Popen | None) -> dict | None:
     """Stop the emulator (after the driver: it has landed the plate) and return its summary."""
     if proc is None:
         return None
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    try:
-        proc.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
+    _interrupt(proc)
     summary = None
     for line in proc.log.read_text(errors="replace").splitlines():  # type: ignore[attr-defined]
         if line.startswith("RIG ") and '"summary"' in line:
@@ -318,7 +355,7 @@ def _config_from_args(args: Any) -> tuple[dict[str, dict[str, Any]], Scenario, f
     return cfg, sc, duration
 
 
-def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any]]:
+def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None) -> tuple[RunMetrics, dict[str, Any]]:
     """Run the graph as ``dem-ros launch`` does: (metrics read back from the bag, launch facts).
 
     The facts: ``composed``, ``offline_rms_error_um`` (the same configuration
@@ -368,7 +405,8 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
     try:
         facts = run_graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id,
                           status=not quiet, workdir=(bag.parent / (bag.name + "_logs")) if record else None,
-                          compose=compose, hardware=hardware, faults=getattr(args, "fault", None) or ())
+                          compose=compose, hardware=hardware, faults=getattr(args, "fault", None) or (),
+                          supervise=supervise)
         with Progress("dem-ros launch", None, enabled=not quiet) as bar:
             bar.stage(f"reading the bag for the metrics ({bag.name})")
             metrics = RunMetrics.from_bag(bag)
@@ -398,6 +436,34 @@ def launch(args: Any, *, quiet: bool = False) -> tuple[RunMetrics, dict[str, Any
     if record and bag.is_dir():  # the run-time summary travels with the bag (replay compares against it)
         write_json(bag / "summary.json", metrics.to_dict() | info)
     return metrics, info
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``dem-ros launch`` (also parsed by ``dem-ros faults`` for its runs)."""
+    p.add_argument("--scenario", default="S1", help="scenario name from config/scenarios.yaml (default S1; "
+                   "see dem-ros sim --scenario): plant truth, reference steps and perturbations of the run")
+    p.add_argument("--controller", default=None, choices=CONTROLLER_TYPES, help="control law (default: config, 'adaptive')")
+    p.add_argument("--estimator", default=None, choices=ESTIMATOR_TYPES, help="state estimator (default: config, 'kf')")
+    p.add_argument("--duration", type=seconds, default=None, help="seconds (default: the scenario's)")
+    p.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"],
+                   help="auto (rclpy when it imports, else dds) | rclpy | dds (no ROS install needed)")
+    p.add_argument("--compose", action="store_true",
+                   help="all nodes in one process on one executor, topics between them in memory (dds); "
+                        "the real-time configuration")
+    p.add_argument("--free-run", action="store_true",
+                   help="free-running plant (plant_sim.lockstep false): hardware-like timing, a late command is held "
+                        "at most hold_timeout, then the simulated board lands the plate; default: lockstep (exact)")
+    p.add_argument("--params", default=None, help="ROS 2 params file")
+    p.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE", help="override a parameter, e.g. k1=60")
+    p.add_argument("--bag-dir", type=out_dir, default="bags", help="where the run's bag goes (default ./bags)")
+    p.add_argument("--no-record", action="store_true", help="do not record a bag")
+    p.add_argument("--json", type=out_file, default=None, help="write the summary as JSON")
+    p.add_argument("--domain-id", type=domain_id, default=None, help="ROS_DOMAIN_ID for this run")
+    p.add_argument("--hardware", default=None, metavar="LINK",
+                   help="hw_driver instead of plant_sim, on udp://HOST:PORT or serial:///dev/PATH; 'rig' (UDP) or "
+                        "'rig-serial' (a pty pair) also start the emulator 'dem-ros rig'")
+    p.add_argument("--fault", action="append", default=None, metavar="SPEC",
+                   help="with --hardware rig: inject a rig fault, e.g. linkloss@10+0.05 (dem-ros rig --help-faults)")
 
 
 def cmd_launch(args: Any) -> int:

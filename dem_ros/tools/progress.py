@@ -34,8 +34,9 @@ class Progress:
     Args:
         prefix: who reports (``"dem-ros report"``); starts every line.
         total: number of steps (runs, messages, ...), or None for work of unknown length
-            (then the line shows the stage and the elapsed time).
+            (then the line shows the stage and the elapsed time); may be set later, once known.
         unit: what a step is, in the plural (``"runs"``, ``"messages"``).
+        stage: what is being done first (see :meth:`stage`).
         done: steps already done before this session (e.g. rows of a resumed study).
         enabled: False: print nothing (``--quiet``, tests).
         stream: where to write; its ``isatty()`` picks in-place redraws or new lines.
@@ -43,7 +44,7 @@ class Progress:
         every: longest silence after that on a non-terminal [s] (a terminal redraws every 0.5 s).
     """
 
-    def __init__(self, prefix: str, total: int | None = None, unit: str = "steps", *, done: int = 0,
+    def __init__(self, prefix: str, total: int | None = None, unit: str = "steps", *, stage: str = "", done: int = 0,
                  enabled: bool = True, stream: IO[str] | None = None, quiet: float = 1.0, every: float = 5.0):
         self.prefix, self.total, self.unit = prefix, total, unit
         self.done = done
@@ -52,7 +53,7 @@ class Progress:
         self.stream = stream if stream is not None else sys.stderr
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.quiet, self.every = quiet, every
-        self.what = ""
+        self.what = stage
         self.said = False
         self._start_done = done
         self._t0 = time.monotonic()
@@ -109,7 +110,8 @@ class Progress:
         frac = min(1.0, self.done / max(self.total, 1))
         new = self.done - self._start_done
         rate = new / dt if dt > 0 else 0.0
-        eta = f", ETA {(self.total - self.done) / rate:.0f} s" if rate > 0 and self.done < self.total else ""
+        settled = new >= max(1, self.total // 100)  # a rate from the first few steps is no estimate
+        eta = f", ETA {(self.total - self.done) / rate:.0f} s" if settled and rate > 0 and self.done < self.total else ""
         failed = f", {self.failed} failed" if self.failed else ""
         return (f"{self.prefix}: [{'#' * int(30 * frac):<30}] {self.done}/{self.total} {self.unit}, "
                 f"{dt:.0f} s{eta}{failed}{what}")

@@ -93,13 +93,18 @@ def plot_what_if(res: dict[str, Any], out: Path) -> Path:
     """``what_if.png``: the recorded commands and the re-run law's, per coil [V]."""
     from .plots import figure, save
 
-    fig, ax = figure(2, 1)
+    fig, ax = figure(3, 1, 2.4)
     t = np.array(res["t"])
+    old, new = np.array(res["u_recorded"]), np.array(res["u_replayed"])
     for j in range(2):
-        ax[j].plot(t, np.array(res["u_recorded"])[:, j], lw=0.8, label=f"recorded ({res['recorded_law']})")
-        ax[j].plot(t, np.array(res["u_replayed"])[:, j], "--", lw=0.8, label=f"re-run: {res['law']}")
+        ax[j].plot(t, old[:, j], lw=0.8, label=f"recorded ({res['recorded_law']})")
+        ax[j].plot(t, new[:, j], "--", lw=0.8, label=f"re-run: {res['law']}")
         ax[j].set_ylabel(f"u{j + 1} [V]")
         ax[j].legend(loc="upper right", fontsize=8)
+    for j in range(2):  # the difference: often millivolts on a scale of 80 V
+        ax[2].plot(t, (new[:, j] - old[:, j]) * 1e3, lw=0.8, label=f"u{j + 1}")
+    ax[2].set_ylabel("re-run - recorded [mV]")
+    ax[2].legend(loc="upper right", fontsize=8)
     ax[-1].set_xlabel("t [s] (0: start of the scenario; t < 0: the closed-loop pre-roll)")
     changes = ", ".join(res["changes"]) or "no parameter changes"
     ax[0].set_title(f"what-if replay: {res['law']} ({changes}) on the recorded inputs")
@@ -125,6 +130,14 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     series ``t`` [s] (experiment clock: t = 0 at the scenario's start, negative in the pre-roll),
     ``u_replayed``, ``u_recorded`` (K, 2) [V]. ``progress``: report on stderr (a long bag takes a while).
     """
+    bar = Progress("dem-ros replay", None, "samples", stage=f"reading the recorded inputs of {bag}", enabled=progress)
+    try:
+        return _what_if(bag, controller, sets, bar)
+    finally:
+        bar.close()
+
+
+def _what_if(bag: Path, controller: str | None, sets: list[str] | None, bar: Progress) -> dict:
     from ..bag import BagError, BagReader
     from ..core.controllers import make_controller
     from ..core.params import SCHEMA, apply_overrides, default_config, parse_assignment
@@ -137,6 +150,9 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     # a bag of an older version may carry parameters removed since (plant_sim.command_timeout): skip those
     known = {g: {p.name for p in specs} for g, specs in SCHEMA.groups.items()}
     recorded = {g: {n: x for n, x in v.items() if n in known[g]} for g, v in cfg.items() if g in SCHEMA.groups}
+    # controller parameters added since the recording: the re-run takes their defaults, so the law is not the one
+    # that ran, and need not reproduce it (said with the verdict)
+    not_recorded = sorted(known["controller"] - set(cfg.get("controller", {})))
     cfg = apply_overrides(default_config(), recorded, "recorded config")
     recorded_law = cfg["controller"]["type"]
     ccfg = dict(cfg["controller"])
@@ -166,7 +182,7 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     ctrl = make_controller(ccfg, name)
     started = False
     u_new, u_old, stamps = [], [], []
-    bar = Progress("dem-ros replay", len(est["stamp_ns"]), "samples", enabled=progress)
+    bar.total = len(est["stamp_ns"])
     bar.stage(f"re-running {name}")
     for i, t in enumerate(est["stamp_ns"]):
         bar.step()
@@ -191,7 +207,6 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
         u_new.append(np.clip(u, -ccfg["voltage_limit"], ccfg["voltage_limit"]))
         u_old.append(cmd["effort"][cmd_by[t], :2])
         stamps.append(t)
-    bar.close()
     if not stamps:
         raise BagError(f"{bag}: no sample on which the controller acted")
     epoch = _epoch_ns(r)
@@ -200,6 +215,7 @@ def what_if(bag: Path, controller: str | None = None, sets: list[str] | None = N
     d = np.abs(new - old)
     return {
         "law": name, "recorded_law": recorded_law, "changes": sets or [], "samples": len(stamps),
+        "parameters_not_recorded": not_recorded,
         "max_abs_diff_v": float(d.max()), "rms_diff_v": float(np.sqrt(np.mean(d**2))),
         "reproduces_recording": bool(d.max() <= 1e-9 * max(1.0, float(np.abs(old).max()))),
         "t": ((np.array(stamps) - t0) * 1e-9).tolist(), "u_replayed": new.tolist(), "u_recorded": old.tolist(),
@@ -220,8 +236,8 @@ def publish(bag: Path, rate: float = 1.0, progress: bool = True) -> dict:
     total = sum(r.topics[n].count for n in names)
     node = make_node("dem_ros_player", transport="dds", args=[])
     pubs = {n: node.publisher(topics[n]) for n in names}
-    bar = Progress("dem-ros replay --publish", total, "messages", enabled=progress, quiet=0.0)
-    bar.stage("waiting 1 s for subscribers to discover the player")
+    bar = Progress("dem-ros replay --publish", total, "messages", stage="waiting 1 s for subscribers to discover the player",
+                   enabled=progress, quiet=0.0)
     time.sleep(1.0)  # discovery
     bar.stage(f"playing {len(pubs)} topics at the recorded rate")
     sent = 0
@@ -257,6 +273,10 @@ def cmd_replay(args: Any) -> int:
         print(f"what-if replay of {bag}: law {res['law']} (recorded: {res['recorded_law']}), changes {res['changes'] or 'none'}")
         print(f"  {res['samples']} samples; max |u_replayed - u_recorded| = {res['max_abs_diff_v']:.3e} V,"
               f" RMS {res['rms_diff_v']:.3e} V: {verdict}")
+        if res["parameters_not_recorded"]:
+            print(f"  note: recorded by an earlier version, without controller parameter(s)"
+                  f" {', '.join(res['parameters_not_recorded'])}: the re-run uses their defaults, so even the recorded"
+                  " law need not reproduce the recording")
         if args.json:
             write_json(args.json, {k: v for k, v in res.items() if k not in ("t", "u_replayed", "u_recorded")})
             print(f"  comparison written to {args.json}")

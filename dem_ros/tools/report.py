@@ -19,7 +19,7 @@ import numpy as np
 from ..core.scenarios import load_scenarios
 from ..core.simulate import simulate
 from .common import CONTROLLER_TYPES, warm_kernels, write_json
-from .plots import figure, overlay, save
+from .plots import figure, mark_failure, overlay, save
 from .progress import Progress
 from .study import report_section
 
@@ -87,21 +87,21 @@ def _paper_figures(out: Path, duration: float | None) -> dict[str, str]:
     fig, ax = figure(1, 1)
     ax[0].plot(t, s1.r * 1e3, ":", lw=1)
     overlay(ax[0], t, [("y_m1", s1.ref[:, 0]), ("y_m2", s1.ref[:, 1])], 1e3)
-    ax[0].set_ylabel("mm"); ax[0].set_xlabel("t [s]"); ax[0].set_title("Fig. 4/5: command r (dotted) and reference-model output y_m = M(s) r")
+    ax[0].set_ylabel("gap [mm]"); ax[0].set_xlabel("t [s]"); ax[0].set_title("Fig. 4/5: command r (dotted) and reference-model output y_m = M(s) r")
     figs["fig04_reference.png"] = "Reference path and model output (paper Figs 4-5)"
     save(fig, out / "fig04_reference.png")
 
     fig, ax = figure(2, 1)
     for j in range(2):
         overlay(ax[j], t, [(f"d{j+1}", s1.x[:, 2 * j]), (f"y_m{j+1}", s1.ref[:, j])], 1e3)
-        ax[j].set_ylabel("mm")
+        ax[j].set_ylabel(f"gap d{j + 1} [mm]")
     ax[0].set_title("Fig. 6: S1, adaptive (A2): gaps follow the reference model")
     ax[1].set_xlabel("t [s]")
     save(fig, out / "fig06_tracking_S1.png"); figs["fig06_tracking_S1.png"] = "S1 tracking, adaptive (paper Fig. 6)"
 
     a1 = run("S1", "paper_fixed")
     fig, ax = figure(3, 1, 2.2)
-    for j, lab in enumerate(["m_hat [kg]", "R_hat [ohm]", "K_hat"]):
+    for j, lab in enumerate(["m_hat [kg]", "R_hat [ohm]", "K_hat [N m^2/A^2]"]):
         overlay(ax[j], t, [("adaptive (A2)", s1.diag[:, j]), ("paper_fixed (A1)", a1.diag[:, j])])
         ax[j].set_ylabel(lab)
     ax[0].axhline(14.852, color="k", ls=":"); ax[1].axhline(20.0, color="k", ls=":"); ax[2].axhline(4.374e-4, color="k", ls=":")
@@ -111,7 +111,7 @@ def _paper_figures(out: Path, duration: float | None) -> dict[str, str]:
     a0 = run("S1", "paper")
     fig, ax = figure(1, 1)
     overlay(ax[0], a0.t, [("d1 (paper, A0)", a0.x[:, 0]), ("y_m1", a0.ref[:, 0])], 1e3)
-    ax[0].axvline(a0.fail_time or 0, color="r"); ax[0].set_ylabel("mm"); ax[0].set_xlabel("t [s]")
+    mark_failure(ax, a0.fail_time); ax[0].set_ylabel("gap d1 [mm]"); ax[0].set_xlabel("t [s]")
     ax[0].set_title(f"The adaptive law as printed (A0) loses the plate at t = {a0.fail_time} s")
     save(fig, out / "fig_A0_failure.png"); figs["fig_A0_failure.png"] = "The printed law (A0) fails"
 
@@ -131,7 +131,7 @@ def _paper_figures(out: Path, duration: float | None) -> dict[str, str]:
     save(fig, out / "fig10_tracking_S2.png"); figs["fig10_tracking_S2.png"] = "S2 tracking with unknown mass (paper Figs 10-11)"
     fig, ax = figure(3, 1, 2.2)
     r = s2["adaptive"]
-    for j, lab in enumerate(["m_hat [kg]", "R_hat [ohm]", "K_hat"]):
+    for j, lab in enumerate(["m_hat [kg]", "R_hat [ohm]", "K_hat [N m^2/A^2]"]):
         ax[j].plot(t2, r.diag[:, j]); ax[j].set_ylabel(lab)
     ax[0].plot(t2, r.mass, "k:", label="true m"); ax[0].legend()
     ax[0].set_title("Figs 12-13: S2 estimates, adaptive (A2)")

@@ -328,7 +328,8 @@ def _cells(spec: StudySpec) -> list[tuple[tuple[Any, ...], int]]:
     if spec.samples is None:
         import itertools
 
-        return [(vals, spec.seed) for vals in itertools.product(*(a.values for a in spec.axes))]  # type: ignore[misc]
+        # (a grid axis always has its values: an axis without a count is refused unless --samples)
+        return [(vals, spec.seed) for vals in itertools.product(*(a.values or () for a in spec.axes))]
     out = []
     for i in range(spec.samples):
         rng = np.random.default_rng([spec.seed, i])
@@ -719,7 +720,8 @@ def draw_maps(spec: StudySpec, out: Path, rms_limit: float, map_axes: Sequence[s
             ax.set_xticks(range(len(xs)), [f"{v * kx:.4g}" if pick[0].type is not str else v for v in xs])
             if len(pick) > 1:
                 ky, ly = _label(pick[1].name, pick[1].unit)
-                ax.set_yticks(range(len(ys)), [f"{v * ky:.4g}" if pick[1].type is not str else v for v in ys])
+                ax.set_yticks(range(len(ys)), [f"{v * ky:.4g}" if pick[1].type is not str else v
+                                               for v in pick[1].values or ()])
                 ax.set_ylabel(ly)
             else:
                 ax.set_yticks([])

@@ -75,7 +75,7 @@ def test_tracks_gap_rates_without_rate_sensors(s1_adaptive_15s):
     k0 = int(np.argmax(np.abs(X[:, 1])))
     peak = np.abs(X[k0, 1])
     assert peak > 3e-4  # the plate is really moving (m/s)
-    out, est = replay(X, U, EC, measure_velocity=False, k0=k0)
+    out, _est = replay(X, U, EC, measure_velocity=False, k0=k0)
     err = np.abs(out[:, [1, 3]] - X[:, [1, 3]])
     assert err[k0, 0] == pytest.approx(peak)  # starts with the whole rate wrong
     assert np.nanmax(err[k0 + 100:]) < 3e-2 * peak

@@ -58,8 +58,8 @@ def test_a_rogue_1e6_volt_command_changes_nothing_and_is_reported():
     bus.advance(1.0)  # a diagnostics report
     assert plant.started and len(applied) >= 300
     assert all(a == pytest.approx(u0, abs=1e-9) for a in applied), max(max(a) for a in applied)
-    n = plant.diag.counters["commands_foreign"]
-    assert n >= 250 and plant.diag.counters["command_writers"] == 1
+    n = plant.source.foreign
+    assert n >= 250 and plant.source.values()["command_writers"] == 1
     warn = [d for d in diags if d[0] == WARN and "commands_foreign +" in d[1]]
     assert warn and int(warn[0][2]["commands_foreign"]) > 0, diags
     logged = [line for line in bus.log if "/dem/command from writer" in line[2]]

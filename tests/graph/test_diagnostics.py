@@ -80,3 +80,18 @@ def test_an_event_report_keeps_a_latched_fault():
     d.publish(OK, "finished")
     bus.spin_once()
     assert seen[-1][0] == ERROR and seen[-1][2] == "trip"  # a latched fault outranks the event
+
+
+def test_the_reference_node_reports_refused_measurements():
+    from dem_ros.nodes.common import joint_state
+    from dem_ros.nodes.reference import ReferenceNode
+
+    bus, _probe, seen = _setup()
+    ReferenceNode(bus.node("reference"))
+    JS = bus.msg("sensor_msgs/msg/JointState")
+    bus.publish(contract.MEASUREMENT, joint_state(JS, bus.now_ns, position=(0.008,)))  # one gap: refused
+    bus.advance(1.0)
+    ref = [s for s in seen if s[1] == "reference"]
+    assert ref and ref[-1][0] == WARN and "refused +1" in ref[-1][2] and ref[-1][3]["refused"] == "1", ref
+    bus.advance(1.0)
+    assert [s for s in seen if s[1] == "reference"][-1][0] == OK

@@ -102,10 +102,19 @@ class RigLoop:
         return c
 
 
+ESTIMATOR_SUPPORT = pytest.mark.xfail(
+    strict=True,
+    reason="the estimator's plausibility gates (s3-fnodes, on main since 2026-11-24 01:40) latch a sensor fault on a plate "
+    "resting on its support (its EKF has no support: 20 innovation rejections in a row) and publish non-finite "
+    "estimates from then on, so nothing can lift the plate off; passed before that merge (commit b4effe1)",
+)
+
+
 def _min_gap(loop: RigLoop, since: int = 0) -> float:
     return float(np.min(np.array(loop.gaps[since:])))
 
 
+@ESTIMATOR_SUPPORT
 def test_a_controller_started_on_a_landed_plate_lifts_it_off_once_the_board_follows():
     """Landed on its support, zero current: the controller premagnetises (the plate stays down), waits while
     the board ignores it, and once armed lifts the plate smoothly to the reference; never near the rail."""
@@ -177,3 +186,27 @@ def test_a_restarted_reference_resumes_the_schedule_on_the_experiment_clock():
     r = {round((t - ep) / MS): v for t, v in loop.refs.items() if t >= ep}
     assert r[999][8] == loop.cfg["reference"]["initial"] and r[1001][8] == loop.cfg["reference"]["target_1"]
     assert loop.modes[-1] == Mode.RUN and _min_gap(loop) > loop.cfg["plant_sim"]["trip_gap_min"] + 1e-3
+
+
+@ESTIMATOR_SUPPORT
+@pytest.mark.parametrize("restart_before_landing", [True, False])
+def test_controller_killed_the_board_lands_then_a_restarted_controller_and_arm_lift_off_again(restart_before_landing):
+    """#11: controller killed mid-run -> the driver's watchdog faults, the board lands the plate on its support;
+    a new controller (started during the landing, or after it) + arm -> levitating again, never near the rail."""
+    loop = RigLoop()
+    pc, rig = loop.cfg["plant_sim"], loop.cfg["rig"]
+    loop.drv.arm()
+    loop.run(1500)
+    loop.kill("controller")
+    loop.run(100 if restart_before_landing else 3000)
+    assert loop.drv.state == DriverState.FAULT and "watchdog" in loop.drv.reason
+    loop.start("controller")
+    loop.run(3000 if restart_before_landing else 300)
+    assert loop.modes[-1] == Mode.LANDED and loop.board.plant.x[0] == pytest.approx(rig["support_gap"])
+    assert not loop.ctl.started  # resting: the law waits (a law run against a landed board would wind up)
+    loop.drv.arm()
+    loop.run(5000)
+    assert loop.drv.state == DriverState.ACTIVE and loop.modes[-1] == Mode.RUN and loop.ctl.counts["liftoffs"] == 1
+    assert _min_gap(loop) > pc["trip_gap_min"] + 3e-3
+    e = np.array(loop.gaps[-1]) - np.array(loop.refs[max(loop.refs)][:2])
+    assert np.all(np.abs(e) < 0.3e-3)

@@ -1,5 +1,6 @@
 """The ``hw_driver`` node as a real process on real DDS (loopback), in front of ``dem-ros rig`` over UDP:
-plant_sim's topic contract, the lifecycle over ``dem-ros hw`` requests, the e-stop latched and reported.
+plant_sim's topic contract, the lifecycle over ``dem-ros hw`` requests, the e-stop latched and reported
+on ``/dem/hw/state`` and on ``/diagnostics`` (a latched ERROR, published at once, cleared by a re-arm).
 
 No controller runs: the driver stays inactive or armed and the emulated plate stays clamped at its
 hover, so nothing here depends on the machine keeping 1 kHz.
@@ -54,6 +55,20 @@ def graph(tmp_path, monkeypatch, domain_id):
         p.wait(timeout=20)
 
 
+def _level(st) -> int:
+    return st.level if isinstance(st.level, int) else int.from_bytes(bytes(st.level), "little")
+
+
+def _spin_until(node, done, procs, seen, timeout_s: float = 30.0) -> None:
+    """Spin ``node`` until ``done()`` (bounded: the driver reports at 1 Hz, faults at once)."""
+    end = time.monotonic() + timeout_s
+    while not done() and time.monotonic() < end:
+        node.spin_once(0.1)
+        for p, log in procs:
+            assert p.poll() is None, log.read_text()
+    assert done(), f"not seen within {timeout_s:g} s; seen: {seen[-10:]}"
+
+
 def test_the_driver_honours_plant_sims_contract_and_its_lifecycle_answers_requests(graph):
     cfg, procs = graph
     node = make_node("hw_test", transport="dds", args=[])
@@ -90,10 +105,22 @@ def test_the_driver_honours_plant_sims_contract_and_its_lifecycle_answers_reques
     assert int(v["corrupt"]) == 0 and int(v["samples"]) > 0, v
     v = request("arm", timeout_s=60)
     assert v["state"] == "armed"
-    v = request("estop", "test e-stop", timeout_s=60)
-    assert v["state"] == "fault" and v["reason"] == "e-stop: test e-stop" and v["level"] == "2"
-    v = request("arm", timeout_s=60)  # arming clears the latched fault
-    assert v["state"] == "armed" and v["reason"] == ""
+    probe = make_node("hw_diag_probe", transport="dds", args=[])
+    seen: list[tuple[int, str]] = []
+    probe.subscribe(contract.DIAGNOSTICS, lambda m: seen.extend(
+        (_level(st), st.message) for st in m.status if st.name == contract.HW_LOOP_STATUS))
+    try:
+        _spin_until(probe, lambda: bool(seen), procs, seen)  # the 1 Hz report: the probe is matched
+        v = request("estop", "test e-stop", timeout_s=60)
+        assert v["state"] == "fault" and v["reason"] == "e-stop: test e-stop" and v["level"] == "2"
+        # at once, the reason first (counters that grew since the last report may follow it)
+        _spin_until(probe, lambda: any(lv == 2 and m.startswith("e-stop: test e-stop") for lv, m in seen), procs, seen)
+        v = request("arm", timeout_s=60)  # arming clears the latched fault
+        assert v["state"] == "armed" and v["reason"] == ""
+        n = len(seen)
+        _spin_until(probe, lambda: any(lv < 2 for lv, _ in seen[n:]), procs, seen)
+    finally:
+        probe.shutdown()
     v = request("disarm", timeout_s=60)
     assert v["state"] == "inactive"
     rig_log = procs[0][1]

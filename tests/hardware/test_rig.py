@@ -211,3 +211,31 @@ def test_s1_through_the_board_models_in_lockstep_tracks_as_offline():
     off = np.array(simulate(cfg, controller="adaptive", estimator="kf", duration=duration, scenario="S1").metrics()["rms_error_um"])
     print(f"lockstep rig RMS {rms} um, offline {off} um")
     assert np.all(rms <= np.maximum(2 * off, off + 10.0)), (rms, off)
+
+
+@pytest.mark.parametrize("rogue", [(200.0, 200.0), (200.0, 0.0)], ids=["both-coils-u_max", "one-coil-u_max"])
+def test_a_diverged_controller_is_braked_before_the_rail(rogue):
+    """The #11 finding through the whole board: after 300 ms of hover the PC forwards a diverged law's
+    saturated command; the board trips on the predicted stopping gap, brakes with the bus it measures and
+    lands the plate on its support. The summary reports the true smallest gap (never below trip_gap_min)
+    and the supervisor's snapshot."""
+    b, cfg, _ = make()
+    drv, _ = hover_loop(b, cfg, 300)
+    assert Mode(b.sup.mode) == Mode.RUN
+    for _ in range(3000):
+        data = b.tick()
+        if data is None:
+            continue
+        s, reply = drv.on_bytes(data, 10**18 + b.n * MS, b.n * MS)
+        if reply is not None:
+            b.receive(reply)
+        if s is not None:
+            cmd = drv.command(s.stamp_ns, np.array(rogue), b.n * MS)
+            if cmd is not None:
+                b.receive(cmd)
+        if Mode(b.sup.mode) == Mode.LANDED:
+            break
+    s = b.summary()
+    assert s["mode"] == "LANDED" and s["failed"] == "" and "predicted stopping gap" in s["reason"]
+    assert s["min_gap_mm"] > cfg["plant_sim"]["trip_gap_min"] * 1e3
+    assert s["supervisor"]["trips"] == 1 and s["supervisor"]["min_stop_gap_mm"] < cfg["plant_sim"]["trip_gap_min"] * 1e3

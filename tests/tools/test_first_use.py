@@ -75,15 +75,14 @@ def test_the_first_command_says_what_it_compiles_and_is_never_silent_long(cold_c
     assert any(cache.rglob("*.nbi")), "nothing was cached"
 
 
-def test_the_next_command_and_its_node_processes_load_the_shared_cache(cold_cache):
+def test_the_next_command_and_its_node_processes_load_the_shared_cache(cold_cache, domain_id):
     """The next command (a launched graph: the launcher and five node processes) loads what the first compiled:
     it says nothing of compiling, and no process writes to the cache."""
     cache, env, rc0, _lines, _out = cold_cache
     assert rc0 == 0
     before = {p: p.stat().st_mtime_ns for p in cache.rglob("*") if p.is_file()}
-    domain = 1 + (os.getpid() * 7 + 41) % 100
     rc, lines, out = _timed_run(["launch", "--scenario", "S1", "--duration", "0.5", "--no-record",
-                                 "--domain-id", str(domain)], env, 600.0)
+                                 "--domain-id", str(domain_id)], env, 600.0)
     text = [x for _, x in lines]
     assert rc in (0, 1), text  # 1: a degraded run (samples lost on a loaded machine), not this test's subject
     assert "dem-ros launch: error" not in "\n".join(text), text

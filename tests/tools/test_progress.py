@@ -45,13 +45,12 @@ def test_a_log_gets_whole_lines_with_the_count_eta_failures_and_the_final_state(
 
 def test_work_of_unknown_length_shows_its_stage_and_ends_with_the_summary():
     out = io.StringIO()
-    bar = Progress("dem-ros sim", None, stream=out, quiet=0.0, every=0.01)
-    bar.stage("compiling numba kernels: controller adaptive")
-    bar.said = False  # the thread may have printed once before the stage was named: wait for a line after it
+    bar = Progress("dem-ros sim", None, stage="compiling numba kernels: controller adaptive", stream=out, quiet=0.0,
+                   every=0.01)
     _until_said(bar)
     bar.close("dem-ros sim: kernels ready in 3 s")
     lines = out.getvalue().splitlines()
-    assert any(x.startswith("dem-ros sim: compiling numba kernels: controller adaptive ... (") for x in lines)
+    assert lines[0].startswith("dem-ros sim: compiling numba kernels: controller adaptive ... (")
     assert lines[-1] == "dem-ros sim: kernels ready in 3 s"
 
 
@@ -64,6 +63,14 @@ def test_a_terminal_line_is_redrawn_in_place_and_ended():
     text = out.getvalue()
     assert text.startswith("\r") and text.endswith("\033[K\n") and text.count("\n") == 1
     assert "4 messages" in text
+
+
+def test_no_eta_from_the_first_few_steps():
+    bar = Progress("dem-ros x", 63033, "messages", enabled=False)
+    bar.step(3)
+    assert "ETA" not in bar.line()
+    bar.step(1000)
+    assert "ETA" in bar.line()
 
 
 def test_disabled_prints_nothing_and_close_is_idempotent():

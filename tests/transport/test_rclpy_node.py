@@ -47,3 +47,153 @@ def test_pub_sub_same_process(node):
         if got:
             break
     assert got and got[0].data == "{}"
+
+
+def _spin_until(spinners, done, timeout_s: float = 30.0) -> None:
+    """Call each ``spin()`` in turn (a node's or an executor's bounded spin_once) until ``done()``."""
+    import time
+
+    end = time.monotonic() + timeout_s
+    while not done() and time.monotonic() < end:
+        for spin in spinners:
+            spin()
+
+
+def _spinners(node, ex=None):
+    """Bounded spins of our node and, if given, of a second rclpy executor (the client's)."""
+    out = [lambda: node.spin_once(0.02)]
+    if ex is not None:
+        out.append(lambda: ex.spin_once(timeout_sec=0.02))
+    return out
+
+
+def test_integer_literal_sets_a_double_over_the_parameter_service(node):
+    """What `ros2 param set /controller w 60` sends: ParameterValue(type=INTEGER, 60) to the
+    node's real set_parameters service; the double parameter takes 60.0 (Jazzy: pre-set callback)."""
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.executors import SingleThreadedExecutor
+
+    node.declare_parameters("controller")
+    client_node = rclpy.create_node("rclpy_test_param_client")
+    ex = SingleThreadedExecutor()
+    ex.add_node(client_node)
+    try:
+        cli = client_node.create_client(SetParameters, node.fully_qualified_name + "/set_parameters")
+        _spin_until(_spinners(node, ex), cli.service_is_ready)
+        assert cli.service_is_ready()
+        req = SetParameters.Request(parameters=[
+            Parameter(name="w", value=ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=60)),
+            Parameter(name="k1", value=ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=0)),
+        ])
+        fut = cli.call_async(req)
+        _spin_until(_spinners(node, ex), fut.done)
+        ok, bad = fut.result().results
+        assert ok.successful, ok.reason
+        assert not bad.successful and "Hurwitz" in bad.reason
+        assert node.parameters["w"] == 60.0 and isinstance(node.parameters["w"], float)
+        assert node.ros_node.get_parameter("w").type_ == rclpy.Parameter.Type.DOUBLE
+        assert node.parameters["k1"] == 80.0
+    finally:
+        ex.remove_node(client_node)
+        client_node.destroy_node()
+
+
+def test_service_answers_and_a_raising_callback_answers_false(node):
+    from rclpy.executors import SingleThreadedExecutor
+    from std_srvs.srv import SetBool, Trigger
+
+    calls = []
+
+    def arm(req, rep):
+        calls.append(req.data)
+        rep.success, rep.message = True, f"armed {req.data}"
+        return rep
+
+    def boom(req, rep):
+        raise ValueError("no plate")
+
+    node.service("arm", "std_srvs/srv/SetBool", arm)
+    node.service("reset", "std_srvs/srv/Trigger", boom)
+    client_node = rclpy.create_node("rclpy_test_srv_client")
+    ex = SingleThreadedExecutor()
+    ex.add_node(client_node)
+    try:
+        c_arm = client_node.create_client(SetBool, node.fully_qualified_name + "/arm")
+        c_reset = client_node.create_client(Trigger, node.fully_qualified_name + "/reset")
+        _spin_until(_spinners(node, ex), lambda: c_arm.service_is_ready() and c_reset.service_is_ready())
+        f1, f2 = c_arm.call_async(SetBool.Request(data=True)), c_reset.call_async(Trigger.Request())
+        _spin_until(_spinners(node, ex), lambda: f1.done() and f2.done())
+        assert f1.result().success and f1.result().message == "armed True" and calls == [True]
+        assert not f2.result().success and "no plate" in f2.result().message
+        assert node.callback_errors == {f"service {node.fully_qualified_name}/reset": 1}
+    finally:
+        ex.remove_node(client_node)
+        client_node.destroy_node()
+
+
+def test_raw_subscription_gets_the_cdr_the_dds_transport_writes(node):
+    from dem_ros.nodes.common import joint_state
+
+    got: list[bytes] = []
+    node.subscribe_raw(contract.COMMAND, got.append)
+    pub = node.publisher(contract.COMMAND)
+    JS = node.msg(contract.COMMAND.type)
+    m = joint_state(JS, 1_700_000_000_123_456_789, effort=(1.5, -2.0))
+    _spin_until(_spinners(node), lambda: pub.subscription_count >= 1, 10.0)
+    pub.publish(m)
+    _spin_until(_spinners(node), lambda: bool(got), 10.0)
+    d = joint_state(msgs.JointState, 1_700_000_000_123_456_789, effort=(1.5, -2.0))
+    assert got and bytes(got[0]) == serialize(d)
+
+
+def test_callback_error_is_counted_and_the_node_keeps_running(node):
+    seen = []
+
+    def bad(msg):
+        seen.append(msg.data)
+        raise RuntimeError("bad sample")
+
+    node.subscribe(contract.RUN_INFO, bad)
+    pub = node.publisher(contract.RUN_INFO)
+    String = node.msg("std_msgs/msg/String")
+    pub.publish(String(data="a"))
+    _spin_until(_spinners(node), lambda: bool(seen), 10.0)
+    pub.publish(String(data="b"))
+    _spin_until(_spinners(node), lambda: len(seen) >= 2, 10.0)
+    assert seen == ["a", "b"]
+    assert node.callback_errors == {f"subscription {contract.RUN_INFO.name}": 2}
+
+
+def test_sources_name_the_only_writer_and_refuse_to_guess_between_two(node):
+    """rclpy (Jazzy) gives no publisher GID per sample: subscribe_with_source names the writer while it
+    is the only one on the topic (its GID as publisher_gids lists it) and gives b"" once there are two."""
+    from dem_ros.nodes.common import joint_state
+    from dem_ros.transport.api import GID_SIZE
+
+    ctl = make_node("rclpy_test_ctl", transport="rclpy", args=[])
+    rogue = make_node("rclpy_test_rogue", transport="rclpy", args=[])
+    try:
+        got: list[tuple[float, bytes]] = []
+        node.subscribe_with_source(contract.COMMAND, lambda m, gid: got.append((m.effort[0], gid)))
+        JS = node.msg(contract.COMMAND.type)
+        p_ctl = ctl.publisher(contract.COMMAND)
+        spin = [*_spinners(node), lambda: ctl.spin_once(0.01), lambda: rogue.spin_once(0.01)]
+        _spin_until(spin, lambda: len(node.publisher_gids(contract.COMMAND, "rclpy_test_ctl")) == 1
+                    and p_ctl.subscription_count >= 1)
+        gids = node.publisher_gids(contract.COMMAND, "/rclpy_test_ctl")
+        assert len(gids) == 1 and len(next(iter(gids))) == GID_SIZE
+        assert node.publisher_gids(contract.COMMAND, "rclpy_test_rogue") == frozenset()
+        p_ctl.publish(joint_state(JS, 1, effort=(1.0, 0.0)))
+        _spin_until(spin, lambda: bool(got), 10.0)
+        assert got == [(1.0, next(iter(gids)))]
+        p_rogue = rogue.publisher(contract.COMMAND)
+        _spin_until(spin, lambda: len(node.ros_node.get_publishers_info_by_topic(contract.COMMAND.name)) == 2
+                    and p_rogue.subscription_count >= 1)
+        p_rogue.publish(joint_state(JS, 2, effort=(2.0, 0.0)))
+        p_ctl.publish(joint_state(JS, 3, effort=(3.0, 0.0)))
+        _spin_until(spin, lambda: len(got) >= 3, 10.0)
+        assert sorted(got[1:]) == [(2.0, b""), (3.0, b"")]
+    finally:
+        rogue.shutdown()
+        ctl.shutdown()

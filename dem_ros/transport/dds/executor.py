@@ -21,17 +21,22 @@ subscriber is matched. Published messages are shared, not copied: do not
 modify a message after publishing it.
 
 Delivery order is FIFO over all topics of the executor (publish order), never
-re-entrant. Due timers fire **rate-monotonic** (the shortest period first, as a fixed-priority
-real-time scheduler ranks periodic tasks), and what each one sets off is delivered before the
-next fires: the 1 kHz tick's chain never waits behind a 1 Hz diagnostics timer due in the same
-round. **Background nodes** (:meth:`DdsExecutor.set_background`; the recorder of a
-container) come last in every round: their samples, timers and intra-process deliveries run
-after every other node's work of that round, i.e. after the 1 kHz chain measurement ->
-estimate -> command has run to its end. Recording is best-effort and never delays the loop. (Depth-first delivery - what a callback publishes first - would take
+re-entrant. (Depth-first delivery - what a callback publishes first - would take
 the reference node off the estimator -> controller path, about 50 us here, but
 a lockstep plant catching up inside its command callback then overtakes the
 reference's one-sample lead, and the controller acts on an older reference:
 97 of 6000 samples in tests/graph/test_composed.py.)
+
+Due timers fire **rate-monotonic** (the shortest period first, as a fixed-priority real-time
+scheduler ranks periodic tasks), and what each one sets off is delivered before the next
+fires: the 1 kHz tick's chain never waits behind a 1 Hz diagnostics timer due in the same
+round. **Background nodes** (:meth:`DdsExecutor.set_background`; the recorder of a
+container) come last in every round: their timers and intra-process deliveries run after
+every other node's work of that round, i.e. after the 1 kHz chain measurement -> estimate ->
+command has run to its end. Recording is best-effort and never delays the loop. Samples from
+other processes are taken for all nodes at once, in the order the readers were made
+(deferring a background node's made the loop's commands stale behind a hardware driver on a
+pty: its readers are 1000 deep).
 """
 
 from __future__ import annotations
@@ -243,7 +248,7 @@ class DdsExecutor:
         bg = self.background
         if triggered:
             self.guard.set(False)
-            self._take(bg, False)
+            self._take()
         for t in self.timers:  # rate-monotonic: what a timer sets off runs before any slower timer
             if t.next_ns <= woke and not t.cancelled and t.node not in bg and not (t.node is not None and t.node.is_shutdown):
                 t.fire()
@@ -255,8 +260,6 @@ class DdsExecutor:
             # due: the deadline it slept to, or when it woke (data, or a round that had no wait)
             monitor.round(deadline if wait > 0 and woke >= deadline else woke, time.monotonic_ns())
         if bg:  # best-effort nodes: after the loop's chain
-            if triggered:
-                self._take(bg, True)
             now = time.monotonic_ns()
             for t in self.timers:
                 if t.next_ns <= now and not t.cancelled and t.node is not None and t.node in bg and not t.node.is_shutdown:
@@ -280,12 +283,11 @@ class DdsExecutor:
             elif not sub.node.is_shutdown:
                 sub.callback(arg)
 
-    def _take(self, background: set[Member], of_background: bool) -> None:
-        """Run the callbacks of every sample waiting in the DDS readers of the nodes that are
-        (``of_background``) or are not in ``background``."""
+    def _take(self) -> None:
+        """Run the callbacks of every sample waiting in a DDS reader (in the order the readers were
+        made; a background node's samples from other processes are taken here too: deferring them
+        made the loop's own reader history overflow behind a hardware driver over serial)."""
         for ref, handler, _cond, node in self.readers:
-            if (node in background) is not of_background:
-                continue
             while True:
                 got = ddspy_take(ref, ANY_SAMPLE, _TAKE_N)
                 if isinstance(got, int) or not got:

@@ -1,0 +1,538 @@
+"""``dem-ros faults``: the fault catalogue of issue #12, injected into the real graph, one run per row.
+
+Each row launches the graph (``dem-ros launch``: real processes over DDS, or ``--compose``), injects one
+fault at t = ``--at`` s of the experiment and reads the outcome back from the run's bag:
+
+* **outcome**: ``levitating`` (the board still runs the controller's commands at the end and the true
+  gap is within 1 mm of the reference), ``landed safely`` (the board landed the plate, never nearer the
+  rail than ``trip_gap_min``), or ``failed`` (rail contact, a plant failure, or a run cut short by an
+  unexpected exit). The plant's truth (``/dem/plant/truth``) gives the minimum gap and the largest
+  tracking error (true gap - reference) from the fault on.
+* **reported**: the ``/diagnostics`` statuses at WARN or ERROR after the fault, and the node log lines
+  at WARN or ERROR (count per node).
+* **data lost**: what the recorder dropped and what the bag reports about itself (truncated, recording
+  stopped early, samples without a reference); "none" when the bag is complete.
+
+A row passes when its outcome is one the row allows (messages, steps and spikes must leave the plate
+levitating; a killed node may end in a safe landing where the outage outlasts the board's hold) and the
+fault is reported. Injected messages come from this process, a foreign DDS participant on the graph's
+domain (:class:`Injector`); nodes are killed with SIGKILL and restarted by the launcher's hook.
+
+Exit status: 0 when every row passes, 1 otherwise (2: usage).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Collection
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import contract
+from .common import UsageError, write_json
+
+__all__ = ["CATALOGUE", "FaultSpec", "Injector", "Row", "add_arguments", "cmd_faults", "run_row"]
+
+DT_NS = 1_000_000
+_LEVEL = re.compile(r"^\[(WARN|ERROR)\] \[[0-9.]+\] \[([^\]]+)\]")
+
+
+class Injector:
+    """A foreign participant on the graph's domain: follows the experiment clock, injects messages.
+
+    ``t`` is the experiment time [s] of the newest ``/dem/measurement`` (None before t = 0). The
+    injection (``act(self)``) runs on this object's thread, once per received sample from ``at`` s
+    until it returns False.
+    """
+
+    def __init__(self, act: Callable[[Injector], bool] | None, at: float):
+        from ..transport import make_node
+
+        self.node = make_node("dem_ros_faults", transport="dds", args=[])
+        self.js = self.node.msg("sensor_msgs/msg/JointState")
+        self.act, self.at = act, at
+        self.epoch: int | None = None
+        self.meas: Any = None
+        self.est: Any = None
+        self.ref: Any = None
+        self.t: float | None = None
+        self.injected = 0
+        self.events: list[str] = []  # what was done when (experiment time)
+        self.counts: dict[str, int] = {}  # injected samples, by outcome
+        self.pubs: dict[str, Any] = {}
+        for topic in (contract.COMMAND, contract.MEASUREMENT, contract.ESTIMATE, contract.REFERENCE, contract.APPLIED):
+            self.pub(topic)  # matched long before t = 0 (a writer made at the fault would miss its first samples)
+        self.node.subscribe(contract.MEASUREMENT, self._on_meas)
+        self.node.subscribe(contract.ESTIMATE, lambda m: setattr(self, "est", m))
+        self.node.subscribe(contract.REFERENCE, lambda m: setattr(self, "ref", m))
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._spin, name="dem-ros-faults", daemon=True)
+        self.thread.start()
+
+    def pub(self, topic: contract.Topic) -> Any:
+        if topic.name not in self.pubs:
+            self.pubs[topic.name] = self.node.publisher(topic)
+        return self.pubs[topic.name]
+
+    def _on_meas(self, m: Any) -> None:
+        from ..nodes.common import stamp_ns
+
+        if m.header.frame_id == contract.FRAME and len(m.position) >= 2:
+            t = stamp_ns(m)
+            if self.epoch is None:
+                self.epoch = t
+            self.t = (t - self.epoch) * 1e-9
+            self.meas = m
+            if self.act is not None and self.t >= self.at and not self.act(self):
+                self.act = None
+
+    def _spin(self) -> None:
+        while not self.stop.is_set():
+            self.node.spin_once(0.01)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(timeout=2.0)
+        self.node.shutdown()
+
+
+# -- the injections ------------------------------------------------------------------------------------
+def _copy(inj: Injector, m: Any, *, t_ns: int | None = None, position=None, frame: str | None = None) -> Any:
+    from ..nodes.common import stamp_ns
+
+    h = inj.js().header
+    t = stamp_ns(m) if t_ns is None else t_ns
+    h.stamp.sec, h.stamp.nanosec = t // 1_000_000_000, t % 1_000_000_000
+    h.frame_id = m.header.frame_id if frame is None else frame
+    return inj.js(header=h, name=list(m.name), position=list(m.position) if position is None else list(position),
+                  velocity=list(m.velocity), effort=list(m.effort))
+
+
+def _n_times(n: int, fn: Callable[[Injector], None]) -> Callable[[Injector], bool]:
+    def act(inj: Injector) -> bool:
+        from ..transport import TransportError
+
+        try:
+            fn(inj)
+        except TransportError:  # Cyclone DDS refuses to write some malformed samples
+            inj.counts["refused by the DDS writer"] = inj.counts.get("refused by the DDS writer", 0) + 1
+        inj.injected += 1
+        return inj.injected < n
+    return act
+
+
+def _rogue_command(inj: Injector) -> None:
+    m = inj.meas
+    inj.pub(contract.COMMAND).publish(inj.js(header=m.header, name=list(contract.MAGNETS), effort=[1e6, 1e6]))
+
+
+def _empty_position(inj: Injector) -> None:
+    inj.pub(contract.MEASUREMENT).publish(_copy(inj, inj.meas, position=[]))
+    if inj.est is not None:
+        inj.pub(contract.ESTIMATE).publish(_copy(inj, inj.est, position=[]))
+
+
+def _non_utf8(inj: Injector) -> None:
+    from ..transport import serialize
+
+    for topic, m in ((contract.MEASUREMENT, inj.meas), (contract.ESTIMATE, inj.est), (contract.REFERENCE, inj.ref)):
+        if m is None:
+            continue
+        data = bytearray(serialize(_copy(inj, m, frame="\x01\x02\x03")))
+        i = data.find(b"\x01\x02\x03")
+        data[i:i + 3] = b"\xff\xfe\xfd"
+        inj.pub(topic).publish_raw(bytes(data))
+
+
+_RNG = np.random.default_rng(12)
+
+
+def _bad_cdr(inj: Injector) -> None:
+    """A valid sample of each topic with 8 seeded random bytes after the encapsulation header overwritten
+    (same length: Cyclone DDS refuses to write some corruptions, counted as ``refused``)."""
+    from ..transport import TransportError, serialize
+
+    for topic, m in ((contract.MEASUREMENT, inj.meas), (contract.ESTIMATE, inj.est), (contract.REFERENCE, inj.ref),
+                     (contract.APPLIED, inj.meas), (contract.COMMAND, inj.meas)):
+        if m is None:
+            continue
+        data = bytearray(serialize(m))
+        for i, v in zip(_RNG.integers(4, len(data), 8).tolist(), _RNG.integers(0, 256, 8).tolist(), strict=True):
+            data[i] = v
+        try:
+            inj.pub(topic).publish_raw(bytes(data))
+            inj.counts["sent"] = inj.counts.get("sent", 0) + 1
+        except TransportError:
+            inj.counts["refused by the DDS writer"] = inj.counts.get("refused by the DDS writer", 0) + 1
+
+
+def _reference_step(inj: Injector) -> None:
+    from ..nodes.common import stamp_ns
+
+    if inj.ref is None:
+        return
+    p = list(inj.ref.position)
+    p[0] += 0.02
+    p[1] += 0.02
+    inj.pub(contract.REFERENCE).publish(_copy(inj, inj.ref, t_ns=stamp_ns(inj.meas) + DT_NS, position=p))
+
+
+def _spike(mm: float) -> Callable[[Injector], None]:
+    def act(inj: Injector) -> None:
+        p = list(inj.meas.position)
+        p[0] += mm * 1e-3
+        inj.pub(contract.MEASUREMENT).publish(_copy(inj, inj.meas, position=p))
+    return act
+
+
+def _stale(inj: Injector) -> None:
+    from ..nodes.common import stamp_ns
+
+    if inj.est is not None:
+        inj.pub(contract.ESTIMATE).publish(_copy(inj, inj.est, t_ns=stamp_ns(inj.est) - 100 * DT_NS))
+    inj.pub(contract.MEASUREMENT).publish(_copy(inj, inj.meas, t_ns=stamp_ns(inj.meas) + 3600 * 10**9))
+
+
+@dataclass(frozen=True)
+class FaultSpec:
+    """One row of the catalogue: a message injection (``act``, ``n`` samples) or a SIGKILL of ``kill``
+    (restarted after ``restart_after`` s; None: not restarted). ``allowed``: outcomes that pass."""
+
+    name: str
+    description: str
+    act: Callable[[Injector], None] | None = None
+    n: int = 1
+    kill: str | None = None
+    restart_after: float | None = None
+    allowed: tuple[str, ...] = ("levitating",)
+    composed: bool = True  # also run composed (a kill needs a process per node)
+    min_duration: float = 0.0  # s: a restarted node needs seconds to start (imports, kernels, discovery)
+
+
+_KILLED = ("levitating", "landed safely")
+_RESTART_S = 15.0  # run length with a restart: a restarted node takes seconds to come up (6.6 s at load 20)
+CATALOGUE: tuple[FaultSpec, ...] = (
+    FaultSpec("rogue-command", "1e6 V on /dem/command from a foreign writer, 50 samples", _rogue_command, 50),
+    FaultSpec("empty-position", "/dem/measurement and /dem/state_estimate with an empty position, 10 samples",
+              _empty_position, 10),
+    FaultSpec("non-utf8-frame", "well-formed CDR with a non-UTF-8 frame_id on measurement, estimate, reference", _non_utf8, 10),
+    FaultSpec("bad-cdr", "8 random bytes overwritten in valid samples of five topics, 20 samples", _bad_cdr, 20),
+    FaultSpec("reference-step", "/dem/reference 20 mm off the stream (a foreign writer), 100 samples", _reference_step, 100),
+    FaultSpec("spike-10mm", "one foreign /dem/measurement +10 mm at the plant's stamp", _spike(10.0), 1),
+    FaultSpec("spike-50mm", "one foreign /dem/measurement +50 mm at the plant's stamp", _spike(50.0), 1),
+    FaultSpec("stale-stamps", "estimates stamped 100 ms old and measurements +1 h, 20 samples", _stale, 20),
+    FaultSpec("kill-controller", "SIGKILL the controller, restart after 0.1 s", kill="controller", restart_after=0.1,
+              allowed=_KILLED, composed=False, min_duration=_RESTART_S),
+    FaultSpec("kill-controller-long", "SIGKILL the controller, restart after 1 s (> hold_timeout)", kill="controller",
+              restart_after=1.0, allowed=_KILLED, composed=False, min_duration=_RESTART_S),
+    FaultSpec("kill-estimator", "SIGKILL the estimator, restart after 0.1 s", kill="estimator", restart_after=0.1,
+              allowed=_KILLED, composed=False, min_duration=_RESTART_S),
+    FaultSpec("kill-estimator-long", "SIGKILL the estimator, restart after 1 s", kill="estimator", restart_after=1.0,
+              allowed=_KILLED, composed=False, min_duration=_RESTART_S),
+    FaultSpec("kill-reference", "SIGKILL the reference, restart after 0.1 s", kill="reference", restart_after=0.1,
+              allowed=_KILLED, composed=False, min_duration=_RESTART_S),
+    FaultSpec("kill-reference-long", "SIGKILL the reference, restart after 1 s", kill="reference", restart_after=1.0,
+              allowed=_KILLED, composed=False, min_duration=_RESTART_S),
+    FaultSpec("kill-recorder", "SIGKILL the recorder (not restarted)", kill="recorder", allowed=_KILLED, composed=False),
+)
+
+
+@dataclass
+class Row:
+    """One measured row (see the module docstring)."""
+
+    fault: str
+    processes: str
+    outcome: str
+    min_gap_mm: float | None
+    max_error_um: float | None
+    reported: str
+    data_lost: str
+    passed: bool
+    detail: str = ""
+    diagnostics: list[str] = field(default_factory=list)
+
+
+# -- one run -----------------------------------------------------------------------------------------------
+def _kill_hook(spec: FaultSpec, inj: Injector) -> Callable[..., Collection[str]]:
+    """SIGKILL ``spec.kill`` once the injector's clock passes ``at``; restart it ``restart_after`` s later."""
+    name = spec.kill
+    assert name is not None
+    killed: list[float] = []
+    restarted: list[bool] = []
+
+    def supervise(_t: float | None, procs: dict[str, subprocess.Popen], restart: Callable[[str], None]) -> Collection[str]:
+        if not killed:
+            if inj.t is None or inj.t < inj.at or name not in procs:
+                return ()
+            os.killpg(procs[name].pid, signal.SIGKILL)
+            procs[name].wait()
+            killed.append(time.monotonic())
+            inj.events.append(f"{name} killed at t = {inj.t:.3f} s")
+        if spec.restart_after is None:
+            return (name,)  # stays down
+        if not restarted and time.monotonic() - killed[0] >= spec.restart_after:
+            restart(name)
+            restarted.append(True)
+            inj.events.append(f"restarted at t = {inj.t:.3f} s")
+        return () if restarted else (name,)
+    return supervise
+
+
+def _launch_args(scenario: str, duration: float, compose: bool, free_run: bool, bag_dir: Path, domain_id: int,
+                 sets: list[str]) -> argparse.Namespace:
+    argv = ["--scenario", scenario, "--duration", str(duration), "--bag-dir", str(bag_dir),
+            "--domain-id", str(domain_id), "--transport", "dds"]
+    argv += ["--compose"] if compose else []
+    argv += ["--free-run"] if free_run else []
+    for s in sets:
+        argv += ["--set", s]
+    from .launcher import add_arguments
+
+    parser = argparse.ArgumentParser(prog="dem-ros faults")
+    add_arguments(parser)
+    return parser.parse_args(argv)
+
+
+def _log_levels(logs: dict[str, str], since_ns: int) -> dict[str, int]:
+    """WARN/ERROR lines per node logged at or after ``since_ns`` (ROS time) in the run's node logs."""
+    out: dict[str, int] = {}
+    for path in logs.values():
+        try:
+            text = Path(path).read_text(errors="replace")
+        except OSError:
+            continue
+        for line in text.splitlines():
+            m = _LEVEL.match(line)
+            if m and float(line.split("] [", 1)[1].split("]", 1)[0]) * 1e9 >= since_ns:
+                node = m.group(2)
+                out[node] = out.get(node, 0) + 1
+    return out
+
+
+def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
+    """Outcome, min gap, diagnostics and bag problems of a recorded run."""
+    from ..bag import BagError, BagReader
+    from .runmetrics import load_run
+
+    out: dict[str, Any] = {"diagnostics": [], "problems": []}
+    undecodable: dict[str, int] = {}
+
+    def decoded(r: BagReader, topic: str, type_name: str) -> list[tuple[int, Any]]:
+        """(log time, message) of every sample of ``topic`` that decodes; the others are counted."""
+        from ..transport import TransportError, deserialize
+
+        if topic not in r.topics:
+            return []
+        got = []
+        for _, log_ns, _, data in r.raw_messages([topic]):
+            try:
+                got.append((log_ns, deserialize(type_name, bytes(data), transport="dds")))
+            except TransportError:  # the strict decoder's CdrError (type, field, offset)
+                undecodable[topic] = undecodable.get(topic, 0) + 1
+        return got
+
+    def arrays(msgs: list[tuple[int, Any]]) -> dict[str, np.ndarray] | None:
+        from ..nodes.common import stamp_ns
+
+        rows = [(stamp_ns(m), m.position[0], m.position[1]) for _, m in msgs if len(m.position) >= 2]
+        if not rows:
+            return None
+        a = np.array(rows, dtype=float)
+        return {"stamp_ns": a[:, 0].astype(np.int64), "position": a[:, 1:3]}
+
+    with BagReader(bag) as r:
+        truth = arrays(decoded(r, contract.TRUTH.name, contract.TRUTH.type))
+        ref = arrays(decoded(r, contract.REFERENCE.name, contract.REFERENCE.type))
+        loop: dict[str, str] = {}
+        epoch = None
+        diags = []
+        for log_ns, msg in decoded(r, contract.DIAGNOSTICS.name, contract.DIAGNOSTICS.type):
+            for s in msg.status:
+                vals = {kv.key: kv.value for kv in s.values}
+                if s.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
+                    loop = vals
+                    if vals.get("epoch_ns", "").isdigit():
+                        epoch = int(vals["epoch_ns"])
+                level = s.level[0] if isinstance(s.level, bytes) else int(s.level)
+                diags.append((log_ns, s.name, level, s.message))
+        truncated = r.truncated
+    for topic, n in undecodable.items():
+        out["problems"].append(f"{n} recorded sample(s) of {topic} do not decode (the injected ones, recorded as sent)")
+    t_f = (epoch or 0) + round(t_fault_s * 1e9)
+    out["fault_ns"] = t_f
+    seen: dict[str, int] = {}
+    for log_ns, name, level, _msg in diags:
+        if log_ns >= t_f - 10**9 and level >= 1:  # the once-a-second reports cover the second of the fault
+            seen[name] = max(seen.get(name, 0), level)
+    out["diagnostics"] = [f"{n} {'WARN' if lv == 1 else 'ERROR'}" for n, lv in sorted(seen.items())]
+    pc = cfg["plant_sim"]
+    if truth is None:
+        out.update(outcome="failed", min_gap_mm=None, detail="no plant truth recorded")
+        return out
+    after = truth["stamp_ns"] >= t_f
+    g = truth["position"][:, :2]
+    gmin = float(np.nanmin(g[after])) if after.any() else float(np.nanmin(g))
+    out["min_gap_mm"] = round(gmin * 1e3, 3)
+    mode = loop.get("board_mode", "")
+    failed = loop.get("failed", "False") == "True" or gmin <= pc["gap_min"]
+    landed = mode in ("LAND", "LANDED") or loop.get("landing", "False") == "True"
+    end_err = float("inf")
+    if ref is not None:
+        ts, i_t, i_r = np.intersect1d(truth["stamp_ns"], ref["stamp_ns"], return_indices=True)
+        if ts.size:
+            end_err = float(np.max(np.abs(g[i_t[-1]] - ref["position"][i_r[-1], :2])))
+            win = ts >= t_f
+            if win.any():  # the largest tracking error e = true gap - y_d from the fault on
+                out["max_error_um"] = round(float(np.max(np.abs(g[i_t[win]] - ref["position"][i_r[win], :2]))) * 1e6, 1)
+    if failed:
+        out["outcome"] = "failed"
+        out["detail"] = loop.get("fault", "") or f"min gap {gmin * 1e3:.3f} mm"
+    elif landed:
+        # safe: the board landed it before the plate came nearer the rail than its own trip gap
+        out["outcome"] = "landed safely" if gmin >= pc["trip_gap_min"] else "failed"
+        out["detail"] = loop.get("landing_reason", "") + ("" if gmin >= pc["trip_gap_min"] else
+                                                          f"; within {gmin * 1e3:.3f} mm of the rail first")
+    elif end_err < 1e-3:
+        out["outcome"] = "levitating"
+    else:
+        out["outcome"] = "failed"
+        out["detail"] = f"{end_err * 1e3:.2f} mm off the reference at the end"
+    try:
+        m, _ = load_run(bag)
+        out["problems"] += list(m.problems)
+    except BagError as exc:  # the bag layer's own error (one line): reported as the data lost
+        out["problems"].append(f"bag unreadable: {exc}")
+    if truncated is not None and not any("truncated" in p for p in out["problems"]):
+        out["problems"].append(f"bag truncated ({truncated.reason})")
+    return out
+
+
+def run_row(spec: FaultSpec, *, compose: bool, scenario: str, duration: float, at: float, free_run: bool,
+            workdir: Path, domain_id: int, sets: list[str]) -> Row:
+    """Launch the graph, inject ``spec`` at ``at`` s, judge the bag."""
+    from ..bag import BagError
+    from .launcher import GraphError, launch
+
+    how = "composed" if compose else "per process"
+    os.environ["ROS_DOMAIN_ID"] = str(domain_id)
+    args = _launch_args(scenario, duration, compose, free_run, workdir, domain_id, sets)
+    inj = Injector(_n_times(spec.n, spec.act) if spec.act is not None else None, at)
+    hook = _kill_hook(spec, inj) if spec.kill else None
+    info: dict[str, Any] = {}
+    try:
+        _metrics, info = launch(args, quiet=True, supervise=hook)
+    except GraphError as exc:
+        return Row(spec.name, how, "failed", None, None, "", "", False, f"run cut short: {exc}")
+    except BagError as exc:  # the run ended, but its summary could not read the bag: judge it here
+        info = {"recorder": None, "summary_error": str(exc)}
+    finally:
+        inj.close()
+    bags = sorted(p for p in workdir.iterdir() if p.is_dir() and not p.name.endswith("_logs"))
+    bag = Path(info["bag"]) if info.get("bag") else bags[-1]
+    from .launcher import _config_from_args
+
+    cfg, _, _ = _config_from_args(args)
+    j = _judge(bag, at, cfg)
+    logs = json.loads((bag / "summary.json").read_text()).get("logs", {}) if (bag / "summary.json").exists() else {}
+    logdir = bag.parent / (bag.name + "_logs")
+    logs = {p.stem: str(p) for p in logdir.glob("*.log")} if logdir.is_dir() else logs
+    levels = _log_levels(logs, j["fault_ns"] - 10**9)
+    reported = ", ".join(j["diagnostics"]) or "no diagnostics"
+    reported += "; log: " + (", ".join(f"{n} {c}" for n, c in sorted(levels.items())) or "nothing")
+    rec = info.get("recorder") or {}
+    dropped = sum(v.get("dropped", 0) for v in rec.values()) if rec else None
+    lost = [f"{dropped} dropped"] if dropped else []
+    lost += j["problems"]
+    if info.get("summary_error"):
+        lost.append(f"dem-ros launch could not summarise the bag: {info['summary_error']}")
+    if spec.kill == "recorder" and rec is None:
+        lost.append("recorder counters lost with the process")
+    data_lost = "; ".join(lost) or "none"
+    # the plant's loop status is at WARN whenever it waited for a command or held (lockstep on a loaded
+    # machine: most runs); it counts as a report of the fault only at ERROR (a landing, a failure)
+    told = [d for d in j["diagnostics"] if not (d.startswith(contract.LOOP_STATUS) and d.endswith("WARN"))]
+    ok = j["outcome"] in spec.allowed and (bool(told) or bool(levels))
+    sent = [f"{v} {k}" for k, v in inj.counts.items()]
+    detail = "; ".join([*inj.events, *sent, j.get("detail", "")]).strip("; ")
+    return Row(spec.name, how, j["outcome"], j["min_gap_mm"], j.get("max_error_um"), reported, data_lost, ok, detail,
+               j["diagnostics"])
+
+
+# -- the command -------------------------------------------------------------------------------------------
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--only", action="append", default=[], metavar="NAME",
+                   help="run only these rows (repeatable): " + ", ".join(f.name for f in CATALOGUE))
+    p.add_argument("--processes", choices=("per-process", "composed", "both"), default="both",
+                   help="the graph as a process per node, composed in one process, or both (default)")
+    p.add_argument("--scenario", default="S1")
+    p.add_argument("--duration", type=float, default=4.0, help="seconds of each run (default 4)")
+    p.add_argument("--at", type=float, default=1.5, help="inject at this experiment time [s] (default 1.5)")
+    p.add_argument("--free-run", action="store_true", help="free-running plant (hardware-like timing)")
+    p.add_argument("--set", action="append", default=[], metavar="GROUP.NAME=VALUE", help="parameter override")
+    p.add_argument("--bag-dir", default=None, help="keep the runs' bags here (default: a temporary directory)")
+    p.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID of the runs (default: from the pid)")
+    p.add_argument("--json", default=None, help="write the rows as JSON")
+
+
+def _table(rows: list[Row]) -> str:
+    head = ("fault", "processes", "outcome", "min gap [mm]", "max error [um]", "reported", "data lost", "pass")
+    body = [(r.fault, r.processes, r.outcome + (f" ({r.detail})" if r.detail else ""),
+             "-" if r.min_gap_mm is None else f"{r.min_gap_mm:.3f}",
+             "-" if r.max_error_um is None else f"{r.max_error_um:.1f}", r.reported, r.data_lost,
+             "yes" if r.passed else "NO") for r in rows]
+    w = [max(len(h), *(len(b[i]) for b in body)) if body else len(h) for i, h in enumerate(head)]
+    lines = ["| " + " | ".join(h.ljust(w[i]) for i, h in enumerate(head)) + " |",
+             "|" + "|".join("-" * (x + 2) for x in w) + "|"]
+    lines += ["| " + " | ".join(c.ljust(w[i]) for i, c in enumerate(b)) + " |" for b in body]
+    return "\n".join(lines)
+
+
+def _write(args: argparse.Namespace, rows: list[Row]) -> None:
+    write_json(args.json, {"rows": [asdict(r) for r in rows], "scenario": args.scenario, "at_s": args.at,
+                           "duration_s": args.duration, "free_run": args.free_run})
+
+
+def cmd_faults(args: argparse.Namespace) -> int:
+    names = {f.name for f in CATALOGUE}
+    bad = [n for n in args.only if n not in names]
+    if bad:
+        raise UsageError(f"--only: unknown row(s) {', '.join(bad)}; rows: {', '.join(sorted(names))}")
+    specs = [f for f in CATALOGUE if not args.only or f.name in args.only]
+    modes = {"per-process": (False,), "composed": (True,), "both": (False, True)}[args.processes]
+    work = Path(args.bag_dir) if args.bag_dir else Path(tempfile.mkdtemp(prefix="dem_ros_faults_"))
+    domain = args.domain_id if args.domain_id is not None else 1 + os.getpid() % 100
+    rows: list[Row] = []
+    for compose in modes:
+        for spec in specs:
+            if compose and not spec.composed:
+                continue
+            print(f"dem-ros faults: {spec.name} ({'composed' if compose else 'per process'}): {spec.description}",
+                  file=sys.stderr, flush=True)
+            row = run_row(spec, compose=compose, scenario=args.scenario, duration=max(args.duration, spec.min_duration),
+                          at=args.at,
+                          free_run=args.free_run, workdir=work / spec.name / ("composed" if compose else "processes"),
+                          domain_id=domain, sets=args.set)
+            print(f"  -> {row.outcome}, min gap {row.min_gap_mm} mm, {'pass' if row.passed else 'FAIL'}",
+                  file=sys.stderr, flush=True)
+            rows.append(row)
+            if args.json:  # after every row: a long catalogue run keeps what it measured
+                _write(args, rows)
+    print(_table(rows))
+    failed = [r.fault for r in rows if not r.passed]
+    if failed:
+        print(f"dem-ros faults: {len(failed)} of {len(rows)} row(s) failed: {', '.join(failed)}", file=sys.stderr)
+        return 1
+    return 0

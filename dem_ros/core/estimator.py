@@ -373,6 +373,12 @@ class KalmanEstimator:
         return self.started and self.gate[G_GOOD] >= self.cfg["converge_samples"]
 
     @property
+    def faulty(self) -> bool:
+        """A sensor fault is latched (cheap: for the 1 kHz path; :attr:`faults` says why)."""
+        g = self.gate
+        return bool(g[G_FAULT] or g[G_FAULT + 1] or g[G_BFAULT] or g[G_BFAULT + 1])
+
+    @property
     def faults(self) -> list[str]:
         """Why each faulty gap sensor was declared faulty (latched), e.g. ``"gap sensor 1: 20 rejections in a row"``."""
         g = self.gate

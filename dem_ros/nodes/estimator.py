@@ -33,7 +33,7 @@ from .. import contract
 from ..core.estimator import Estimator, KalmanEstimator, make_estimator
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import WARN, Diagnostics, JointStates, all_finite, meas_into, stamp_ns
+from .common import OK, WARN, Diagnostics, JointStates, all_finite, meas_into, stamp_ns
 
 __all__ = ["EstimatorNode", "main"]
 
@@ -157,13 +157,12 @@ class EstimatorNode:
         if not self.publishing:
             if est.converged:
                 self.publishing = True
-                self.diag.set_condition(0)
+                self.diag.set_condition(OK)
                 self.node.logger.info(f"converged after {self.counts['withheld']} samples: publishing estimates")
             else:
                 self.diag.set_condition(WARN, "converging: no estimate published yet")
-        faults = est.faults
-        if faults and self.diag.faulted is None:
-            self.diag.fault("; ".join(faults))
+        if est.faulty and self.diag.faulted is None:
+            self.diag.fault("; ".join(est.faults))
 
 
 def main(args=None) -> int:

@@ -150,6 +150,9 @@ def _what_if(bag: Path, controller: str | None, sets: list[str] | None, bar: Pro
     # a bag of an older version may carry parameters removed since (plant_sim.command_timeout): skip those
     known = {g: {p.name for p in specs} for g, specs in SCHEMA.groups.items()}
     recorded = {g: {n: x for n, x in v.items() if n in known[g]} for g, v in cfg.items() if g in SCHEMA.groups}
+    # controller parameters added since the recording: the re-run takes their defaults, so the law is not the one
+    # that ran, and need not reproduce it (said with the verdict)
+    not_recorded = sorted(known["controller"] - set(cfg.get("controller", {})))
     cfg = apply_overrides(default_config(), recorded, "recorded config")
     recorded_law = cfg["controller"]["type"]
     ccfg = dict(cfg["controller"])
@@ -212,6 +215,7 @@ def _what_if(bag: Path, controller: str | None, sets: list[str] | None, bar: Pro
     d = np.abs(new - old)
     return {
         "law": name, "recorded_law": recorded_law, "changes": sets or [], "samples": len(stamps),
+        "parameters_not_recorded": not_recorded,
         "max_abs_diff_v": float(d.max()), "rms_diff_v": float(np.sqrt(np.mean(d**2))),
         "reproduces_recording": bool(d.max() <= 1e-9 * max(1.0, float(np.abs(old).max()))),
         "t": ((np.array(stamps) - t0) * 1e-9).tolist(), "u_replayed": new.tolist(), "u_recorded": old.tolist(),
@@ -269,6 +273,10 @@ def cmd_replay(args: Any) -> int:
         print(f"what-if replay of {bag}: law {res['law']} (recorded: {res['recorded_law']}), changes {res['changes'] or 'none'}")
         print(f"  {res['samples']} samples; max |u_replayed - u_recorded| = {res['max_abs_diff_v']:.3e} V,"
               f" RMS {res['rms_diff_v']:.3e} V: {verdict}")
+        if res["parameters_not_recorded"]:
+            print(f"  note: recorded by an earlier version, without controller parameter(s)"
+                  f" {', '.join(res['parameters_not_recorded'])}: the re-run uses their defaults, so even the recorded"
+                  " law need not reproduce the recording")
         if args.json:
             write_json(args.json, {k: v for k, v in res.items() if k not in ("t", "u_replayed", "u_recorded")})
             print(f"  comparison written to {args.json}")

@@ -186,24 +186,22 @@ def test_ros2_run_starts_an_installed_node(tmp_path):
     r = subprocess.run(["ros2", "pkg", "prefix", "dem_ros"], capture_output=True, text=True, timeout=CLI_TIMEOUT)
     if r.returncode != 0:
         pytest.skip("dem_ros is not installed into a sourced ROS 2 overlay (colcon build --packages-select dem_ros)")
-    proc = subprocess.Popen(["ros2", "run", "dem_ros", "controller", "--ros-args", "-p", "k1:=80.0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=_ros2_env(domain),
-                            start_new_session=True)
+    log = tmp_path / "controller.log"
+    with open(log, "wb") as out:
+        proc = subprocess.Popen(["ros2", "run", "dem_ros", "controller", "--ros-args", "-p", "k1:=80.0"],
+                                stdout=out, stderr=subprocess.STDOUT, env=_ros2_env(domain), start_new_session=True)
     try:
         end = time.monotonic() + 120
-        seen = ""
-        os.set_blocking(proc.stdout.fileno(), False)
-        while time.monotonic() < end and "ready" not in seen and proc.poll() is None:
-            seen += proc.stdout.read() or ""
+        while time.monotonic() < end and "ready" not in log.read_text(errors="replace") and proc.poll() is None:
             time.sleep(0.1)
-        assert "ready" in seen, seen
+        assert "ready" in log.read_text(errors="replace"), log.read_text(errors="replace")
         code, text = _ros2(domain, "param", "get", "--no-daemon", "/controller", "k1")
         assert code == 0 and "80.0" in text, text
     finally:
-        proc.send_signal(signal.SIGINT)
+        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C, as a terminal sends it: to ros2 run and the node
         try:
             proc.wait(timeout=20)
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 0, seen
+    assert proc.returncode == 0, log.read_text(errors="replace")

@@ -283,12 +283,24 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
         if landing is not None:
             series["landing"] = (float(landing.get("t_sim_s", "nan")), landing.get("landing_reason", ""))
     epoch = loop.epoch_ns if loop is not None and loop.epoch_ns is not None else None
-    m.problems = run_problems(r, src["stamp_ns"], ref["stamp_ns"], epoch, ts, m.duration_s)
+    had_ref = None  # stamps at which the controller had the reference of its sample (ref_lag 0)
+    if st is not None and "ref_lag" in st["name"]:
+        had_ref = st["stamp_ns"][st["position"][:, list(st["name"]).index("ref_lag")] == 0]
+    m.problems = run_problems(r, src["stamp_ns"], ref["stamp_ns"], epoch, ts, m.duration_s, had_ref)
     return m, series
 
 
+def _stretches(idx: np.ndarray) -> tuple[int, int, int]:
+    """Runs of consecutive indices in sorted ``idx``: (count of runs, start and length of the longest)."""
+    breaks = np.flatnonzero(np.diff(idx) > 1)
+    starts = np.concatenate(([idx[0]], idx[breaks + 1]))
+    ends = np.concatenate((idx[breaks], [idx[-1]]))
+    k = int(np.argmax(ends - starts))
+    return int(starts.size), int(starts[k]), int(ends[k] - starts[k] + 1)
+
+
 def run_problems(r: Any, src_ns: np.ndarray, ref_ns: np.ndarray, epoch_ns: int | None, ts: np.ndarray,
-                 duration_s: float | None) -> list[str]:
+                 duration_s: float | None, had_ref_ns: np.ndarray | None = None) -> list[str]:
     """What makes a recorded run's metrics incomplete, one line each (empty: nothing).
 
     Args:
@@ -297,6 +309,14 @@ def run_problems(r: Any, src_ns: np.ndarray, ref_ns: np.ndarray, epoch_ns: int |
         epoch_ns: t = 0 of the experiment (None: no pre-roll recorded).
         ts: (K,) stamps [ns] the metrics use (both present, from the epoch).
         duration_s: planned experiment length [s] from the run metadata, or None.
+        had_ref_ns: stamps [ns] at which the controller had the reference of its sample (its state's
+            ``ref_lag`` 0), or None: a reference missing from the bag at such a stamp was lost by the
+            recorder, not by the reference node.
+
+    The plant publishes every sample, so a hole in ``src_ns`` is a sample the recorder lost (or, with
+    hardware, the board link lost before the driver could publish it): a reader
+    that falls behind by more than the writers' history (``contract`` depth, keep-last) loses the oldest
+    samples without a trace on its side. Such losses are reported here, from the bag itself.
     """
     out = []
     if r.truncated is not None:
@@ -308,16 +328,26 @@ def run_problems(r: Any, src_ns: np.ndarray, ref_ns: np.ndarray, epoch_ns: int |
         reason = r.metadata_yaml["custom_data"].get("dem_ros.failure", "reason not recorded")
         out.append(f"recording stopped early: {reason}")
     exp = src_ns if epoch_ns is None else src_ns[src_ns >= epoch_ns]
+    if exp.size > 2:
+        step = np.diff(exp)
+        dt = float(np.median(step))
+        holes = np.round(step / dt).astype(np.int64) - 1 if dt > 0 else np.zeros(0, np.int64)
+        if holes.size and holes.max() > 0:
+            out.append(f"{int(holes[holes > 0].sum())} plant sample(s) missing from the bag in {int((holes > 0).sum())}"
+                       f" stretch(es), longest {int(holes.max()) * dt * 1e-6:.0f} ms (lost by a recorder that fell "
+                       "behind the writers' history on a stalled host, or by the board link before the driver)"
+                       " - the metrics cover the recorded samples")
     missing = ~np.isin(exp, ref_ns)
+    if missing.any() and had_ref_ns is not None:  # the controller had them: lost in recording
+        lost = missing & np.isin(exp, had_ref_ns)
+        if lost.any():
+            out.append(f"the recorder lost {int(lost.sum())} reference sample(s) the controller received"
+                       " - not in the metrics")
+        missing &= ~lost
     if missing.any():
-        idx = np.flatnonzero(missing)
-        breaks = np.flatnonzero(np.diff(idx) > 1)
-        starts = np.concatenate(([idx[0]], idx[breaks + 1]))
-        ends = np.concatenate((idx[breaks], [idx[-1]]))
-        k = int(np.argmax(ends - starts))
-        t0 = exp[0]
-        out.append(f"{int(missing.sum())} sample(s) without a reference in {starts.size} stretch(es); longest "
-                   f"{ends[k] - starts[k] + 1} samples from t = {(exp[starts[k]] - t0) * 1e-9:.3f} s"
+        n, start, longest = _stretches(np.flatnonzero(missing))
+        out.append(f"{int(missing.sum())} sample(s) without a reference in {n} stretch(es); longest "
+                   f"{longest} samples from t = {(exp[start] - exp[0]) * 1e-9:.3f} s"
                    " (reference node down?) - not in the metrics")
     if duration_s and ts.size > 1:
         dt = float(np.median(np.diff(ts))) * 1e-9

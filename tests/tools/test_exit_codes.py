@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from dem_ros.bag import BagReader, BagWriter
-from dem_ros.contract import REFERENCE, TOPICS
+from dem_ros.contract import CONTROLLER_STATE, REFERENCE, TOPICS
 from dem_ros.tools.cli import main
 
 SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "sample_S1"
@@ -29,6 +29,7 @@ def test_replay_of_the_intact_sample_bag_exits_0(capsys):
 def _copy(tmp_path: Path, skip) -> Path:
     """The sample bag rewritten, without the messages for which ``skip(topic, stamp_ns)`` is true."""
     out = tmp_path / "copy"
+    tmp_path.mkdir(parents=True, exist_ok=True)
     with BagReader(SAMPLE) as r:
         meta = r.run_metadata()
         types = {t.name: t for t in TOPICS}
@@ -51,11 +52,31 @@ def test_replay_flags_stretches_without_a_reference_and_exits_1(tmp_path, capsys
     with BagReader(SAMPLE) as r:
         ref = r.joint_state_arrays(REFERENCE.name)["stamp_ns"]
     cut0, cut1 = ref[len(ref) // 2], ref[len(ref) // 2 + 250]  # 250 samples: the reference node down 0.25 s
-    bag = _copy(tmp_path, lambda topic, st: topic == REFERENCE.name and cut0 <= st < cut1)
+    # a reference node down: no reference, and the controller's state says it lacked it (or is absent)
+    down = (REFERENCE.name, CONTROLLER_STATE.name)
+    bag = _copy(tmp_path, lambda topic, st: topic in down and cut0 <= st < cut1)
     assert main(["replay", str(bag)]) == 1
     out, err = capsys.readouterr()
     assert "250 sample(s) without a reference in 1 stretch(es); longest 250 samples" in out
+    assert "recorder lost" not in out and "missing from the bag" not in out
     assert "replay: degraded run:" in err
+
+
+def test_replay_tells_samples_the_recorder_lost_from_a_reference_outage(tmp_path, capsys):
+    """A recorder that fell behind the writers' keep-last history loses samples with no trace on its side:
+    the bag shows them as holes in the plant's stamps, or as references the controller did receive."""
+    with BagReader(SAMPLE) as r:
+        ref = r.joint_state_arrays(REFERENCE.name)["stamp_ns"]
+    cut0, cut1 = ref[len(ref) // 2], ref[len(ref) // 2 + 250]
+    bag = _copy(tmp_path / "a", lambda topic, st: topic == REFERENCE.name and cut0 <= st < cut1)
+    assert main(["replay", str(bag)]) == 1
+    out, _ = capsys.readouterr()
+    assert "the recorder lost 250 reference sample(s) the controller received" in out
+    assert "without a reference" not in out
+    bag = _copy(tmp_path / "b", lambda topic, st: cut0 <= st < cut0 + 40 * 10**6)  # every topic, 40 ms
+    assert main(["replay", str(bag)]) == 1
+    out, _ = capsys.readouterr()
+    assert "40 plant sample(s) missing from the bag in 1 stretch(es), longest 40 ms (lost by a recorder" in out
 
 
 def test_replay_flags_a_truncated_bag_and_exits_1(tmp_path, capsys):

@@ -25,6 +25,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+#: the largest ROS domain id dem_ros accepts: 0..101 is the range ROS 2 documents as safe on every OS
+#: (Cyclone DDS maps higher ids to UDP ports that can collide with the ephemeral range on Linux/macOS)
+DOMAIN_ID_MAX = 101
+
 __all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "HW_LOOP_STATUS", "LOOP_STATUS", "MAGNETS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic", "markdown_table"]
 
 FRAME = "dem"

@@ -21,14 +21,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import IO, Any
 
+from ..contract import DOMAIN_ID_MAX
 from ..core.params import SCHEMA, ConfigError, apply_overrides, load_params_file, parse_assignment
 from ..core.scenarios import Scenario, get_scenario
 
 __all__ = ["CONTROLLER_TYPES", "ESTIMATOR_TYPES", "UsageError", "domain_id", "env_domain_id", "fmt_pair", "json_safe", "json_text",
            "load_config", "out_dir", "out_file", "seconds", "seed", "warm_kernels", "write_json", "yaml_scalar"]
 
-#: DDS domain ids a ROS 2 participant can use (Cyclone DDS maps 0..232 to UDP ports)
-DOMAIN_ID_MAX = 232
 
 #: the control laws and estimators a run can use: the parameter schema's choices (one source)
 CONTROLLER_TYPES: tuple[str, ...] = tuple(SCHEMA.spec("controller", "type").choices or ())
@@ -107,7 +106,7 @@ def seed(text: str) -> int:
 
 
 def domain_id(text: str) -> int:
-    """A ROS domain id, 0..232."""
+    """A ROS domain id, 0..DOMAIN_ID_MAX (``contract``)."""
     try:
         v = int(text)
     except ValueError:

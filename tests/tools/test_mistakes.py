@@ -43,6 +43,8 @@ MISTAKES: list[tuple[str, list[str], dict[str, str], str]] = [
     ("sim-negative-delay", ["sim", "--delay", "-1"], {}, "command_delay"),
     ("launch-bad-domain-env", ["launch", "--duration", "1"], {"ROS_DOMAIN_ID": "abc"}, "ROS_DOMAIN_ID"),
     ("launch-domain-out-of-range", ["launch", "--duration", "1", "--domain-id", "999"], {}, "--domain-id"),
+    # above 101 (the range safe on every OS, contract.DOMAIN_ID_MAX): refused before any node starts
+    ("launch-domain-above-101", ["launch", "--duration", "1", "--domain-id", "177"], {}, "[0, 101]"),
     ("launch-set-unknown-key", ["launch", "--duration", "1", "--set", "controller.nope=1"], {}, "nope"),
     ("launch-duration-nan", ["launch", "--duration", "nan"], {}, "--duration"),
     ("launch-bad-hardware-url", ["launch", "--duration", "1", "--hardware", "bogus://x"], {}, "--hardware"),

@@ -17,7 +17,7 @@ import re
 from dataclasses import dataclass
 from functools import cache
 
-from ...contract import QoS
+from ...contract import DOMAIN_ID_MAX, QoS
 from ..api import TransportError
 
 __all__ = [
@@ -53,15 +53,15 @@ class Settings:
 
 
 def parse_domain_id(raw: str | None) -> int:
-    """``ROS_DOMAIN_ID`` -> int; empty/unset is 0; anything outside 0..101 is a TransportError."""
+    """``ROS_DOMAIN_ID`` -> int; empty/unset is 0; anything outside 0..DOMAIN_ID_MAX is a TransportError."""
     if raw is None or raw.strip() == "":
         return 0
     try:
         value = int(raw.strip(), 10)
     except ValueError:
-        raise TransportError(f"ROS_DOMAIN_ID={raw!r} is not an integer; use 0..101") from None
-    if not 0 <= value <= 101:
-        raise TransportError(f"ROS_DOMAIN_ID={value} is outside 0..101 (the range safe on every OS)")
+        raise TransportError(f"ROS_DOMAIN_ID={raw!r} is not an integer; use 0..{DOMAIN_ID_MAX}") from None
+    if not 0 <= value <= DOMAIN_ID_MAX:
+        raise TransportError(f"ROS_DOMAIN_ID={value} is outside 0..{DOMAIN_ID_MAX} (the range safe on every OS)")
     return value
 
 
@@ -76,8 +76,8 @@ def settings_from_env(domain_id: int | None = None, env: dict[str, str] | None =
     env = dict(os.environ) if env is None else env
     if domain_id is None:
         domain_id = parse_domain_id(env.get("ROS_DOMAIN_ID"))
-    elif not 0 <= int(domain_id) <= 101:
-        raise TransportError(f"domain id {domain_id} is outside 0..101")
+    elif not 0 <= int(domain_id) <= DOMAIN_ID_MAX:
+        raise TransportError(f"domain id {domain_id} is outside 0..{DOMAIN_ID_MAX}")
     distro = env.get("DEM_ROS_DISTRO", "jazzy").strip().lower() or "jazzy"
     if distro not in GID_SIZE:
         raise TransportError(f"DEM_ROS_DISTRO={distro!r} is not one of {', '.join(GID_SIZE)}")

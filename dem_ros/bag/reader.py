@@ -241,10 +241,12 @@ class BagReader:
             ``log_time_ns`` (N,) int64 receive times [ns], ``name`` list[str]
             (k), ``position`` (N, k), ``velocity`` (N, kv), ``effort`` (N, ke)
             float64 (kv, ke may be 0). Rows whose array length differs from
-            the first message's are NaN-padded / truncated to that width.
+            the first message's are NaN-padded / truncated to that width;
+            ``skipped``: messages left out because they are not a JointState or
+            name other joints than the topic's (a foreign or corrupt writer).
 
         Raises:
-            BagError: topic missing, not JointState, or ``name`` changes.
+            BagError: topic missing, not JointState, or no message parses.
         """
         info = self.topics.get(topic)
         if info is None:
@@ -364,12 +366,12 @@ def _joint_state_arrays(datas: list[bytes], log: np.ndarray, topic: str) -> dict
         return empty
     try:
         names, arrays = _layout(datas[0])
-    except (ValueError, struct.error, UnicodeDecodeError) as exc:
-        raise BagError(f"{topic}: first message is not a valid JointState CDR ({exc})") from None
+    except (ValueError, struct.error, UnicodeDecodeError):
+        names, arrays = _common_layout(datas, topic)  # a foreign or corrupt first message: the topic's own
     length = len(datas[0])
     blob = np.frombuffer(b"".join(datas), dtype=np.uint8) if all(len(d) == length for d in datas) else None
     fields = ("position", "velocity", "effort")
-    out: dict[str, Any] = {"log_time_ns": log, "name": names}
+    out: dict[str, Any] = {"log_time_ns": log, "name": names, "skipped": 0}
     if blob is not None:
         rows = blob.reshape(n, length)
         # Same size and same bytes outside the stamp and the float payloads => same layout.
@@ -385,21 +387,45 @@ def _joint_state_arrays(datas: list[bytes], log: np.ndarray, topic: str) -> dict
             for fname, (off, cnt) in zip(fields, arrays, strict=True):
                 out[fname] = rows[:, off:off + 8 * cnt].copy().view("<f8").reshape(n, cnt)
             return out
-    # Slow path: per-message parse (layouts differ between messages).
+    # Slow path: per-message parse (layouts differ between messages). A message that is not a JointState
+    # or names other joints than the topic's (a foreign or corrupt writer: the bag keeps what was on the
+    # wire) is left out and counted in ``skipped``; the first message's names are the topic's unless the
+    # first message is itself such a one (then the most common names are).
     stamps = np.empty(n, np.int64)
     cols = {f: np.full((n, cnt), np.nan) for f, (_o, cnt) in zip(fields, arrays, strict=True)}
+    keep = np.ones(n, bool)
     for i, d in enumerate(datas):
         try:
             nm, arr = _layout(d)
-        except (ValueError, struct.error, UnicodeDecodeError) as exc:
-            raise BagError(f"{topic}: message {i} is not a valid JointState CDR ({exc})") from None
+        except (ValueError, struct.error, UnicodeDecodeError):
+            keep[i] = False
+            continue
         if nm != names:
-            raise BagError(f"{topic}: joint names change at message {i}: {names} -> {nm}")
+            keep[i] = False
+            continue
         sec, nsec = struct.unpack_from("<iI", d, 4)
         stamps[i] = sec * 1_000_000_000 + nsec
         for fname, (off, cnt) in zip(fields, arr, strict=True):
             w = min(cnt, cols[fname].shape[1])
             cols[fname][i, :w] = np.frombuffer(d, "<f8", count=w, offset=off)
-    out["stamp_ns"] = stamps
-    out.update(cols)
+    out["stamp_ns"] = stamps[keep]
+    out["log_time_ns"] = log[keep]
+    out.update({f: c[keep] for f, c in cols.items()})
+    out["skipped"] = int(n - keep.sum())
     return out
+
+
+def _common_layout(datas: list[bytes], topic: str) -> tuple[list[str], list[tuple[int, int]]]:
+    """The layout of the most common joint names among the messages that parse; BagError if none does."""
+    seen: dict[tuple[str, ...], tuple[int, list[tuple[int, int]]]] = {}
+    for d in datas:
+        try:
+            nm, arr = _layout(d)
+        except (ValueError, struct.error, UnicodeDecodeError):
+            continue
+        count, first = seen.get(tuple(nm), (0, arr))
+        seen[tuple(nm)] = (count + 1, first)
+    if not seen:
+        raise BagError(f"{topic}: no message is a valid JointState CDR")
+    names = max(seen, key=lambda k: seen[k][0])
+    return list(names), seen[names][1]

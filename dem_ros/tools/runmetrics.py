@@ -209,10 +209,15 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
 
     r = BagReader(bag)
 
+    skipped: dict[str, int] = {}  # messages a foreign or corrupt writer left in the bag, per topic
+
     def arrays(topic: str) -> dict[str, Any] | None:
         if topic not in r.topics or r.topics[topic].count == 0:
             return None
-        return r.joint_state_arrays(topic)
+        a = r.joint_state_arrays(topic)
+        if a["skipped"]:
+            skipped[topic] = a["skipped"]
+        return a
 
     truth = arrays(contract.TRUTH.name)
     ref = arrays(contract.REFERENCE.name)
@@ -287,6 +292,8 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     if st is not None and "ref_lag" in st["name"]:
         had_ref = st["stamp_ns"][st["position"][:, list(st["name"]).index("ref_lag")] == 0]
     m.problems = run_problems(r, src["stamp_ns"], ref["stamp_ns"], epoch, ts, m.duration_s, had_ref)
+    m.problems += [f"{n} message(s) on {topic} left out: not the topic's JointState layout (a foreign or corrupt"
+                   " writer)" for topic, n in skipped.items()]
     return m, series
 
 

@@ -55,7 +55,8 @@ def test_joint_state_arrays_fast_path(bag: Path) -> None:
 
 
 def test_joint_state_arrays_mixed_layout(tmp_path: Path) -> None:
-    """Varying array lengths / frame_id: slow path, NaN padded; changing names -> BagError."""
+    """Varying array lengths / frame_id: slow path, NaN padded; a message naming other joints than the
+    topic's (a foreign or corrupt writer) is left out and counted; nothing parses -> BagError."""
     with BagWriter(tmp_path / "m") as w:
         w.add_topic("/js", "sensor_msgs/msg/JointState", QOS_STREAM)
         w.add_topic("/bad", "sensor_msgs/msg/JointState", QOS_STREAM)
@@ -64,13 +65,21 @@ def test_joint_state_arrays_mixed_layout(tmp_path: Path) -> None:
         w.write("/js", 2, joint_state_cdr(["a", "b"], [1.5, 2.5], [], [5.5, 6.5], 20))
         w.write("/bad", 1, joint_state_cdr(["a"], [1.0], [], [], 10))
         w.write("/bad", 2, joint_state_cdr(["b"], [1.0], [], [], 20))
+        w.write("/bad", 3, joint_state_cdr(["a"], [3.0], [], [], 30))
+        w.add_topic("/junk", "sensor_msgs/msg/JointState", QOS_STREAM)
+        w.write("/junk", 1, b"\x00\x01\x00\x00garbage")
     with BagReader(tmp_path / "m") as r:
         a = r.joint_state_arrays("/js")
         np.testing.assert_array_equal(a["stamp_ns"], [10, 20])
         np.testing.assert_array_equal(a["position"], [[1.0, 2.0], [1.5, 2.5]])
         assert np.isnan(a["velocity"][1]).all() and a["velocity"][0].tolist() == [3.0, 4.0]
-        with pytest.raises(BagError, match="names change at message 1"):
-            r.joint_state_arrays("/bad")
+        assert a["skipped"] == 0
+        b = r.joint_state_arrays("/bad")
+        assert b["name"] == ["a"] and b["skipped"] == 1
+        np.testing.assert_array_equal(b["stamp_ns"], [10, 30])
+        np.testing.assert_array_equal(b["position"], [[1.0], [3.0]])
+        with pytest.raises(BagError, match="no message is a valid JointState"):
+            r.joint_state_arrays("/junk")
         with pytest.raises(BagError, match="not sensor_msgs/msg/JointState"):
             r.joint_state_arrays("/s")
         with pytest.raises(BagError, match="not in"):

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from dem_ros.bag import BagReader, BagWriter
-from dem_ros.contract import CONTROLLER_STATE, REFERENCE, TOPICS
+from dem_ros.contract import CONTROLLER_STATE, MEASUREMENT, REFERENCE, TOPICS
 from dem_ros.tools.cli import main
 
 SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "sample_S1"
@@ -101,3 +101,28 @@ def test_bag_info_and_check_exit_1_with_problems(tmp_path, action, capsys):
     assert main(["bag", action, str(bag)]) == 1
     assert ("TRUNCATED" if action == "check" else "problem(s): see dem-ros bag check") in capsys.readouterr().out
     assert main(["bag", action, str(SAMPLE)]) == 0
+
+
+def test_a_foreign_message_in_the_bag_is_left_out_and_reported(tmp_path, capsys):
+    """A writer that put a JointState of other joints on /dem/reference (a rogue or corrupt sample: the
+    recorder keeps what was on the wire) does not stop the analysis: left out, counted, reported."""
+    out = tmp_path / "foreign"
+    with BagReader(SAMPLE) as r:
+        meta = r.run_metadata()
+        types = {t.name: t for t in TOPICS}
+        topics = r.topics
+        foreign = next(bytes(d) for t, _lt, _pt, d in r.raw_messages([MEASUREMENT.name]))  # magnet_1/2 names
+        with BagWriter(out, metadata=meta) as w:
+            for name, info in topics.items():
+                w.add_topic(name, info.type, types[name].qos)
+            n_ref = 0
+            for topic, lt, pt, data in r.raw_messages():
+                w.write(topic, lt, bytes(data), pt)
+                if topic == REFERENCE.name:
+                    n_ref += 1
+                    if n_ref in (10, 3000):
+                        w.write(topic, lt, foreign, pt)
+    assert main(["replay", str(out)]) == 1
+    o, err = capsys.readouterr()
+    assert "2 message(s) on /dem/reference left out: not the topic's JointState layout" in o
+    assert "Traceback" not in err

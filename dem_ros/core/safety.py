@@ -10,7 +10,9 @@ Modes (:class:`Mode`, the values of the device link's mode byte)::
     OFF --fresh command--> RUN --no fresh command--> HOLD --held > hold_timeout--> LAND --gaps >= landing_gap--> LANDED
                            RUN <--fresh command----- HOLD
     RUN/HOLD --limit trip, predicted gap trip, estop(), land(), requested LAND/OFF--> LAND   (latched)
-    any --non-finite sensor--> FAULT (0 V: nothing left to control with)     (latched)
+    RUN/HOLD --a current sensor without a finite sample for > SENSOR_BLIND_SAMPLES--> LAND  (latched)
+    any --a gap sensor without one for > SENSOR_BLIND_SAMPLES, or any non-finite sample while OFF/LANDED
+          or before the first finite one--> FAULT (0 V)                           (latched)
     LAND/LANDED/FAULT --clear()--> OFF
 
 * **RUN**: the applied voltage is the command clipped to ``[-u_max, u_max]`` (the
@@ -34,12 +36,14 @@ Modes (:class:`Mode`, the values of the device link's mode byte)::
   state the brake left (reference at the estimate, current integral at zero).
 * **LANDED**: the plate is on its support at ``landing_gap``; the current is
   driven to zero (a 0 V cut is safe only here, never at hover).
-* **FAULT**: a non-finite gap or current: the board cannot control, 0 V.
+* **FAULT**: 0 V: a gap sensor lost for good (no landing law without it, below), or a sensor
+  sample lost while the plate rests on its support or before the observer has a first estimate.
 
 Faults latch with a reason (``fault``); ``reason`` explains the current mode;
 ``counters`` count samples and events (``holds``, ``hold_events``, ``clipped``,
 ``rejected``, ``landings``, ``trips``, ``estops``, ``landed``, ``brakes``: braked samples,
-``brake_events``) and keep ``longest_hold_us`` (the longest hold that ended without a
+``brake_events``, ``sensor_gaps``: samples with a non-finite or missing reading, ``sensor_gap_events``:
+runs of them, ``sensor_losses``: channels given up after SENSOR_BLIND_SAMPLES) and keep ``longest_hold_us`` (the longest hold that ended without a
 landing, or is still going). ``stop_gap`` (2,) [m] is the last predicted stopping gap per
 end and ``min_stop_gap`` [m] the smallest one checked (both in ``snapshot()``, in mm).
 
@@ -62,13 +66,22 @@ gap p_j [m] and rate v_j [m/s] (approach speed w_j = -v_j), the measured current
 [A], the candidate voltage u_c (2,) [V] (the command, or the landing law's) for the
 next sample, and the nominal m, K, L, l, I, N1, N2, g widened by ``BOUND_MARGIN`` e::
 
-    K_b = (1 + e) K                                   (a stronger magnet than the datasheet)
-    A_b = (1 + e)/m + L l/I,  B_b = max((1 + e)/m - L l/I, 0)      [1/kg] (a lighter plate)
-    n_j = g + min(0, (L^2/I)(N_j - N_k))              [m/s^2] (pull away from the rail: gravity and
+    K in [K_lo, K_hi] = [(1 - e) K, (1 + e) K]        (the true magnet, either side of the datasheet)
+    1/m, 1/I up to (1 + e)/m, (1 + e)/I, down to (1 - e)/m, (1 - e)/I
+    A_b = (1 + e)(1/m + L l/I),  B_b = max((1 + e)/m - (1 - e) L l/I, 0)   [1/kg] (the largest A, B)
+    n_j = g + min(0, (1 + e)(L^2/I)(N_j - N_k))       [m/s^2] (pull away from the rail: gravity and
                                                        the loads, whatever the mass; must be > 0)
-    lambda+_j = 2 K_b |i_j| / delta_j + T |u_c,j|     [V s]  (flux after the candidate sample:
-                                                       |d lambda/dt| <= |u| as R i opposes the flux)
-    F+_j = lambda+_j^2 / (4 K_b)                      [N]
+    a_j = 2 |i_j| / delta_j,  c_j = T |u_c,j|          (|d lambda/dt| <= |u| as R i opposes the flux)
+    lambda+_j(K) = K a_j + c_j                        [V s]  (flux after the candidate sample)
+    F+_j = max over K of lambda+_j^2 / (4 K) = max(F(K_lo), F(K_hi))   [N]
+    lambda+_j = lambda+_j(K_hi)                       (the largest flux: the slowest brake)
+
+F(K) = (K a + c)^2 / (4 K) = a^2 K/4 + a c/2 + c^2/(4 K) is convex in K, so its maximum over the
+interval is at an end (the stationary point K = c/a is the minimum). At high flux (a K >> c) the
+stronger magnet pulls harder; at low flux (a resting or falling plate under a large command) the
+weaker one does: at 0 A, 200 V, F+ = (0.2 V s)^2/(4 K) is 18.3 N at 1.25 K but 30.5 N at 0.75 K
+(a review found the bound taken at K_hi alone; tests/core/test_safety.py checks both ends)::
+
     G_j  = A_b F+_j + B_b F+_k                        [m/s^2] (the magnets' pull on end j)
     tau  = max(lambda+) / U + T                       [s]    (lambda+_j alone when B_b = 0)
     phase 0, the candidate sample:   a0 = G_j - n_j,  s0 = w_j^+ T + a0^+ T^2/2,  w1 = w_j + a0 T
@@ -86,15 +99,41 @@ neglects the resistive decay R i (it only helps) and bounds the magnets' pull by
 impulse G tau/3 delivered at once (over-estimates by at most G tau^2/12).
 
 Numbers (Table 2, e = 0.25, U = 200 V, T = 1 ms, n = g): hovering at 8 mm (4.0 A) under
-the 80 V hover command, lambda+ = 0.547 + 0.080 = 0.627 V s, F+ = 180 N, A_b = 0.173 /kg,
-G = 31.1 m/s^2, tau = 4.1 ms, G tau/3 = 43 mm/s: at rest D = 0.22 mm, approaching at 45
-mm/s D = 0.66 mm, at 100 mm/s D = 1.49 mm (tests/core/test_safety.py). So a plate rising
-at 100 mm/s is braked above 3.0 mm and stops above 1.5 mm; the old gap-only trip (p < 1.5
+the 80 V hover command, lambda+ = 0.547 + 0.080 = 0.627 V s, F+ = 180 N, A_b = 0.196 /kg,
+B_b = 0.017 /kg: at rest D = 0.35 mm, approaching at 45 mm/s D = 0.87 mm, at 100 mm/s
+D = 1.79 mm (tests/core/test_safety.py; 0.22, 0.66, 1.49 mm before 1/I was widened). So a plate
+rising at 100 mm/s is braked above 3.3 mm and stops above 1.5 mm; the old gap-only trip (p < 1.5
 mm) could not stop a 45 mm/s approach (rail contact, #11). The bound errs on the early side:
-against the true plant (approaching at 50-100 mm/s at the hover current) it is 2.5-5x the
-distance travelled (up to 7x for a 21.6 kg plate, whose larger hover current the board reads
-as a stronger pull), and up to 15x at twice the hover current, where the neglected R i decays
+against the true plant (approaching at 50-100 mm/s at the hover current, 3-10 mm) it is up to 6.5x
+the distance travelled (3.7x for a light plate with strong magnets, 9.6x for a 21.6 kg plate, whose
+larger hover current the board reads as a stronger pull; measured after the 1/I widening), and up
+to 15x at twice the hover current, where the neglected R i decays
 the flux as fast as the bus does.
+
+Lost sensor samples (a non-finite or missing gap or current)
+-------------------------------------------------------------
+One lost sample is not a fault: it is handled like a wild sample. A lost gap leaves that load
+point's observer on its prediction (e = 0); a lost current is replaced by the board's coil model:
+lambda+ = lambda + T (u - R_j i), i+ = lambda+ delta / (2K) (Eq. 5, delta from the observer; K
+cancels between lambda and i), with R_j learned per coil while its current is measured (low-pass,
+``R_LEARN_TIME``). Everything else (commands, limits, the braking check) runs unchanged.
+
+Bound: ``SENSOR_BLIND_SAMPLES`` = 5 samples in a row per channel. Without a gap sample the
+observer's error grows from the acceleration it misses, Da (n T)^2/2: with Da up to 10 m/s^2
+(the plate's whole weight per kg) that is 0.125 mm after 5 ms, a quarter of INNOVATION_LIMIT
+(so the returning sensor is taken, not set aside) and a twelfth of the braking check's margin
+over rail contact; an unstable hover deviation grows by e every 17-20 ms, by 1.3x in 5 ms.
+
+Beyond the bound:
+* a *current* sensor: latched trip, brake-and-land with the coil model for that coil (the gaps
+  close the loop; the bias b absorbs the model's force error). Measured: from an 8 mm hover
+  with m, K, R off (tests), descent <= landing_speed, never toward the rail.
+* a *gap* sensor: FAULT, 0 V: the plate drops onto its support (away from the rail, at the
+  fall speed, ~0.2 m/s from 8 mm, not landing_speed). No landing law without that gap was
+  found: the pitch of a plate is open-loop unstable under set currents, and a flux-integral
+  gap estimate drifts by the R error (1 % of R at 4 A: 0.8 V s/s against 0.55 V s of flux).
+  Measured: landing with the lost end assumed at the other end's gap + the last tilt hit the
+  rail in 5 of 5 plant variants. So this case is a drop, not a landing (an open item).
 
 The landing law (uses only what a board has: measured gaps y (2,) [m] and coil
 currents i (2,) [A], nominal parameters m, R, K, L, l, I, N1, N2, g)
@@ -119,7 +158,11 @@ Per load point j, the model acceleration at the measured currents (Eqs. 3-8)::
    true motion by the unmodelled acceleration times T^2/2 (micrometres), so an
    innovation above 0.5 mm is a wild sample: one such sample alone is set aside (it must
    not fake a 190 mm/s approach, which the braking check would act on); a second in a
-   row is real (a step, the plate hitting its support) and is taken.
+   row is real (a step: the plate hit its support, or moves faster than the model knows) and
+   restarts gap and rate from the two samples (p = y_k, v = (y_k - y_k-1)/T; b kept). Passing
+   it through Lo instead left the rate 290 mm/s wrong after a plate hit its support at speed,
+   and the landing law then pulled that end back up toward the rail (measured: 0.67 mm, the
+   light-plate/strong-magnet rogue command from 8 mm; 3.65 mm with the restart).
 2. *Reference*: from the estimate at LAND entry, r_j accelerates at ``REF_ACCEL`` to
    ``v_ref = SPEED_FRACTION * landing_speed`` (down, away from the rail) and stops
    ``LANDING_OVERSHOOT`` beyond ``landing_gap`` (each load point: a tilted plate
@@ -176,6 +219,7 @@ __all__ = [
     "PLANT_KEYS",
     "REF_ACCEL",
     "SAFETY_KEYS",
+    "SENSOR_BLIND_SAMPLES",
     "SPEED_FRACTION",
     "Mode",
     "SafetyError",
@@ -196,8 +240,11 @@ SPEED_FRACTION = 0.4  # the reference descends at this fraction of landing_speed
 REF_ACCEL = 0.2  # m/s^2, the reference's acceleration to v_ref
 LANDING_OVERSHOOT = 3e-4  # m: the reference stops this far beyond landing_gap (the support)
 I_OFF = 0.02  # A: below this, LANDED applies 0 V
-BOUND_MARGIN = 0.25  # the braking bound's model margin e: K up to (1 + e) K, 1/m up to (1 + e)/m
+BOUND_MARGIN = 0.25  # the braking bound's model margin e: K, 1/m, 1/I each within a factor 1 -+ e
 INNOVATION_LIMIT = 5e-4  # m: a single sample this far off the observer's prediction is set aside as wild
+R_LEARN_TIME = 0.05  # s: the coil model learns each coil's resistance with this time constant
+SENSOR_BLIND_SAMPLES = 5  # samples a gap/current channel may give nothing finite before the board lands
+_SENSOR_NAMES = ("gap sensor 1", "gap sensor 2", "current sensor 1", "current sensor 2")
 
 
 class Mode(enum.IntEnum):
@@ -236,7 +283,8 @@ def observer_gains(T: float, w: float, w_bias: float) -> np.ndarray:
 _P, _Q, _A, _B, _C, _D, _K, _R, _N1, _N2, _G, _T, _KP, _KD, _KC, _UMAX, _ILIM, _DMIN, _VREF, _AREF, _RSTOP, _KI = range(22)
 _KB, _AB, _BB, _NB1, _NB2 = range(22, 27)  # the braking bound's widened model (module docstring)
 _EMAX = 27  # observer innovation limit [m]
-_NP = 28
+_KBL = 28  # the braking bound's weakest magnet (1 - e) K
+_NP = 29
 
 
 @njit(cache=True)
@@ -257,18 +305,32 @@ def _deltas(p: np.ndarray, y1: float, y2: float) -> tuple[float, float]:
 
 @njit(cache=True)
 def _observe(p: np.ndarray, Lo: np.ndarray, s: np.ndarray, a: np.ndarray, y0: float, y1: float, i0: float,
-             i1: float, gated: np.ndarray) -> None:
+             i1: float, gated: np.ndarray, blind: np.ndarray, wild: np.ndarray) -> None:
     """One observer step. s (3, 2): [p, v, b] per load point; a (2,): model acceleration of the last step (updated);
-    gated (2,): per load point, 1 when the last sample was set aside as wild (updated)."""
+    gated (2,): per load point, 1 when the last sample was set aside as wild (updated), wild (2,) that sample [m];
+    blind (2,): 1 where
+    there is no gap sample (non-finite or missing): prediction only, like a wild sample."""
     T = p[_T]
     for j in range(2):
         acc = a[j] + s[2, j]
         pp = s[0, j] + T * s[1, j] + 0.5 * T * T * acc
         vp = s[1, j] + T * acc
-        e = (y0 if j == 0 else y1) - pp
-        if abs(e) > p[_EMAX] and gated[j] == 0.0:
+        # no sample: the prediction alone (the wild-sample gate keeps its state)
+        e = 0.0 if blind[j] != 0.0 else (y0 if j == 0 else y1) - pp
+        if blind[j] != 0.0:
+            pass
+        elif abs(e) > p[_EMAX] and gated[j] == 0.0:
             gated[j] = 1.0  # one wild sample is set aside (prediction only); a second in a row is real
+            wild[j] = pp + e
             e = 0.0
+        elif abs(e) > p[_EMAX]:
+            # two in a row: a real step (the plate hit its support, or moved faster than the model knows):
+            # restart gap and rate from the two samples; the missed acceleration is kept
+            gated[j] = 0.0
+            y = pp + e
+            s[0, j] = y
+            s[1, j] = (y - wild[j]) / T
+            continue
         else:
             gated[j] = 0.0
         s[0, j] = pp + Lo[0] * e
@@ -335,6 +397,20 @@ def _land_law(p: np.ndarray, s: np.ndarray, ref: np.ndarray, ui: np.ndarray, i: 
 
 
 @njit(cache=True)
+def _force_bound(p: np.ndarray, i: float, de: float, uc: float) -> tuple[float, float]:
+    """(F+ [N], lambda+ [V s]) of one magnet after one sample of uc [V] from current i [A] at gap delta [m]:
+    the largest force over K in [(1 - e) K, (1 + e) K] and the largest flux (at (1 + e) K).
+
+    F+(K) = (K a + c)^2 / (4 K), a = 2|i|/delta, c = T|uc|, is convex in K (F+'' = c^2 / (2 K^3) >= 0): its
+    maximum over an interval is at an end (the stationary point K = c/a is the minimum), so both ends."""
+    a = 2.0 * abs(i) / de
+    c = p[_T] * abs(uc)
+    hi = p[_KB] * a + c
+    lo = p[_KBL] * a + c
+    return max(hi * hi / (4.0 * p[_KB]), lo * lo / (4.0 * p[_KBL])), hi
+
+
+@njit(cache=True)
 def _stop_gaps(p: np.ndarray, s: np.ndarray, i: np.ndarray, uc: np.ndarray, U: float, out: np.ndarray) -> None:
     """Predicted stopping gaps out (2,) [m]: candidate uc (2,) [V] for one sample, then brake at U [V].
 
@@ -342,10 +418,8 @@ def _stop_gaps(p: np.ndarray, s: np.ndarray, i: np.ndarray, uc: np.ndarray, U: f
     """
     T = p[_T]
     de1, de2 = _deltas(p, s[0, 0], s[0, 1])
-    lam1 = 2.0 * p[_KB] * abs(i[0]) / de1 + T * abs(uc[0])  # lambda+ [V s]
-    lam2 = 2.0 * p[_KB] * abs(i[1]) / de2 + T * abs(uc[1])
-    F1 = lam1 * lam1 / (4.0 * p[_KB])
-    F2 = lam2 * lam2 / (4.0 * p[_KB])
+    F1, lam1 = _force_bound(p, i[0], de1, uc[0])
+    F2, lam2 = _force_bound(p, i[1], de2, uc[1])
     for j in range(2):
         Fj, Fk = (F1, F2) if j == 0 else (F2, F1)
         lj, lk = (lam1, lam2) if j == 0 else (lam2, lam1)
@@ -438,10 +512,11 @@ class Supervisor:
         e = BOUND_MARGIN
         p[_EMAX] = INNOVATION_LIMIT
         p[_KB] = (1 + e) * c["K"]
-        p[_AB] = (1 + e) / m + L * l / In
-        p[_BB] = max((1 + e) / m - L * l / In, 0.0)
-        p[_NB1] = c["g"] + min(0.0, L * L / In * (c["N1"] - c["N2"]))
-        p[_NB2] = c["g"] + min(0.0, L * L / In * (c["N2"] - c["N1"]))
+        p[_KBL] = (1 - e) * c["K"]
+        p[_AB] = (1 + e) * (1 / m + L * l / In)
+        p[_BB] = max((1 + e) / m - (1 - e) * L * l / In, 0.0)
+        p[_NB1] = c["g"] + min(0.0, (1 + e) * L * L / In * (c["N1"] - c["N2"]))
+        p[_NB2] = c["g"] + min(0.0, (1 + e) * L * L / In * (c["N2"] - c["N1"]))
         if not min(p[_NB1], p[_NB2]) > 0:
             raise SafetyError(f"no braking away from the rail: with N1 = {c['N1']:g} N, N2 = {c['N2']:g} N the pull "
                               f"away from the rail at the ends is {p[_NB1]:.3g}, {p[_NB2]:.3g} m/s^2 (must be > 0)")
@@ -461,6 +536,14 @@ class Supervisor:
         self._t_fresh: int | None = None
         self._braking = False
         self._gated = np.zeros(2)
+        self._wild = np.zeros(2)
+        self._blind = [0, 0, 0, 0]  # consecutive samples without a finite gap 1, gap 2, current 1, current 2
+        self._blind_now = np.zeros(2)
+        self._i_est = np.zeros(2)  # the coil model's current for the next sample [A]
+        self._lam = np.zeros(2)  # the coil model's flux linkage 2K i/delta [V s]
+        self._r_est = np.full(2, c["R"])
+        self._lam_pred = np.zeros(2)
+        self._u_prev = np.zeros(2)  # each coil's resistance, learned while its current is measured [ohm]
         self.stop_gap = np.full(2, math.inf)
         self.min_stop_gap = math.inf
         self.mode = Mode(mode)
@@ -469,7 +552,7 @@ class Supervisor:
         self._load_kernels()
         self.counters = dict.fromkeys(
             ("holds", "hold_events", "longest_hold_us", "clipped", "rejected", "landings", "trips", "estops", "landed",
-             "brakes", "brake_events"), 0)
+             "brakes", "brake_events", "sensor_gaps", "sensor_gap_events", "sensor_losses"), 0)
 
     def _load_kernels(self) -> None:
         """Load (or compile: seconds) the numba kernels now, on scratch data, never in a sample."""
@@ -477,7 +560,7 @@ class Supervisor:
         s[0, :] = self.cfg["landing_gap"]
         de1, de2 = _deltas(self._p, s[0, 0], s[0, 1])
         _model_accel(self._p, de1, de2, 1.0, 1.0, a)
-        _observe(self._p, self._Lo, s, a, s[0, 0], s[0, 1], 1.0, 1.0, np.zeros(2))
+        _observe(self._p, self._Lo, s, a, s[0, 0], s[0, 1], 1.0, 1.0, np.zeros(2), np.zeros(2), np.zeros(2))
         _land_law(self._p, s, np.zeros((3, 2)), np.zeros(2), np.ones(2), False, np.zeros(2))
         _stop_gaps(self._p, s, np.ones(2), np.ones(2), self._u_max, np.zeros(2))
         _brake(self._p, s, np.ones(2), self._u_max, np.zeros(2))
@@ -524,30 +607,34 @@ class Supervisor:
         self.land(reason)
 
     # -- the sample ---------------------------------------------------------------------------
-    def step(self, t_ns: int, y: Sequence[float] | np.ndarray, i: Sequence[float] | np.ndarray,
+    def step(self, t_ns: int, y: Sequence[float] | np.ndarray | None, i: Sequence[float] | np.ndarray | None,
              u_cmd: Sequence[float] | np.ndarray | None,
              requested: Mode = Mode.RUN, bus: float | None = None) -> np.ndarray:
         """Voltages (2,) [V] to apply over [t, t + T).
 
         Args:
             t_ns: sample time [ns] (any monotonic clock).
-            y (2,): measured load-point gaps [d1, d2] [m] (any sequence of two numbers).
-            i (2,): measured coil currents [A] (any sequence of two numbers).
+            y (2,): measured load-point gaps [d1, d2] [m] (any sequence of two numbers; None or a
+                non-finite entry: no sample, see "Lost sensor samples" in the module docstring).
+            i (2,): measured coil currents [A] (any sequence of two numbers; None / non-finite likewise).
             u_cmd (2,): a command that arrived for this sample [V], or None.
             requested: the mode the commander asks for (RUN; LAND or OFF start a landing).
             bus: the coil drivers' measured bus voltage [V], when the board measures it: the brake
                 can apply at most min(u_max, bus) (None: u_max).
         """
-        y0, y1, i0, i1 = float(y[0]), float(y[1]), float(i[0]), float(i[1])
-        if not (math.isfinite(y0) and math.isfinite(y1) and math.isfinite(i0) and math.isfinite(i1)):
-            if self.mode != Mode.FAULT:
-                self.fault = self.fault or f"non-finite sensor reading (gaps {y0!r}, {y1!r}; currents {i0!r}, {i1!r})"
-                self.reason = self.fault
-                self.counters["trips"] += 1
-            self.mode = Mode.FAULT
-            self.u = np.zeros(2)
+        y0, y1 = (math.nan, math.nan) if y is None else (float(y[0]), float(y[1]))
+        i0, i1 = (math.nan, math.nan) if i is None else (float(i[0]), float(i[1]))
+        ok = (math.isfinite(y0), math.isfinite(y1), math.isfinite(i0), math.isfinite(i1))
+        if not all(ok) and self._sensor_gap(t_ns, ok, (y0, y1, i0, i1)):
             return self.u
+        for n in range(4):
+            self._blind[n] = 0 if ok[n] else self._blind[n] + 1
+        if not ok[2] or not ok[3]:  # a missing current: the board's coil model from the voltage it applied
+            i0 = i0 if ok[2] else float(self._i_est[0])
+            i1 = i1 if ok[3] else float(self._i_est[1])
         self._i_last = (i0, i1)
+        self._blind_now[0] = 0.0 if ok[0] else 1.0
+        self._blind_now[1] = 0.0 if ok[1] else 1.0
         if not self._obs_ready:
             self.estimate[0, :] = (y0, y1)
             self.estimate[1:, :] = 0.0
@@ -556,7 +643,72 @@ class Supervisor:
             self.estimate[2, :] = -self._acc  # bumpless: at rest, the model misses -a_m
             self._obs_ready = True
         else:
-            _observe(self._p, self._Lo, self.estimate, self._acc, y0, y1, i0, i1, self._gated)
+            _observe(self._p, self._Lo, self.estimate, self._acc, y0, y1, i0, i1, self._gated, self._blind_now, self._wild)
+        lost = [n for n in range(4) if self._blind[n] > SENSOR_BLIND_SAMPLES]
+        if lost and self.mode != Mode.FAULT:
+            n = lost[0]
+            if n < 2:  # a gap sensor: no landing law without it (module docstring, "Lost sensor samples")
+                if not self.counters["sensor_losses"]:
+                    self.counters["sensor_losses"] += 1
+                self.counters["trips"] += 1
+                self.fault = (f"{_SENSOR_NAMES[n]} lost: no finite sample for {self._blind[n]} samples "
+                              f"(> {SENSOR_BLIND_SAMPLES}): 0 V, the plate drops onto its support")
+                self.reason = self.fault
+                self.mode = Mode.FAULT
+                self.u = np.zeros(2)
+                return self.u
+            if self.mode in (Mode.RUN, Mode.HOLD):  # a current sensor: land on the coil model
+                self.counters["sensor_losses"] += 1
+                self._trip(f"{_SENSOR_NAMES[n]} lost: no finite sample for {self._blind[n]} samples "
+                           f"(> {SENSOR_BLIND_SAMPLES}): landing on the board's coil model")
+        u = self._step_modes(t_ns, u_cmd, requested, bus, i0, i1)
+        self._coil_model(u, ok[2], ok[3])
+        return u
+
+    def _coil_model(self, u: np.ndarray, ok0: bool, ok1: bool) -> None:
+        """Predict the currents of the next sample from the voltages u (2,) [V] just applied:
+        lambda+ = lambda + T (u - R_j i), i+ = lambda+ delta / (2K) (u = R i + d lambda/dt, Eq. 5), with
+        delta from the observer. R_j is learned per coil while its current is measured (low-pass, 50 ms) from
+        the same equation, so a heated or cold coil does not bias the model; K cancels in lambda -> i."""
+        de = _deltas(self._p, self.estimate[0, 0], self.estimate[0, 1])
+        K2 = 2.0 * self._p[_K]
+        for j, ok in ((0, ok0), (1, ok1)):
+            ij = self._i_last[j]
+            lam = K2 * ij / de[j]
+            if ok and abs(ij) > 0.2 and self._lam[j] != 0.0:  # R_j from the last sample's voltage
+                r = (float(self._u_prev[j]) - (lam - self._lam[j]) / self.dt) / ij
+                r = min(max(r, 0.5 * self._p[_R]), 2.0 * self._p[_R])
+                self._r_est[j] += self.dt / R_LEARN_TIME * (r - self._r_est[j])
+            if not ok:
+                lam = self._lam_pred[j]
+            self._lam[j] = lam
+            self._lam_pred[j] = lam + self.dt * (float(u[j]) - self._r_est[j] * ij)
+            self._i_est[j] = self._lam_pred[j] * de[j] / K2
+        self._u_prev[:] = u
+
+    def _sensor_gap(self, t_ns: int, ok: tuple[bool, ...], raw: tuple[float, ...]) -> bool:
+        """A non-finite or missing sample on some channel: counted; True when the board can do nothing but
+        FAULT with 0 V (the plate on its support, or no estimate yet); False: carry on with the observer /
+        coil model for that channel (``step`` faults after SENSOR_BLIND_SAMPLES in a row)."""
+        self.counters["sensor_gaps"] += 1
+        if self._blind[0] == 0 and self._blind[1] == 0 and self._blind[2] == 0 and self._blind[3] == 0:
+            self.counters["sensor_gap_events"] += 1
+        resting = self.mode in (Mode.OFF, Mode.LANDED, Mode.FAULT)
+        if not (resting or not self._obs_ready):
+            return False
+        if self.mode != Mode.FAULT:
+            why = ("the plate is on its support" if resting else "no estimate possible")
+            self.fault = self.fault or (f"non-finite sensor reading (gaps {raw[0]!r}, {raw[1]!r}; currents "
+                                        f"{raw[2]!r}, {raw[3]!r}): {why}")
+            self.reason = self.fault
+            self.counters["trips"] += 1
+        self.mode = Mode.FAULT
+        self.u = np.zeros(2)
+        return True
+
+    def _step_modes(self, t_ns: int, u_cmd: Sequence[float] | np.ndarray | None, requested: Mode,
+                    bus: float | None, i0: float, i1: float) -> np.ndarray:
+        """The mode machine of ``step``, after the observer."""
         mode = self.mode
         if mode == Mode.FAULT:
             self.u = np.zeros(2)

@@ -61,6 +61,27 @@ needs ~8 m/s^2). So beta_j is a third check: beyond ``bias_max`` (default 5 m/s^
 model disagree beyond any load the plate can carry: declared as a fault of gap j (latched) as well.
 A sensor stuck while the plate holds still is not detectable at all (and harmless until it moves).
 
+The support (``support_gap`` = d_s, default the board's ``landing_gap``; hovering references lie below it).
+A plate whose magnets carry less than its load falls away from the rail until its support stops it; the
+model alone predicts the fall (~14.7 m/s^2 at 0 A) and, with the support missing, the acceleration bias
+absorbed the support's reaction (beyond ``bias_max``: a false fault) or the gates rejected every reading
+(the estimate fell through the support). So the prediction has a hard stop. Gap j is *on its support* in a
+sample when its estimate is at or beyond d_s and the free prediction d_j^- moves it further away from the rail::
+
+    contact_j  <=>  d_j >= d_s  and  d_j^- > d_j      (d_j: the estimate before the prediction)
+
+i.e. at the support the model's motion (magnet force, load, beta_j, rate) points away from the rail: the
+magnets carry less than the load at that load point and the support carries the rest. Then the
+support holds the plate: d_j^- = d_j, d_j'^- = 0 (rows d_j, d_j' of F become [e_j; 0]), with no process
+noise on d_j' nor on beta_j: the contact force, not a bias, explains the missing fall, and beta_j is neither
+driven nor walks while it cannot be observed. As soon as the magnets carry the load (lift-off) the free
+prediction moves the gap toward the rail and the model is the flying one again. Where the sensor puts the
+support is measured, not assumed: a gap on its support whose reading the innovation gate rejects, the last
+``SUPPORT_REINIT`` rejected readings in a row steady (each within 2 sqrt(chi2) sigma_gap of the first), is re-initialised from the
+reading (d_j = z_j, d_j' = 0, their covariance rows cleared, P_jj = sigma_gap^2; counted, no fault): a
+plate that dropped onto its support, or a support a little off d_s. Off the support a steady rejected
+reading is never taken over (a stuck sensor on a moving plate must latch its fault).
+
 Numerical guard: the update is skipped (counted) when S is not finite or singular, and a state or
 covariance that became non-finite (a gap near zero makes the model singular: delta^-2 terms) is
 re-initialised from the measurement, so the filter never raises; both end the convergence run below.
@@ -102,7 +123,13 @@ G_REINIT = 17  # state or covariance non-finite: re-initialised from the measure
 G_BMAX = 18  # |beta_j| above this (m/s^2) ...
 G_BRUN = 19  # (2) ... samples in a row, per gap
 G_BFAULT = 21  # (2) 1.0 once beta_j stayed beyond G_BMAX for G_NFAULT samples (latched)
-GATE_SIZE = 23
+G_SUPPORT = 23  # support gap (m): the hard stop of the prediction; 0: none
+G_CONTACT = 24  # (2) 1.0 while gap j rests on its support (this sample's prediction)
+G_ZREF = 26  # (2) the first of the latest run of steady rejected readings, per gap
+G_ZRUN = 28  # (2) rejected readings in a row within the steadiness bound of G_ZREF
+G_SREINIT = 30  # (2) re-initialisations at the support from a steady rejected reading, per gap
+GATE_SIZE = 32
+SUPPORT_REINIT = 3  # rejected, steady readings in a row that re-initialise a gap resting on its support
 _GAPS = (0, 2)  # state indices of the gaps; each sensor's rate follows its gap
 
 
@@ -188,6 +215,23 @@ def _gate(s: np.ndarray, P: np.ndarray, z: np.ndarray, use: np.ndarray, rm: np.n
             use[i + 1] = 0.0
             gate[reason + j] += 1.0
             gate[G_RUN + j] += 1.0
+            if gate[G_RUN + j] > 1.0 and abs(zi - gate[G_ZREF + j]) <= 2.0 * np.sqrt(gate[G_CHI2] * rm[i]):
+                gate[G_ZRUN + j] += 1.0  # steady: within the spread of two good readings (NaN: not steady)
+            else:
+                gate[G_ZREF + j] = zi
+                gate[G_ZRUN + j] = 1.0
+            if reason == G_INNOV and gate[G_CONTACT + j] > 0.0 and gate[G_ZRUN + j] >= SUPPORT_REINIT:
+                # resting on the support, the reading steady: the support is where the sensor says
+                s[i] = zi
+                s[i + 1] = 0.0
+                P[i, :] = 0.0
+                P[:, i] = 0.0
+                P[i + 1, :] = 0.0
+                P[:, i + 1] = 0.0
+                P[i, i] = rm[i]
+                gate[G_SREINIT + j] += 1.0
+                gate[G_RUN + j] = 0.0
+                continue
             if gate[G_RUN + j] >= gate[G_NFAULT]:
                 gate[G_FAULT + j] = 1.0
         else:
@@ -211,6 +255,7 @@ def ekf_step(s: np.ndarray, P: np.ndarray, z: np.ndarray, mask: np.ndarray, u_pr
     None: every finite measurement is used (a non-finite S skips the update all the same).
     """
     A = jacobian(s, u_prev, p)
+    prior = s.copy()
     _rk4(s, u_prev, p, T)
     AT = A * T
     F = np.eye(NS) + AT + 0.5 * (AT @ AT)
@@ -230,6 +275,19 @@ def ekf_step(s: np.ndarray, P: np.ndarray, z: np.ndarray, mask: np.ndarray, u_pr
     Q[7, 7] = qc[2] * T2
     Q[8, 8] = qc[3] * T2
     Q[9, 9] = qc[3] * T2
+    if gate is not None and gate[G_SUPPORT] > 0.0:
+        for j in range(2):  # the support: a hard stop (module docstring)
+            i = _GAPS[j]
+            contact = prior[i] >= gate[G_SUPPORT] and s[i] > prior[i]
+            gate[G_CONTACT + j] = 1.0 if contact else 0.0
+            if contact:
+                s[i] = prior[i]
+                s[i + 1] = 0.0
+                F[i, :] = 0.0
+                F[i, i] = 1.0
+                F[i + 1, :] = 0.0
+                Q[i + 1, i + 1] = 0.0
+                Q[6 + j, 6 + j] = 0.0
     P[:, :] = F @ P @ F.T + Q
     use = mask.copy()
     good = True
@@ -325,6 +383,7 @@ class KalmanEstimator:
         g[G_NFAULT] = c["fault_samples"]
         g[G_W0] = c["voltage_bias_prior"] ** 2
         g[G_BMAX] = c["bias_max"]
+        g[G_SUPPORT] = c["support_gap"]
 
     @property
     def chi2_threshold(self) -> float:
@@ -344,6 +403,7 @@ class KalmanEstimator:
         g[G_FAULT:G_FAULT + 2] = 0.0
         g[G_BRUN:G_BRUN + 2] = 0.0
         g[G_BFAULT:G_BFAULT + 2] = 0.0
+        g[G_CONTACT:G_CONTACT + 2] = 0.0
         g[G_GOOD] = 1.0  # the start sample itself passed the range gate
         self.started = True
 
@@ -397,6 +457,7 @@ class KalmanEstimator:
         for j in range(2):
             out[f"gap{j + 1}_out_of_range"] = int(g[G_RANGE + j])
             out[f"gap{j + 1}_innovation"] = int(g[G_INNOV + j])
+            out[f"gap{j + 1}_support_reinit"] = int(g[G_SREINIT + j])
         out["updates_skipped"] = int(g[G_SKIPPED])
         out["reinitialised"] = int(g[G_REINIT])
         return out

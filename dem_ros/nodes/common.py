@@ -303,9 +303,12 @@ class CommandSource:
     ``/dem/command`` counts only from the writers that the ROS graph attributes to the node ``source``
     (``command_source``: a name in the node's namespace or ``/ns/name``), recognised by each sample's
     writer GID (:meth:`~dem_ros.transport.api.Node.subscribe_with_source`). :meth:`accepts` answers for
-    one sample; a writer not yet known is looked up again at most every ``refresh_s`` (a restarted
-    controller's graph information can trail its first samples by a few ms); any other writer's sample
-    is counted (``commands_foreign``) and logged once per writer. :attr:`matched` tells whether the
+    one sample. A writer not in the source's last looked-up set is looked up on its sample (a restarted
+    controller's graph information can trail its first samples by a few ms, and its commands must count
+    from the first sample after it arrives: the board holds only ``hold_timeout``, 50 ms, before it
+    lands); a writer found foreign is not looked up again for ``retry_s`` (a foreign 1 kHz writer costs
+    at most one look-up per ``retry_s``; at most 64 are remembered). Every foreign sample is counted
+    (``commands_foreign``); the log says it once per writer. :attr:`matched` tells whether the
     source's writer is on the graph (a run must not start before).
 
     What it protects against: a second controller, a test or replay publisher, a stray tool on the
@@ -313,13 +316,16 @@ class CommandSource:
     process can forge a GID or announce itself under the source's name.
     """
 
-    def __init__(self, node: Any, source: str, *, refresh_s: float = 0.1, topic: Any = None):
+    def __init__(self, node: Any, source: str, *, refresh_s: float = 0.1, retry_s: float = 0.002,
+                 topic: Any = None):
         from ..contract import COMMAND
 
         self.node = node
         self.source = source
         self.topic = topic or COMMAND
-        self.refresh_s = float(refresh_s)
+        self.refresh_s = float(refresh_s)  # :attr:`matched`: look-ups while the source has no writer
+        self.retry_s = float(retry_s)
+        self._rejected: dict[bytes, float] = {}  # writer found foreign -> monotonic time to look it up again
         self.gids: frozenset[bytes] = frozenset()  # the source's writers on the topic, as last looked up
         self.checked = -math.inf  # monotonic time of the last look-up (s)
         self.foreign = 0
@@ -345,8 +351,14 @@ class CommandSource:
         """True for a sample of the source's writers; another writer's is counted (and logged once)."""
         if gid in self.gids:
             return True
-        if time.monotonic() - self.checked >= self.refresh_s and gid in self._lookup():
-            return True
+        now = time.monotonic()
+        if now >= self._rejected.get(gid, -math.inf):
+            if gid in self._lookup():
+                self._rejected.pop(gid, None)
+                return True
+            if gid not in self._rejected and len(self._rejected) >= 64:
+                self._rejected.pop(next(iter(self._rejected)))  # the oldest
+            self._rejected[gid] = now + self.retry_s
         self.foreign += 1
         if gid not in self._logged and len(self._logged) < 64:
             self._logged.add(gid)

@@ -80,3 +80,53 @@ def test_a_renamed_controller_is_configured_and_bad_names_are_refused():
     with pytest.raises(ConfigError, match="not a ROS node name"):
         PlantSimNode(MemoryBus().node("plant_sim", ["--ros-args", "-p", "command_source:=a b"]))
     assert "command_source" in (plant.node.set_parameters({"command_source": "rogue"}) or "")  # read-only
+
+
+def test_a_restarted_controller_is_accepted_as_soon_as_the_graph_lists_it():
+    """Review defect: an unknown writer was looked up at most every refresh_s (0.1 s), so a restarted
+    controller, whose graph information trails its first samples by a few ms, lost ~100 ms of commands
+    (> hold_timeout 50 ms: the board landed). Now an unknown writer is looked up on its sample, a writer
+    found foreign again only after retry_s: the graph lists the new controller 5 ms after its first
+    command, and the first command sent retry_s after that is accepted (whatever the machine's load)."""
+    from dem_ros.nodes.common import CommandSource
+
+    bus = MemoryBus()
+    plant = bus.node("plant_sim")
+    cs = CommandSource(plant, "controller")
+    old = bus.node("controller")
+    p_old = old.publisher(contract.COMMAND)
+    assert cs.accepts(p_old.gid)
+    old.shutdown()
+    new = bus.node("controller")
+    p_new = new.publisher(contract.COMMAND)
+    entry = next(w for w in bus.writers if w[2] is p_new)
+    bus.writers.remove(entry)  # its graph information has not arrived yet
+    lookups = 0
+    real = plant.publisher_gids
+
+    def counted(topic, node):
+        nonlocal lookups
+        lookups += 1
+        return real(topic, node)
+
+    plant.publisher_gids = counted
+    t0 = time.monotonic()
+    t_graph = None
+    sent = []  # (time sent, accepted)
+    while time.monotonic() - t0 < 0.2 and not (sent and sent[-1][1]):
+        now = time.monotonic()
+        if t_graph is None and now - t0 >= 0.005:
+            bus.writers.append(entry)  # the graph lists it now
+            t_graph = now
+        sent.append((now, cs.accepts(p_new.gid)))
+        time.sleep(0.001)
+    assert t_graph is not None and sent[-1][1], "never accepted"
+    first = next(t for t, ok in sent if ok)
+    before = [t for t, ok in sent if t < t_graph]
+    assert not any(ok for t, ok in sent if t < t_graph)  # unknown to the graph: foreign
+    # the first command at least retry_s after the graph lists the writer is accepted
+    assert all(ok for t, ok in sent if t >= t_graph + cs.retry_s) and first >= t_graph
+    assert lookups <= len(before) + 2  # at most one look-up per sample, and per retry_s of a foreign writer
+    assert cs.foreign == sum(not ok for _, ok in sent)
+    print(f"graph info 5 ms after the first command; first accepted {(first - t_graph) * 1e3:.1f} ms after it,"
+          f" {cs.foreign} commands dropped, {lookups} look-ups")

@@ -102,19 +102,10 @@ class RigLoop:
         return c
 
 
-ESTIMATOR_SUPPORT = pytest.mark.xfail(
-    strict=True,
-    reason="the estimator's plausibility gates (s3-fnodes, on main since 2026-11-24 01:40) latch a sensor fault on a plate "
-    "resting on its support (its EKF has no support: 20 innovation rejections in a row) and publish non-finite "
-    "estimates from then on, so nothing can lift the plate off; passed before that merge (commit b4effe1)",
-)
-
-
 def _min_gap(loop: RigLoop, since: int = 0) -> float:
     return float(np.min(np.array(loop.gaps[since:])))
 
 
-@ESTIMATOR_SUPPORT
 def test_a_controller_started_on_a_landed_plate_lifts_it_off_once_the_board_follows():
     """Landed on its support, zero current: the controller premagnetises (the plate stays down), waits while
     the board ignores it, and once armed lifts the plate smoothly to the reference; never near the rail."""
@@ -188,7 +179,6 @@ def test_a_restarted_reference_resumes_the_schedule_on_the_experiment_clock():
     assert loop.modes[-1] == Mode.RUN and _min_gap(loop) > loop.cfg["plant_sim"]["trip_gap_min"] + 1e-3
 
 
-@ESTIMATOR_SUPPORT
 @pytest.mark.parametrize("restart_before_landing", [True, False])
 def test_controller_killed_the_board_lands_then_a_restarted_controller_and_arm_lift_off_again(restart_before_landing):
     """#11: controller killed mid-run -> the driver's watchdog faults, the board lands the plate on its support;

@@ -227,8 +227,10 @@ def _check_controller_safety(v: Mapping[str, Any]) -> str | None:
     and u_j = R i_j. Below that voltage at ``gap_floor`` - the smallest gap the
     law acts on - no gap can be held.
 
-    ``max_age``: 0 turns the check off; a positive value shorter than one
-    control period ``dt`` rejects measurements that arrive on time.
+    ``max_age``: 0 turns the check off; a positive value shorter than
+    max(1, command_delay) dt - the age an estimate can have on time when the plant
+    runs command_delay samples ahead (``core/controllers/checks.py``) - would reject
+    estimates that arrive on time.
     """
     w = v["m_nominal"] * v["g"] + v["N1"] + v["N2"]
     f = 0.5 * (w + v["L"] / v["l"] * abs(v["N1"] - v["N2"]))
@@ -236,9 +238,12 @@ def _check_controller_safety(v: Mapping[str, Any]) -> str | None:
     if v["voltage_limit"] < u_min:
         return (f"voltage_limit = {v['voltage_limit']:g} V cannot hold the module at any gap: the hover voltage "
                 f"of the nominal model is {u_min:.3g} V already at gap_floor = {v['gap_floor']:g} m")
-    if 0.0 < v["max_age"] < v["dt"]:
-        return (f"max_age = {v['max_age']:g} s is shorter than one control period (dt = {v['dt']:g} s): every "
-                "measurement would be too old; use 0 (no check) or at least dt")
+    on_time = max(1, v["command_delay"]) * v["dt"]  # the oldest an on-time estimate can be (checks.py)
+    if 0.0 < v["max_age"] < on_time:
+        return (f"max_age = {v['max_age']:g} s is shorter than max(1, command_delay) dt = {on_time:g} s, the age "
+                f"an estimate can have on time (command_delay = {v['command_delay']}): on-time estimates would "
+                f"be refused; use 0 (no check) or at least {on_time:g} s ((command_delay + 1) dt = "
+                f"{(v['command_delay'] + 1) * v['dt']:g} s is the natural value)")
     if not v["reference_gap_min"] < v["reference_gap_max"]:
         return (f"reference_gap_min = {v['reference_gap_min']:g} m must be below reference_gap_max = "
                 f"{v['reference_gap_max']:g} m")

@@ -269,10 +269,11 @@ def make_report(out: Path, duration: float | None = None, jobs: int | None = Non
     ] + [f"| {c} | **{v}** | {e} |" for c, v, e in _claims(results)] + [
         "",
         "Why the noise and perturbation claims fail here: the feedback-linearising law differentiates the gap through",
-        "(L_f^2 h)_e ~ i^2/delta^2 with k1 = 70, amplifying gap noise ~25x beyond the k3 path, and has no integral action",
-        "(5.6 mm of gap error per volt of low-frequency input offset; docs/manual/errata.md). A model-based estimator reduces the noise",
+        "(L_f^2 h)_e ~ i^2/delta^2 with k1 = 70, amplifying gap noise ~25x beyond the k3 path, and has no inner current loop.",
+        "The adaptive laws' integral action (ki) and coil-equation rows remove slow offsets (S5, S6; without them 5.6 mm of gap",
+        "error per volt of low-frequency input offset, docs/manual/errata.md), not fast ones. A model-based estimator reduces the noise",
         "reaching the law (compare the `none` and `kf` rows) but cannot remove a physical input disturbance; the",
-        "decentralised PID with its inner current loop and integral action is far less sensitive to both.",
+        "decentralised PID with its inner current loop is far less sensitive to both.",
         "",
     ] + report_section(out / "study") + [
         "## Figures",

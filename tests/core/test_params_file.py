@@ -55,7 +55,9 @@ def test_unreadable_file_is_one_config_error(tmp_path, data, says):
 @pytest.mark.parametrize(("change", "says"), [
     ({"voltage_limit": 0.0}, "voltage_limit = 0 V cannot hold the module at any gap"),
     ({"voltage_limit": 4.9}, "hover voltage of the nominal model is 5 V"),
-    ({"max_age": 1e-4}, "max_age = 0.0001 s is shorter than one control period"),
+    ({"max_age": 1e-4}, r"max_age = 0.0001 s is shorter than max\(1, command_delay\) dt = 0.001 s"),
+    # the default max_age (2 ms) with a plant 3 samples ahead: on-time estimates are 3 ms old
+    ({"command_delay": 3}, r"max_age = 0.002 s is shorter than .* = 0.003 s"),
 ])
 def test_dangerous_controller_settings_are_refused_with_the_reason(change, says):
     with pytest.raises(ConfigError, match=says):
@@ -79,3 +81,5 @@ def test_voltage_floor_is_the_hover_voltage_at_gap_floor():
                 apply_overrides(default_config(), {"controller": {"voltage_limit": limit}})
     apply_overrides(default_config(), {"controller": {"max_age": c["dt"]}})  # one period: allowed
     apply_overrides(default_config(), {"controller": {"max_age": 0.0}})  # off: allowed
+    apply_overrides(default_config(), {"controller": {"command_delay": 2}})  # on-time age 2 ms = the default
+    apply_overrides(default_config(), {"controller": {"command_delay": 3, "max_age": 0.004}})  # (d + 1) dt

@@ -276,5 +276,8 @@ def test_an_unreachable_scheduler_is_one_line_within_the_timeout(tmp_path):
     r = _run(["--axis", "plant_sim.m=10,12", "--duration", "0.3", "--scheduler", f"tcp://127.0.0.1:{port}",
               "--timeout", "3", "--out", str(tmp_path / "st")], timeout=120)
     assert r.returncode == 2, r.stderr
-    assert r.stderr.count("\n") == 1 and f"cannot reach the Dask scheduler at tcp://127.0.0.1:{port}" in r.stderr
+    # progress lines may come first (a loaded machine takes over a second to get there); the error is one line
+    errors = [ln for ln in r.stderr.splitlines() if not ln.startswith("dem-ros study: [")]
+    assert len(errors) == 1 and f"cannot reach the Dask scheduler at tcp://127.0.0.1:{port}" in errors[0], r.stderr
+    assert "Traceback" not in r.stderr
     assert time.monotonic() - t0 < 60

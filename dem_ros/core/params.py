@@ -461,8 +461,8 @@ SCHEMA = Schema(
             ParamSpec("command_delay", int, 1, "samples", "samples between a measurement and the period its command is held over (the plant's command_delay); the law predicts over it", 0, 8),
             ParamSpec("max_age", float, 0.002, "s", "never act on an estimate older than this on the experiment clock (newest /dem/applied_voltage stamp - its stamp), nor on one stamped this far ahead: (command_delay + 1) dt, beyond which its command can no longer be applied (dem_ros.core.controllers.checks); 0: no stamp checks", 0.0, 10.0),
             ParamSpec("reference_gap_min", float, _SAFETY_DEFAULTS["trip_gap_min"], "m", "a received reference gap below this is refused (the last good reference is held): the board's trip_gap_min", 0.0, 0.1),
-            ParamSpec("reference_gap_max", float, _SAFETY_DEFAULTS["trip_gap_max"], "m", "a received reference gap above this is refused: the board's trip_gap_max", 1e-4, 1.0),
-            ParamSpec("reference_max_speed", float, 1.9e-3, "m/s", "a received reference faster than this (|y_d'|, or its gaps moving faster since the last accepted one) is refused: (gap max - min)/2 ||h'||_1 of the reference model M(s), 1.86 mm/s for the defaults (dem_ros.core.controllers.checks.reference_speed_bound)", 1e-6, 10.0),
+            ParamSpec("reference_gap_max", float, _SAFETY_DEFAULTS["landing_gap"], "m", "a received reference gap above this is refused: the board's landing_gap, where the plate rests on its support (it cannot hover beyond it, and the estimator treats a gap there as resting: estimator.support_gap)", 1e-4, 1.0),
+            ParamSpec("reference_max_speed", float, 1.55e-3, "m/s", "a received reference faster than this (|y_d'|, or its gaps moving faster since the last accepted one) is refused: (gap max - min)/2 ||h'||_1 of the reference model M(s), 1.54 mm/s for the defaults (dem_ros.core.controllers.checks.reference_speed_bound)", 1e-6, 10.0),
             ParamSpec("voltage_limit", float, 1e4, "V", "commands are clipped to +-this before publishing", 0.0, 1e6),
         ),
         "hw_driver": (

@@ -17,8 +17,9 @@ integrals of h', h'' vanish: relative degree 3), so with c the middle of the ran
 
 for every reference the model can produce, however the schedule steps. :func:`reference_speed_bound`
 computes (1) (||h'||_1 by quadrature of the exact impulse response); the default model
-0.25/((s+1)(s+0.5)^2) has ||h'||_1 = 0.3238 s^-1, so over the default band [1.5, 13] mm
-v_max = 1.86 mm/s (``reference_max_speed``; a 3 mm step of the schedule peaks at 0.49 mm/s).
+0.25/((s+1)(s+0.5)^2) has ||h'||_1 = 0.3238 s^-1, so over the default band [1.5, 11] mm
+(the board's trip_gap_min to its landing_gap, where the plate rests on its support)
+v_max = 1.54 mm/s (``reference_max_speed`` 1.55 mm/s; a 3 mm step of the schedule peaks at 0.49 mm/s).
 A received reference is accepted when |y_d'| <= v_max and its gaps moved no more than the
 bound allows since the last accepted sample:
 

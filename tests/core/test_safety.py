@@ -518,6 +518,26 @@ def test_force_bound_covers_weak_and_strong_magnets(fK, i_frac, uc):
             assert F_true > old  # the case the review found (measured 24.0 N: R i decays the flux a little)
 
 
+def _candidate_then_brake(plant: DemPlant, cfg: dict, u0: np.ndarray) -> float:
+    """One sample of the candidate ``u0`` on the true ``plant``, then the board's brake (dead-beat
+    de-energise at u_max, on the true gaps) until the plate moves away from the rail (at most 200
+    samples); returns the smallest gap of end 1 [m] (the plate starts level)."""
+    brake = Supervisor(cfg, T)
+    low = float(plant.x[0])
+    for k in range(200):
+        if k == 0:
+            u = u0
+        else:
+            brake.estimate[0, :] = plant.x[[0, 2]]
+            u = np.empty(2)
+            _brake_kernel(brake._p, brake.estimate, plant.x[[4, 5]].copy(), cfg["u_max"], u)
+        plant.advance(u)
+        low = min(low, float(plant.x[0]))
+        if plant.x[1] > 0:
+            break
+    return low
+
+
 @pytest.mark.parametrize("fK", [0.75, 1.25])
 def test_braking_bound_holds_at_low_flux(fK):
     """Low flux, weak and strong magnets: a plate resting or rising slowly (0-50 mm/s) at 3-8 mm with 0-0.3x
@@ -536,19 +556,7 @@ def test_braking_bound_holds_at_low_flux(fK):
                     i = x0[4] * i_frac
                     plant.x[:] = [gap, -v, gap, -v, i, i]
                     bound = _stop_distance(sup, gap, v, i, uc, cfg["u_max"])
-                    brake = Supervisor(cfg, T)
-                    low = gap
-                    for k in range(200):
-                        if k == 0:
-                            u = np.array([uc, uc])
-                        else:
-                            brake.estimate[0, :] = plant.x[[0, 2]]
-                            u = np.empty(2)
-                            _brake_kernel(brake._p, brake.estimate, plant.x[[4, 5]].copy(), cfg["u_max"], u)
-                        plant.advance(u)
-                        low = min(low, plant.x[0])
-                        if plant.x[1] > 0:
-                            break
+                    low = _candidate_then_brake(plant, cfg, np.array([uc, uc]))
                     assert gap - low <= bound, f"{gap=} {v=} {i_frac=} {uc=}: {(gap - low) * 1e3:.4f} > {bound * 1e3:.4f} mm"
 
 
@@ -575,20 +583,7 @@ def test_braking_bound_holds_and_is_not_vacuous(variant):
                 i = x0[4] * fi
                 plant.x[:] = [gap, -v, gap, -v, i, i]
                 bound = _stop_distance(sup, gap, v, i, float(u0[0]), cfg["u_max"])
-                brake = Supervisor(cfg, T)
-                low = gap
-                for k in range(200):
-                    if k == 0:
-                        u = u0
-                    else:
-                        brake.estimate[0, :] = plant.x[[0, 2]]
-                        u = np.empty(2)
-                        _brake_kernel(brake._p, brake.estimate, plant.x[[4, 5]].copy(), cfg["u_max"], u)
-                    plant.advance(u)
-                    low = min(low, plant.x[0])
-                    if plant.x[1] > 0:
-                        break
-                travelled = gap - low
+                travelled = gap - _candidate_then_brake(plant, cfg, u0)
                 assert travelled <= bound, f"{gap=} {v=} {fi=}: travelled {travelled * 1e3:.3f} mm > D {bound * 1e3:.3f} mm"
                 if fi == 1.0:
                     assert bound <= 4 * travelled + 1.0e-3, f"{gap=} {v=}: D {bound * 1e3:.3f} mm vs {travelled * 1e3:.3f} mm"

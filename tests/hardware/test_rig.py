@@ -45,6 +45,18 @@ class Loop:
         return self.ctrl.step(xh, self.ref).copy()
 
 
+def exchange(b: Board, drv: HwDriver):
+    """One board tick through the driver: the sample the driver publishes (None: no frame or none to publish);
+    the driver's reply (a command or a hello) goes back to the board."""
+    data = b.tick()
+    if data is None:
+        return None
+    s, reply = drv.on_bytes(data, 10**18 + b.n * MS, b.n * MS)
+    if reply is not None:
+        b.receive(reply)
+    return s
+
+
 def hover_loop(b: Board, cfg, n: int, drv: HwDriver | None = None, skip=lambda k: False):
     """Close the loop through the link codec and the driver, one board tick at a time (no clock)."""
     drv = drv or HwDriver(cfg["hw_driver"] | {"clock_sync_frames": 1, "arm_samples": 1})
@@ -53,12 +65,7 @@ def hover_loop(b: Board, cfg, n: int, drv: HwDriver | None = None, skip=lambda k
     law = Loop(cfg)
     frames = []
     for _ in range(n):
-        data = b.tick()
-        if data is None:
-            continue
-        s, reply = drv.on_bytes(data, 10**18 + b.n * MS, b.n * MS)
-        if reply is not None:
-            b.receive(reply)
+        s = exchange(b, drv)
         if s is None:
             continue
         frames.append(s)
@@ -187,10 +194,7 @@ def test_s1_through_the_board_models_in_lockstep_tracks_as_offline():
     epoch = None
     e = []
     for _ in range(round((duration + 1.5) / 1e-3)):
-        data = b.tick()
-        s, reply = drv.on_bytes(data, 10**18 + b.n * MS, b.n * MS)
-        if reply is not None:
-            b.receive(reply)
+        s = exchange(b, drv)
         if s is None:
             continue
         if epoch is None and b.released_at is not None:
@@ -223,12 +227,7 @@ def test_a_diverged_controller_is_braked_before_the_rail(rogue):
     drv, _ = hover_loop(b, cfg, 300)
     assert Mode(b.sup.mode) == Mode.RUN
     for _ in range(3000):
-        data = b.tick()
-        if data is None:
-            continue
-        s, reply = drv.on_bytes(data, 10**18 + b.n * MS, b.n * MS)
-        if reply is not None:
-            b.receive(reply)
+        s = exchange(b, drv)
         if s is not None:
             cmd = drv.command(s.stamp_ns, np.array(rogue), b.n * MS)
             if cmd is not None:

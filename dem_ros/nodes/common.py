@@ -306,8 +306,10 @@ class CommandSource:
     one sample. A writer not in the source's last looked-up set is looked up on its sample (a restarted
     controller's graph information can trail its first samples by a few ms, and its commands must count
     from the first sample after it arrives: the board holds only ``hold_timeout``, 50 ms, before it
-    lands); a writer found foreign is not looked up again for ``retry_s`` (a foreign 1 kHz writer costs
-    at most one look-up per ``retry_s``; at most 64 are remembered). Every foreign sample is counted
+    lands); a writer found foreign is looked up again after ``retry_s``, then after twice as long each
+    time, up to ``refresh_s`` (a writer whose graph information trails its samples by D is accepted
+    within about 2 D; a foreign 1 kHz writer costs about 10 look-ups in its first 100 ms, then one per
+    ``refresh_s``: a look-up reads the graph, far too dear to repeat at 1 kHz; at most 64 are remembered). Every foreign sample is counted
     (``commands_foreign``); the log says it once per writer. :attr:`matched` tells whether the
     source's writer is on the graph (a run must not start before).
 
@@ -325,7 +327,8 @@ class CommandSource:
         self.topic = topic or COMMAND
         self.refresh_s = float(refresh_s)  # :attr:`matched`: look-ups while the source has no writer
         self.retry_s = float(retry_s)
-        self._rejected: dict[bytes, float] = {}  # writer found foreign -> monotonic time to look it up again
+        # writer found foreign -> (monotonic time to look it up again, the wait after that look-up fails)
+        self._rejected: dict[bytes, tuple[float, float]] = {}
         self.gids: frozenset[bytes] = frozenset()  # the source's writers on the topic, as last looked up
         self.checked = -math.inf  # monotonic time of the last look-up (s)
         self.foreign = 0
@@ -352,13 +355,14 @@ class CommandSource:
         if gid in self.gids:
             return True
         now = time.monotonic()
-        if now >= self._rejected.get(gid, -math.inf):
+        due, wait = self._rejected.get(gid, (-math.inf, self.retry_s))
+        if now >= due:
             if gid in self._lookup():
                 self._rejected.pop(gid, None)
                 return True
             if gid not in self._rejected and len(self._rejected) >= 64:
                 self._rejected.pop(next(iter(self._rejected)))  # the oldest
-            self._rejected[gid] = now + self.retry_s
+            self._rejected[gid] = (now + wait, min(2.0 * wait, max(self.refresh_s, self.retry_s)))
         self.foreign += 1
         if gid not in self._logged and len(self._logged) < 64:
             self._logged.add(gid)

@@ -296,8 +296,10 @@ def simulate(
     """Simulate the closed loop for ``duration`` s from the 8 mm hover (docs/manual/scenarios.md).
 
     ``delay`` (samples) sets both the plant's command delay and the controller's
-    knowledge of it; ``None`` takes ``plant_sim.command_delay`` and
-    ``controller.command_delay`` from ``cfg``.
+    knowledge of it, and widens a non-zero ``controller.max_age`` to (delay + 1) dt
+    where it is shorter (the stamp budget that follows from the delay: an on-time
+    estimate is up to delay samples old); ``None`` takes ``plant_sim.command_delay``
+    and ``controller.command_delay`` from ``cfg``.
     """
     if duration <= 0:
         from .params import ConfigError
@@ -308,6 +310,9 @@ def simulate(
         copy = {g: dict(v) for g, v in cfg.items()}
         copy["plant_sim"]["command_delay"] = int(delay)
         copy["controller"]["command_delay"] = int(delay)
+        age = copy["controller"].get("max_age", 0.0)
+        if age > 0.0:
+            copy["controller"]["max_age"] = max(age, (int(delay) + 1) * copy["controller"]["dt"])
         cfg = copy
     pc = cfg["plant_sim"]
     delay = pc["command_delay"]

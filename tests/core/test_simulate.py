@@ -203,6 +203,13 @@ def test_bad_duration_rejected(scenarios):
         simulate(scenarios["S1"].config(), duration=0.0)
 
 
+def test_a_longer_delay_widens_the_stamp_budget_it_implies(scenarios):
+    """``delay`` d also widens controller.max_age to (d + 1) dt (the schema refuses a budget shorter than the
+    age an on-time estimate has, d dt): ``dem-ros sim --delay 3`` runs instead of a max_age error."""
+    r = simulate(scenarios["S1"].config(), controller="adaptive", estimator="none", duration=0.05, delay=3)
+    assert r.extra["delay"] == 3 and not r.failed
+
+
 def test_simulate_batch_agrees_with_single_runs_50s(scenarios):
     """simulate_batch over added masses 0, 1.5, 3 kg == three single runs (no noise, no estimator). 50 s runs.
 

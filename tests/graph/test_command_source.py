@@ -82,6 +82,19 @@ def test_a_renamed_controller_is_configured_and_bad_names_are_refused():
     assert "command_source" in (plant.node.set_parameters({"command_source": "rogue"}) or "")  # read-only
 
 
+def _count_lookups(node) -> list[int]:
+    """Count ``node.publisher_gids`` calls (the graph look-ups of a CommandSource) in the returned [n]."""
+    n = [0]
+    real = node.publisher_gids
+
+    def counted(topic, name):
+        n[0] += 1
+        return real(topic, name)
+
+    node.publisher_gids = counted
+    return n
+
+
 def test_a_restarted_controller_is_accepted_as_soon_as_the_graph_lists_it():
     """Review defect: an unknown writer was looked up at most every refresh_s (0.1 s), so a restarted
     controller, whose graph information trails its first samples by a few ms, lost ~100 ms of commands
@@ -103,15 +116,7 @@ def test_a_restarted_controller_is_accepted_as_soon_as_the_graph_lists_it():
     p_new = new.publisher(contract.COMMAND)
     entry = next(w for w in bus.writers if w[2] is p_new)
     bus.writers.remove(entry)  # its graph information has not arrived yet
-    lookups = 0
-    real = plant.publisher_gids
-
-    def counted(topic, node):
-        nonlocal lookups
-        lookups += 1
-        return real(topic, node)
-
-    plant.publisher_gids = counted
+    lookups = _count_lookups(plant)
     t0 = time.monotonic()
     t_graph = None
     sent = []  # (time sent, accepted)
@@ -129,10 +134,10 @@ def test_a_restarted_controller_is_accepted_as_soon_as_the_graph_lists_it():
     # accepted at the latest one doubling after the listing: the waits 2, 4, 8 ms... sum to the time waited
     late = t_graph + (t_graph - t0) + cs.retry_s
     assert all(ok for t, ok in sent if t >= late) and first >= t_graph
-    assert lookups <= min(len(before) + 2, 8)  # at most one per sample, and a doubling wait between them
+    assert lookups[0] <= min(len(before) + 2, 8)  # at most one per sample, and a doubling wait between them
     assert cs.foreign == sum(not ok for _, ok in sent)
     print(f"graph info 5 ms after the first command; first accepted {(first - t_graph) * 1e3:.1f} ms after it,"
-          f" {cs.foreign} commands dropped, {lookups} look-ups")
+          f" {cs.foreign} commands dropped, {lookups[0]} look-ups")
 
 
 def test_a_persistent_foreign_writer_costs_few_graph_lookups():
@@ -145,15 +150,7 @@ def test_a_persistent_foreign_writer_costs_few_graph_lookups():
     plant = bus.node("plant_sim")
     cs = CommandSource(plant, "controller")
     rogue = bus.node("rogue").publisher(contract.COMMAND)
-    lookups = 0
-    real = plant.publisher_gids
-
-    def counted(topic, node):
-        nonlocal lookups
-        lookups += 1
-        return real(topic, node)
-
-    plant.publisher_gids = counted
+    lookups = _count_lookups(plant)
     t0 = time.monotonic()
     n = 0
     while time.monotonic() - t0 < 1.0:
@@ -161,4 +158,4 @@ def test_a_persistent_foreign_writer_costs_few_graph_lookups():
         n += 1
         time.sleep(0.001)
     assert cs.foreign == n
-    assert lookups <= 7 + 1.0 / cs.refresh_s + 2, lookups  # 2, 4, ..., 64 ms, then every 100 ms
+    assert lookups[0] <= 7 + 1.0 / cs.refresh_s + 2, lookups  # 2, 4, ..., 64 ms, then every 100 ms

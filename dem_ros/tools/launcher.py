@@ -260,7 +260,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
         # stopped, it lands the plate before it lets go of the link (nodes/hw_driver.py), while the controller
         # still runs; stopping the controller first would leave the board without commands, and its watchdog
         # landing would end the run as a failure
-        order = ("container", "plant_sim", "hw_driver", "controller", "estimator", "reference", "recorder")
+        order: tuple[str, ...] = ("container", "plant_sim", "hw_driver", "controller", "estimator", "reference", "recorder")
         if hardware is not None:
             order = ("hw_driver", *(n for n in order if n != "hw_driver"))
         for name in order:

@@ -256,8 +256,14 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
             cpu[name] = _cpu_seconds(p.pid)
         halt = Progress("dem-ros launch", None, enabled=status)
         halt.stage("stopping the nodes (the recorder last, so the bag is complete)")
-        # stop: plant (if still running) and controllers first, recorder last
-        for name in ("container", "plant_sim", "hw_driver", "controller", "estimator", "reference", "recorder"):
+        # stop: plant (if still running) and controllers first, recorder last. On hardware the driver goes first:
+        # stopped, it lands the plate before it lets go of the link (nodes/hw_driver.py), while the controller
+        # still runs; stopping the controller first would leave the board without commands, and its watchdog
+        # landing would end the run as a failure
+        order: tuple[str, ...] = ("container", "plant_sim", "hw_driver", "controller", "estimator", "reference", "recorder")
+        if hardware is not None:
+            order = ("hw_driver", *(n for n in order if n != "hw_driver"))
+        for name in order:
             proc = procs.get(name)
             if proc is None or proc.poll() is not None:
                 continue

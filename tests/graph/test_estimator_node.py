@@ -117,3 +117,27 @@ def test_malformed_measurements_are_dropped_and_settings_retune_without_a_restar
     bus.advance(1.0)
     assert diags[-1][0] == WARN and "malformed +1" in diags[-1][1]
     assert np.isclose(node.est.rm[0], 4e-10)
+
+
+def test_a_measurement_stamped_far_ahead_holds_nothing_back():
+    """A foreign measurement stamped +1 h (a corrupt stamp) waits for a voltage that never comes: the
+    measurements after it, whose voltages come, go on at once (held behind it, the controller would get no
+    estimate: measured, a lockstep landing in the faults row stale-stamps)."""
+    bus, node, est, _ = _graph()
+    for k in range(5):
+        _feed(bus, k)
+    JS = bus.msg("sensor_msgs/msg/JointState")
+    far = bus.now_ns + 3_600_000 * T
+    bus.publish(contract.MEASUREMENT, joint_state(JS, far, position=(X0[0], X0[2]), velocity=(0.0, 0.0),
+                                                  effort=(X0[4], X0[5])))
+    bus.spin_once()
+    stamps = [_feed(bus, k) for k in range(5, 10)]
+    assert all(t in est for t in stamps) and far not in est
+    # measurement before voltage (either order is allowed): still its own voltage, one sample late at most
+    t = bus.now_ns + 10 * T
+    bus.publish(contract.MEASUREMENT, joint_state(JS, t, position=(X0[0], X0[2]), velocity=(0.0, 0.0),
+                                                  effort=(X0[4], X0[5])))
+    bus.spin_once()
+    bus.publish(contract.APPLIED, joint_state(JS, t, effort=U0))
+    bus.spin_once()
+    assert t in est and node.counts["unpaired"] == 0

@@ -19,8 +19,9 @@ $(STAMP): setup.py
 	  $(PY) -m pip install -qq --upgrade pip && $(PY) -m pip install -qq -e '.[test]'; }; rc=$$?; \
 	kill $$beat; \
 	if [ $$rc -eq 0 ]; then echo "make: $(VENV) ready in $$(( $$(date +%s) - t0 )) s"; fi; exit $$rc
-	@# compile the numba kernels once, here, with progress (demo, test and the nodes then load the cache)
-	$(PY) -c "from dem_ros.tools.common import warm_kernels; warm_kernels('make')"
+	@# compile the numba kernels once, here, with progress (demo, test and the nodes then load the cache),
+	@# with the offline closed loop of the default laws (the demo compares its run with it)
+	$(PY) -c "from dem_ros.tools.common import warm_kernels; warm_kernels('make', offline=[(None, None)])"
 	touch $(STAMP)
 
 # the figures' command also after a degraded run (exit 1: its bag is there, the summary says what is missing)

@@ -469,11 +469,11 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
     ch = open_channel(cfg["rig"]["url"], "board")
     peer = getattr(ch, "peer_url", cfg["rig"]["url"])
     stop = stop if stop is not None else [False]
-    rt = _realtime()
     import gc
 
-    gc.collect()
-    gc.freeze()
+    gc.collect()  # the start-up garbage now, at normal priority: a collection under SCHED_FIFO would stall
+    gc.freeze()  # the board's clock (and every process below it) for tens of ms
+    rt = _realtime()
     print("RIG " + json.dumps({"event": "listening", "url": peer, "scheduling": rt, "faults": len(faults)}), file=out, flush=True)
     dt_ns = round(board.dt * 1e9)
     t0 = time.monotonic_ns()

@@ -245,7 +245,8 @@ CATALOGUE: tuple[FaultSpec, ...] = (
               allowed=_KILLED, composed=False, min_duration=_RESTART_S),
     FaultSpec("kill-reference-long", "SIGKILL the reference, restart after 1 s", kill="reference", restart_after=1.0,
               allowed=_KILLED, composed=False, min_duration=_RESTART_S),
-    FaultSpec("kill-recorder", "SIGKILL the recorder (not restarted)", kill="recorder", allowed=_KILLED, composed=False),
+    FaultSpec("kill-recorder", "SIGKILL the recorder (not restarted)", kill="recorder", allowed=("levitating",),
+              composed=False, min_duration=8.0),  # the reference reports it after 2.5 s of silence
 )
 
 
@@ -413,6 +414,7 @@ def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
     try:
         m, _ = load_run(bag)
         out["problems"] += list(m.problems)
+        out["recorded_s"] = m.samples * cfg["plant_sim"]["dt"]  # experiment time the bag covers from t = 0
     except BagError as exc:  # the bag layer's own error (one line): reported as the data lost
         out["problems"].append(f"bag unreadable: {exc}")
     if truncated is not None and not any("truncated" in p for p in out["problems"]):
@@ -450,16 +452,22 @@ def run_row(spec: FaultSpec, *, compose: bool, scenario: str, duration: float, a
     logdir = bag.parent / (bag.name + "_logs")
     logs = {p.stem: str(p) for p in logdir.glob("*.log")} if logdir.is_dir() else logs
     levels = _log_levels(logs, j["fault_ns"] - 10**9)
+    exits = info.get("exits") or []  # node processes the launcher saw die (reported on its stderr at once)
     reported = ", ".join(j["diagnostics"]) or "no diagnostics"
     reported += "; log: " + (", ".join(f"{n} {c}" for n, c in sorted(levels.items())) or "nothing")
+    if exits:
+        reported += "; launch: " + ", ".join(f"{e['node']} exited ({e['code']})" for e in exits)
     rec = info.get("recorder") or {}
     dropped = sum(v.get("dropped", 0) for v in rec.values()) if rec else None
     lost = [f"{dropped} dropped"] if dropped else []
     lost += j["problems"]
     if info.get("summary_error"):
         lost.append(f"dem-ros launch could not summarise the bag: {info['summary_error']}")
-    if spec.kill == "recorder" and rec is None:
+    if spec.kill == "recorder" and not rec:
         lost.append("recorder counters lost with the process")
+    for e in exits:  # the launcher saw a node die: the recorder's death costs the rest of the recording
+        if e["node"] == "recorder" and "recorded_s" in j:
+            lost.insert(0, f"recording lost from t = {j['recorded_s']:.3f} s (recorder killed)")
     data_lost = "; ".join(lost) or "none"
     # the plant's loop status is at WARN whenever it waited for a command or held (lockstep on a loaded
     # machine: most runs); it counts as a report of the fault only at ERROR (a landing, a failure)

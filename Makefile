@@ -13,7 +13,7 @@ PYTHON ?= python3
 $(STAMP): setup.py
 	@echo "make: first run: creating $(VENV) and installing dem_ros with its test dependencies (numpy, scipy, numba, cyclonedds, ...)"
 	@t0=$$(date +%s); me=$$$$; \
-	( while sleep 5 && kill -0 $$me 2>/dev/null; do echo "make:   ... ($$(( $$(date +%s) - t0 )) s)"; done ) & beat=$$!; \
+	( while sleep 5 && kill -0 $$me 2>/dev/null; do echo "make: setting up $(VENV) (pip installs from the package index; minutes) ... ($$(( $$(date +%s) - t0 )) s)"; done ) & beat=$$!; \
 	{ echo "make: $(PYTHON) -m venv $(VENV)" && $(PYTHON) -m venv $(VENV) && \
 	  echo "make: $(PY) -m pip install -qq -e '.[test]'" && \
 	  $(PY) -m pip install -qq --upgrade pip && $(PY) -m pip install -qq -e '.[test]'; }; rc=$$?; \

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import hashlib
 import json
 import math
 import os
@@ -201,8 +202,11 @@ def warm_kernels(prefix: str, stream: IO[str] | None = None,
     from ..core.warmup import warm_up
     from .progress import Progress
 
-    cache = Path(configure())
-    cold = not (cache.is_dir() and any(cache.rglob("*.nbi")))
+    # numba keeps a source directory's kernels in <cache>/<dir name>_<sha1 of its absolute path> (its
+    # _UserProvidedCacheLocator): another checkout of the same version shares the cache directory, not the kernels
+    core = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, "core"))  # as numba: abspath, not resolve
+    mine = Path(configure()) / f"core_{hashlib.sha1(core.encode()).hexdigest()}"
+    cold = not (mine.is_dir() and any(mine.glob("*.nbi")))
     doing = ("compiling numba kernels (first run only; cached for later runs)" if cold
              else "loading the compiled numba kernels")
     bar = Progress(prefix, stream=stream, stage=f"{doing}: loading numba")

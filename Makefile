@@ -20,8 +20,10 @@ $(STAMP): setup.py
 	kill $$beat; \
 	if [ $$rc -eq 0 ]; then echo "make: $(VENV) ready in $$(( $$(date +%s) - t0 )) s"; fi; exit $$rc
 	@# compile the numba kernels once, here, with progress (demo, test and the nodes then load the cache),
-	@# with the offline closed loop of the default laws (the demo compares its run with it)
-	$(PY) -c "from dem_ros.tools.common import warm_kernels; warm_kernels('make', offline=[(None, None)])"
+	@# with the offline closed loop of the default laws (the demo compares its run with it). os._exit: the
+	@# interpreter's teardown after a compile (numba's LLVM state) took 10-16 s at load 10-27 with nothing
+	@# to show for it; the kernels are on disk by then
+	$(PY) -c "import os, sys; from dem_ros.tools.common import warm_kernels; warm_kernels('make', offline=[(None, None)]); sys.stdout.flush(); sys.stderr.flush(); os._exit(0)"
 	touch $(STAMP)
 
 # the figures' command also after a degraded run (exit 1: its bag is there, the summary says what is missing)

@@ -60,6 +60,7 @@ sample.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -170,8 +171,10 @@ class InputChecks:
 
     def reference(self, t_ns: int, ref: np.ndarray) -> ReferenceVerdict:
         """Check a received reference (8+ values) stamped ``t_ns``; accepted ones become ``last_ref``."""
-        y1, y2, d1, d2 = float(ref[0]), float(ref[1]), float(ref[2]), float(ref[3])
-        if not all(np.isfinite(np.asarray(ref[:8], float))):
+        # Python floats (one conversion; no numpy scalars): the controller checks every sample
+        vals = ref[:8].tolist() if isinstance(ref, np.ndarray) else list(ref[:8])
+        y1, y2, d1, d2 = vals[0], vals[1], vals[2], vals[3]
+        if not all(map(math.isfinite, vals)):
             return ReferenceVerdict(False, "reference_invalid", "non-finite values")
         age = self.age_ns(t_ns)
         if age is not None and self.max_age_ns > 0 and -age > self.max_age_ns + self.dt_ns:
@@ -193,7 +196,7 @@ class InputChecks:
                                         f"gap moved {step * 1e3:.3g} mm in {abs(t_ns - self.last_ref_t) * 1e-6:.3g} ms"
                                         f" (at most {allowed * 1e3:.3g} mm at {v * 1e3:.3g} mm/s)")
         if self.last_ref_t is None or t_ns >= self.last_ref_t:
-            self.last_ref[:] = np.asarray(ref[:8], float)
+            self.last_ref[:] = vals
             self.last_ref_t = t_ns
         return _OK
 

@@ -105,10 +105,19 @@ class EstimatorNode:
             volts[t] = self.u_prev = u
             pending = self.pending
             while pending and stamp_ns(pending[0]) <= t:  # voltages come in stamp order: none older will
-                m = pending.popleft()
-                if stamp_ns(m) != t and stamp_ns(m) not in volts:
-                    self._unpaired()
-                self._step(m)
+                self._release(pending.popleft(), t)
+            if len(pending) > 1 and stamp_ns(pending[-1]) <= t:
+                # the head waits for a voltage from far ahead (a rogue or corrupt stamp): it must not hold
+                # back the measurements behind it whose voltages came (arrival order = stamp order)
+                for m in [m for m in pending if stamp_ns(m) <= t]:
+                    pending.remove(m)
+                    self._release(m, t)
+
+    def _release(self, m, t: int) -> None:
+        """Step a waiting measurement now that the voltage stamped ``t`` came (its own, or a later one)."""
+        if stamp_ns(m) != t and stamp_ns(m) not in self.volts:
+            self._unpaired()
+        self._step(m)
 
     def on_measurement(self, msg) -> None:
         if len(msg.position) < 2 or len(msg.effort) < 2:
@@ -118,7 +127,10 @@ class EstimatorNode:
                                       f" dropped, expected 2 each ({n} so far)")
             return
         pending = self.pending
-        if self.u_prev is not None and (pending or stamp_ns(msg) not in self.volts):
+        t = stamp_ns(msg)
+        # wait for its voltage, or behind an older one waiting (a later-stamped one waiting - a rogue stamp far
+        # ahead - holds nothing back)
+        if self.u_prev is not None and (t not in self.volts or (pending and any(stamp_ns(m) < t for m in pending))):
             if len(pending) >= PENDING_MAX:  # the oldest one's voltage never came: go on with the latest one
                 self._unpaired()
                 self._step(pending.popleft())

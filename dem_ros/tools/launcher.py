@@ -381,8 +381,12 @@ def _config_from_args(args: Any) -> tuple[dict[str, dict[str, Any]], Scenario, f
     return cfg, sc, duration
 
 
-def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None) -> tuple[RunMetrics, dict[str, Any]]:
+def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None,
+           logs_dir: Path | None = None) -> tuple[RunMetrics, dict[str, Any]]:
     """Run the graph as ``dem-ros launch`` does: (metrics read back from the bag, launch facts).
+
+    ``logs_dir``: where the node logs go (default: beside the bag, ``<bag>_logs``; ``dem-ros faults``
+    keeps them off the small disk its disk-full row fills).
 
     The facts: ``composed``, ``offline_rms_error_um`` (the same configuration
     simulated offline), ``bag`` (None without recording), ``recorder`` (per-topic
@@ -432,7 +436,7 @@ def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None
         meta["hardware"] = hardware
     try:
         facts = run_graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id,
-                          status=not quiet, workdir=(bag.parent / (bag.name + "_logs")) if record else None,
+                          status=not quiet, workdir=logs_dir or ((bag.parent / (bag.name + "_logs")) if record else None),
                           compose=compose, hardware=hardware, faults=getattr(args, "fault", None) or (),
                           supervise=supervise)
         with Progress("dem-ros launch", None, enabled=not quiet) as bar:
@@ -467,7 +471,10 @@ def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None
             "hardware": hardware, "rig": facts.get("rig"),
             "recorder": facts["recorder"], "interrupted": facts["interrupted"], "exits": facts["exits"]}
     if record and bag.is_dir():  # the run-time summary travels with the bag (replay compares against it)
-        write_json(bag / "summary.json", metrics.to_dict() | info)
+        try:
+            write_json(bag / "summary.json", metrics.to_dict() | info)
+        except OSError as exc:  # a full disk (the recorder reported it): the summary is still printed
+            metrics.problems.append(f"summary.json not written beside the bag: {exc.strerror or exc}")
     return metrics, info
 
 

@@ -707,14 +707,20 @@ class Supervisor:
         for j in (0, 1):
             if not self._flux_gap[j]:
                 continue
-            y[j] = math.nan
             if not math.isfinite(i[j]):
+                y[j] = math.nan
                 continue
             self._lam_flux[j] += self.dt * (float(self._u_prev[j]) - self._r_est[j] * 0.5 * (self._i_flux[j] + i[j]))
             self._i_flux[j] = i[j]
             yk = y[1 - j]
-            if math.isfinite(yk) and abs(i[j]) > FLUX_GAP_MIN_CURRENT and self._lam_flux[j] > 0.0:
+            if math.isfinite(y[j]):  # the sensor is back: its gap, and the flux re-anchored on it
+                de = P * y[j] + Q * yk if math.isfinite(yk) else math.nan
+                if math.isfinite(de) and de > 0.0:
+                    self._lam_flux[j] = K2 * i[j] / de
+            elif math.isfinite(yk) and abs(i[j]) > FLUX_GAP_MIN_CURRENT and self._lam_flux[j] > 0.0:
                 y[j] = (K2 * i[j] / self._lam_flux[j] - Q * yk) / P
+            elif self.mode == Mode.LANDED:  # on the support, its current removed: the gap the landing ended at
+                y[j] = float(self.estimate[0, j])
         return y[0], y[1]
 
     def _coil_model(self, u: np.ndarray, ok0: bool, ok1: bool) -> None:

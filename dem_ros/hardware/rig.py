@@ -188,7 +188,6 @@ class Board:
             self.plant.x[:] = [g, 0.0, g, 0.0, 0.0, 0.0]
         self.last_counts = [0, 0]
         self.driver_fault = 0  # DRIVERj_FAULT bits seen while applying the last period's voltages
-        self.y_valid = np.array([self.plant.x[0], self.plant.x[2]])  # the board's last valid gaps [m]
         self.streaming = False
         self.c = BoardCounters()
         self.failed: str | None = None  # the plant's failure (rail contact): the emulation stops moving
@@ -376,15 +375,12 @@ class Board:
 
     def _board_gaps(self, y: np.ndarray, status: int) -> np.ndarray:
         """What the board's firmware feeds its supervisor: a channel out of range (GAPj_RANGE: dead or
-        saturated) is replaced by the other channel when that one is valid (the plate is nearly level),
-        else by its last valid value; the supervisor never steers by a dead sensor."""
-        bad = [bool(status & Status.GAP0_RANGE), bool(status & Status.GAP1_RANGE)]
+        saturated) is no sample (NaN): the supervisor rides its observer through a few, then lands with that
+        gap from its coil's flux (core/safety.py, "Lost sensor samples"); it never steers by a dead sensor,
+        nor by the other channel in its place."""
         for j in (0, 1):
-            if bad[j]:
-                y[j] = y[1 - j] if not bad[1 - j] else self.y_valid[j]
-        for j in (0, 1):
-            if not bad[j]:
-                self.y_valid[j] = y[j]
+            if status & (Status.GAP0_RANGE << j):
+                y[j] = math.nan
         return y
 
     def _nearest_count(self, j: int, d: float) -> int:

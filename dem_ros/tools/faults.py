@@ -550,7 +550,7 @@ def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duratio
         hold = (f"lockstep_timeout {cfg['plant_sim']['lockstep_timeout']:g} s" if cfg["plant_sim"]["lockstep"]
                 else f"hold_timeout {cfg['plant_sim']['hold_timeout'] * 1e3:g} ms")
         sent.append(f"down {down:.1f} s (SIGKILL to the restarted node's 'ready'; {hold})" if down is not None
-                    else f"the restarted node never said 'ready' ({hold})")
+                    else f"the restarted node was not ready again before the run ended ({hold})")
     detail = "; ".join([*inj.events, *sent, j.get("detail", "")]).strip("; ")
     return Row(spec.name, how, j["outcome"], j["min_gap_mm"], j.get("max_error_um"), reported, data_lost, ok, detail,
                j["diagnostics"])

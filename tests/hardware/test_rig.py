@@ -131,7 +131,7 @@ def landed(b, d):
 
 
 @pytest.mark.parametrize("spec, check", [
-    # a dead sensor: held by the driver, then a trip; the board lands on the other sensor
+    # a dead sensor: held by the driver, then a trip; the board (NaN for that channel) rides its observer, lands
     ("dropout:1@0.1+0.05", lambda b, d: landed(b, d) and "gap sensor 1" in d.reason and d.counters["sensor_holds"] >= 3),
     # one saturated sample: held for that sample, counted, no trip
     ("spike:2@0.1", lambda b, d: d.status_counts["GAP1_RANGE"] == 1 == d.counters["sensor_holds"] and d.state.name == "ACTIVE"),

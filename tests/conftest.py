@@ -5,12 +5,21 @@ At start the run leases one domain id for itself and puts it in ``ROS_DOMAIN_ID`
 (``domains.FOREIGN_DDS_ENV``): every process a test starts without choosing a domain - a CLI
 call, a launch - talks on that private domain, on loopback. A test that needs a domain of its
 own takes the ``domain_id`` fixture (or ``module_domain_id``).
+
+numba: the run sets ``NUMBA_CACHE_DIR`` (``dem_ros.core.numba_cache``: the cache of this version of the
+core's sources) for every process a test starts, and when the suite has not yet filled that cache (the
+first run after an edit of ``dem_ros/core``) compiles the kernels into it once, here, with progress: otherwise every node
+process of the first graph test compiles the same kernels at once, and on a loaded 2-core machine they
+were not ready within the launcher's 120 s. Only tests/tools/test_first_use.py uses an empty cache of its
+own (it proves first use).
 """
 
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Iterator
+from pathlib import Path
 
 import domains
 import pytest
@@ -25,6 +34,20 @@ def pytest_configure(config: pytest.Config) -> None:
         os.environ.pop(name, None)
     os.environ["ROS_DOMAIN_ID"] = str(_session.id)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    _fill_numba_cache()
+
+
+def _fill_numba_cache() -> None:
+    """Point this run and its child processes at the shared numba cache; compile into it once if it is empty."""
+    from dem_ros.core.numba_cache import configure
+
+    done = Path(configure()) / "warmed-by-tests"  # every kernel is in (not only those a killed process wrote)
+    if done.exists():
+        return  # each process loads what it needs
+    from dem_ros.tools.common import warm_kernels
+
+    warm_kernels("tests", stream=sys.stderr)  # compiles what is missing, loads the rest (seconds)
+    done.touch()
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:

@@ -32,18 +32,21 @@ from rospeer import LOCALHOST_XML, RJointState  # a ROS 2 process's configuratio
 
 DURATION = 4.0
 PREROLL = 1.0
-START_DELAY = 12.0
+#: the plant waits for this many readers of /dem/measurement before t = 0 (up to start_delay + 30 s): the
+#: estimator, the reference, the recorder and the test's gate, which joins once the parameter changes are made
+GATED_READERS = 4
 
 
 
 @pytest.fixture(scope="module")
 def graph_run(tmp_path_factory, module_domain_id):
-    """S1 for 4 s in the graph, recorded; parameter changes made while it runs."""
+    """S1 for 4 s in the graph, recorded; parameter changes made while its nodes are up, before t = 0 (the
+    plant starts once the test's gate reader joins, after the changes, or start_delay + 30 s after start-up)."""
     domain = module_domain_id
     root = tmp_path_factory.mktemp("graph")
     bag = root / "run"
     cfg = get_scenario("S1").config()
-    cfg["plant_sim"]["start_delay"] = START_DELAY  # parameter changes happen before the loop starts
+    cfg["plant_sim"]["min_subscribers"] = GATED_READERS  # parameter changes happen before the loop starts
     meta = {"scenario": "S1", "controller": "adaptive", "estimator": "kf", "transport": "dds", "config": cfg}
     out: dict = {}
     # a plain cyclonedds participant with ROS 2 names only, up before the graph (it misses no command);
@@ -68,18 +71,25 @@ def graph_run(tmp_path_factory, module_domain_id):
     while time.monotonic() < end and not (ctl_log.exists() and "ready" in ctl_log.read_text(errors="replace")):
         time.sleep(0.1)
 
-    def cli(*args):
-        r = subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", "param", *args, "--domain-id", str(domain)],
-                           capture_output=True, text=True, timeout=60)
-        return r.returncode, r.stdout + r.stderr
+    def cli(calls: dict) -> dict:
+        """Run ``dem-ros param ARGS`` for each entry at once; {key: (exit code, stdout + stderr)}."""
+        procs = {key: subprocess.Popen([sys.executable, "-m", "dem_ros.tools.cli", "param", *args, "--domain-id",
+                                        str(domain)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                 for key, args in calls.items()}
+        out_ = {}
+        for key, p in procs.items():
+            o, e = p.communicate(timeout=60)
+            out_[key] = (p.returncode, o + e)
+        return out_
 
-    changes = {
-        "first": cli("get", "controller", "k1"),
-        "accepted": cli("set", "controller", "w", "60"),
-        "rejected": cli("set", "controller", "k1", "0.5"),
-        "k1_after": cli("get", "controller", "k1"),
-        "w_after": cli("get", "controller", "w"),
-    }
+    # two rounds of concurrent calls (each call is a process start: seconds on a loaded machine). k1 is never
+    # changed (its set is rejected), so its first read may run beside the two sets; the reads after follow them
+    changes = cli({"first": ("get", "controller", "k1"), "accepted": ("set", "controller", "w", "60"),
+                   "rejected": ("set", "controller", "k1", "0.5")})
+    changes |= cli({"k1_after": ("get", "controller", "k1"), "w_after": ("get", "controller", "w")})
+    # the changes are made: the gate reader lets the plant start (it is never read: best effort, depth 1)
+    gate = DataReader(dp, Topic(dp, "rt/dem/measurement", RJointState),
+                      qos=Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(1)))
     # the run's commands, as any ROS 2 node would take them off the wire: rt/dem/command, our own type
     raw: list = []
     end = time.monotonic() + 300
@@ -91,6 +101,7 @@ def graph_run(tmp_path_factory, module_domain_id):
     assert "error" not in out, f"the graph failed: {out.get('error')!r}"
     time.sleep(0.5)
     raw += [m for m in reader.take(20000) if isinstance(m, RJointState)]
+    del gate
     dp.__del__()
     dom.__del__()
     return {"bag": bag, "facts": out["facts"], "changes": changes, "cfg": cfg, "logs": root / "logs", "raw_commands": raw}

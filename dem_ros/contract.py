@@ -29,7 +29,7 @@ from dataclasses import dataclass
 #: (Cyclone DDS maps higher ids to UDP ports that can collide with the ephemeral range on Linux/macOS)
 DOMAIN_ID_MAX = 101
 
-__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "HW_LOOP_STATUS", "LOOP_STATUS", "MAGNETS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic", "markdown_table"]
+__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "HW_LOOP_STATUS", "LOOP_STATUS", "MAGNETS", "RECORDER_STATUS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic", "markdown_table"]
 
 FRAME = "dem"
 FRAME_PREROLL = "dem/preroll"
@@ -37,6 +37,8 @@ FRAME_PREROLL = "dem/preroll"
 LOOP_STATUS = "plant_sim: loop"
 #: the hardware driver's loop status: the same keys, standing in for the plant's on a rig
 HW_LOOP_STATUS = "hw_driver: loop"
+#: the recorder's once-a-second status on /diagnostics (received / written / dropped); its silence is a lost recording
+RECORDER_STATUS = "recorder"
 MAGNETS = ("magnet_1", "magnet_2")
 #: y_d [m], y_d' [m/s], y_d'' [m/s^2], y_d''' [m/s^3] for both magnets.
 REFERENCE_NAMES = (

@@ -10,8 +10,9 @@ Modes (:class:`Mode`, the values of the device link's mode byte)::
     OFF --fresh command--> RUN --no fresh command--> HOLD --held > hold_timeout--> LAND --gaps >= landing_gap--> LANDED
                            RUN <--fresh command----- HOLD
     RUN/HOLD --limit trip, predicted gap trip, estop(), land(), requested LAND/OFF--> LAND   (latched)
-    RUN/HOLD --a current sensor without a finite sample for > SENSOR_BLIND_SAMPLES--> LAND  (latched)
-    any --a gap sensor without one for > SENSOR_BLIND_SAMPLES, or any non-finite sample while OFF/LANDED
+    RUN/HOLD --a current or gap sensor without a finite sample for > SENSOR_BLIND_SAMPLES--> LAND  (latched)
+    any --a gap sensor lost with no landing on its coil's flux possible (the other gap or this coil's current
+          missing too, or under FLUX_GAP_MIN_CURRENT), or any non-finite sample while OFF/LANDED
           or before the first finite one--> FAULT (0 V)                           (latched)
     LAND/LANDED/FAULT --clear()--> OFF
 
@@ -36,8 +37,8 @@ Modes (:class:`Mode`, the values of the device link's mode byte)::
   state the brake left (reference at the estimate, current integral at zero).
 * **LANDED**: the plate is on its support at ``landing_gap``; the current is
   driven to zero (a 0 V cut is safe only here, never at hover).
-* **FAULT**: 0 V: a gap sensor lost for good (no landing law without it, below), or a sensor
-  sample lost while the plate rests on its support or before the observer has a first estimate.
+* **FAULT**: 0 V: a gap sensor lost for good when its coil's flux cannot stand in for it (below), or a
+  sensor sample lost while the plate rests on its support or before the observer has a first estimate.
 
 Faults latch with a reason (``fault``); ``reason`` explains the current mode;
 ``counters`` count samples and events (``holds``, ``hold_events``, ``clipped``,
@@ -128,12 +129,20 @@ Beyond the bound:
 * a *current* sensor: latched trip, brake-and-land with the coil model for that coil (the gaps
   close the loop; the bias b absorbs the model's force error). Measured: from an 8 mm hover
   with m, K, R off (tests), descent <= landing_speed, never toward the rail.
-* a *gap* sensor: FAULT, 0 V: the plate drops onto its support (away from the rail, at the
-  fall speed, ~0.2 m/s from 8 mm, not landing_speed). No landing law without that gap was
-  found: the pitch of a plate is open-loop unstable under set currents, and a flux-integral
-  gap estimate drifts by the R error (1 % of R at 4 A: 0.8 V s/s against 0.55 V s of flux).
-  Measured: landing with the lost end assumed at the other end's gap + the last tilt hit the
-  rail in 5 of 5 plant variants. So this case is a drop, not a landing (an open item).
+* a *gap* sensor j (the other gap and coil j's current still measured): latched trip, landing with
+  gap j from coil j's flux: lambda_j starts at the coil model's 2K i_j/delta_j (delta_j from the
+  observer, which rode the blind samples) and is integrated from what the board applies and measures,
+  lambda_j += T (u_j - R_j (i_j,prev + i_j)/2) with R_j as learned at hover (frozen from the loss);
+  delta_j = 2K i_j / lambda_j, y_j = (delta_j - Q y_k) / P (K cancels against the start). That gap
+  feeds the observer as a measurement; everything else runs unchanged. Its error is the integral of
+  the R_j error times i: 0.02 ohm (0.07 % of a 28 ohm coil, what the learning reached in the test)
+  at 5 A is 0.1 V s/s against 0.3 V s of flux, i.e. ~0.7 mm after 0.6 s. Measured (tests, 8 mm
+  hover, 5 plant variants x 2 ends): peak descent 5.1-7.0 mm/s (landing_speed 10) with R nominal
+  and m, K off by 25 %, 3 kg added; 11.2 mm/s with R 1.4x; never toward the rail; with R 0.75x the
+  board declares LANDED with the lost end's true gap at 9.5-9.7 mm (then its current is removed:
+  the rest is a fall of <= 1.7 mm onto the support, away from the rail). Without the other gap or
+  this coil's current (or under FLUX_GAP_MIN_CURRENT): FAULT, 0 V, the plate drops onto its support
+  (away from the rail, ~0.2 m/s from 8 mm).
 
 The landing law (uses only what a board has: measured gaps y (2,) [m] and coil
 currents i (2,) [A], nominal parameters m, R, K, L, l, I, N1, N2, g)
@@ -244,6 +253,7 @@ BOUND_MARGIN = 0.25  # the braking bound's model margin e: K, 1/m, 1/I each with
 INNOVATION_LIMIT = 5e-4  # m: a single sample this far off the observer's prediction is set aside as wild
 R_LEARN_TIME = 0.05  # s: the coil model learns each coil's resistance with this time constant
 SENSOR_BLIND_SAMPLES = 5  # samples a gap/current channel may give nothing finite before the board lands
+FLUX_GAP_MIN_CURRENT = 0.5  # A: below this a coil's flux tells too little of its gap (a lost gap sensor: FAULT)
 _SENSOR_NAMES = ("gap sensor 1", "gap sensor 2", "current sensor 1", "current sensor 2")
 
 
@@ -544,6 +554,9 @@ class Supervisor:
         self._r_est = np.full(2, c["R"])
         self._lam_pred = np.zeros(2)
         self._u_prev = np.zeros(2)  # each coil's resistance, learned while its current is measured [ohm]
+        self._flux_gap = [False, False]  # gap sensor j given up: its gap from coil j's flux (_gaps_from_flux)
+        self._lam_flux = np.zeros(2)  # that coil's flux linkage, integrated from its voltage and current [V s]
+        self._i_flux = np.zeros(2)  # its current at the last sample [A]
         self.stop_gap = np.full(2, math.inf)
         self.min_stop_gap = math.inf
         self.mode = Mode(mode)
@@ -599,6 +612,7 @@ class Supervisor:
         self.fault = ""
         self._t_fresh = None
         self._braking = False
+        self._flux_gap = [False, False]
 
     def _trip(self, reason: str) -> None:
         if not self.fault:
@@ -624,6 +638,8 @@ class Supervisor:
         """
         y0, y1 = (math.nan, math.nan) if y is None else (float(y[0]), float(y[1]))
         i0, i1 = (math.nan, math.nan) if i is None else (float(i[0]), float(i[1]))
+        if self._flux_gap[0] or self._flux_gap[1]:  # a gap sensor given up: its gap from the coil's flux
+            y0, y1 = self._gaps_from_flux(y0, y1, i0, i1)
         ok = (math.isfinite(y0), math.isfinite(y1), math.isfinite(i0), math.isfinite(i1))
         if not all(ok) and self._sensor_gap(t_ns, ok, (y0, y1, i0, i1)):
             return self.u
@@ -644,10 +660,25 @@ class Supervisor:
             self._obs_ready = True
         else:
             _observe(self._p, self._Lo, self.estimate, self._acc, y0, y1, i0, i1, self._gated, self._blind_now, self._wild)
-        lost = [n for n in range(4) if self._blind[n] > SENSOR_BLIND_SAMPLES]
+        lost = [n for n in range(4) if self._blind[n] > SENSOR_BLIND_SAMPLES and not (n < 2 and self._flux_gap[n])]
         if lost and self.mode != Mode.FAULT:
             n = lost[0]
-            if n < 2:  # a gap sensor: no landing law without it (module docstring, "Lost sensor samples")
+            k = 1 - n
+            if n < 2 and self.mode in (Mode.RUN, Mode.HOLD, Mode.LAND) and not self._flux_gap[k] \
+                    and self._blind[k] == 0 and ok[2 + n] and abs(self._i_last[n]) > FLUX_GAP_MIN_CURRENT:
+                # a gap sensor, the other gap and this coil's current measured: land on the coil's flux
+                self._flux_gap[n] = True
+                self._lam_flux[n] = self._lam[n]
+                self._i_flux[n] = self._i_last[n]
+                self._blind[n] = 0
+                self.counters["sensor_losses"] += 1
+                why = (f"{_SENSOR_NAMES[n]} lost: no finite sample for {SENSOR_BLIND_SAMPLES + 1} samples "
+                       f"(> {SENSOR_BLIND_SAMPLES}): landing on gap {n + 1} from coil {n + 1}'s flux")
+                if self.mode == Mode.LAND:
+                    self.fault = self.fault or why
+                else:
+                    self._trip(why)
+            elif n < 2:  # no landing law without that gap (module docstring, "Lost sensor samples")
                 if not self.counters["sensor_losses"]:
                     self.counters["sensor_losses"] += 1
                 self.counters["trips"] += 1
@@ -665,6 +696,33 @@ class Supervisor:
         self._coil_model(u, ok[2], ok[3])
         return u
 
+    def _gaps_from_flux(self, y0: float, y1: float, i0: float, i1: float) -> tuple[float, float]:
+        """The gap of a load point whose sensor was given up, from its coil's flux (module docstring, "Lost
+        sensor samples"): lambda_j += T (u_j - R_j (i_j,prev + i_j)/2) (the voltage applied over the last
+        period, trapezoid current), delta_j = 2K i_j / lambda_j, y_j = (delta_j - Q y_k) / P with the other
+        load point's measured gap y_k. NaN (no sample) where it cannot be formed."""
+        y = [y0, y1]
+        i = (i0, i1)
+        P, Q, K2 = self._p[_P], self._p[_Q], 2.0 * self._p[_K]
+        for j in (0, 1):
+            if not self._flux_gap[j]:
+                continue
+            if not math.isfinite(i[j]):
+                y[j] = math.nan
+                continue
+            self._lam_flux[j] += self.dt * (float(self._u_prev[j]) - self._r_est[j] * 0.5 * (self._i_flux[j] + i[j]))
+            self._i_flux[j] = i[j]
+            yk = y[1 - j]
+            if math.isfinite(y[j]):  # the sensor is back: its gap, and the flux re-anchored on it
+                de = P * y[j] + Q * yk if math.isfinite(yk) else math.nan
+                if math.isfinite(de) and de > 0.0:
+                    self._lam_flux[j] = K2 * i[j] / de
+            elif math.isfinite(yk) and abs(i[j]) > FLUX_GAP_MIN_CURRENT and self._lam_flux[j] > 0.0:
+                y[j] = (K2 * i[j] / self._lam_flux[j] - Q * yk) / P
+            elif self.mode == Mode.LANDED:  # on the support, its current removed: the gap the landing ended at
+                y[j] = float(self.estimate[0, j])
+        return y[0], y[1]
+
     def _coil_model(self, u: np.ndarray, ok0: bool, ok1: bool) -> None:
         """Predict the currents of the next sample from the voltages u (2,) [V] just applied:
         lambda+ = lambda + T (u - R_j i), i+ = lambda+ delta / (2K) (u = R i + d lambda/dt, Eq. 5), with
@@ -675,7 +733,7 @@ class Supervisor:
         for j, ok in ((0, ok0), (1, ok1)):
             ij = self._i_last[j]
             lam = K2 * ij / de[j]
-            if ok and abs(ij) > 0.2 and self._lam[j] != 0.0:  # R_j from the last sample's voltage
+            if ok and abs(ij) > 0.2 and self._lam[j] != 0.0 and not self._flux_gap[j]:  # R_j from the last voltage
                 r = (float(self._u_prev[j]) - (lam - self._lam[j]) / self.dt) / ij
                 r = min(max(r, 0.5 * self._p[_R]), 2.0 * self._p[_R])
                 self._r_est[j] += self.dt / R_LEARN_TIME * (r - self._r_est[j])

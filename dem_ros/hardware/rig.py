@@ -188,11 +188,12 @@ class Board:
             self.plant.x[:] = [g, 0.0, g, 0.0, 0.0, 0.0]
         self.last_counts = [0, 0]
         self.driver_fault = 0  # DRIVERj_FAULT bits seen while applying the last period's voltages
-        self.y_valid = np.array([self.plant.x[0], self.plant.x[2]])  # the board's last valid gaps [m]
         self.streaming = False
         self.c = BoardCounters()
         self.failed: str | None = None  # the plant's failure (rail contact): the emulation stops moving
         self.min_gap = math.inf  # the true plate's smallest load-point or magnet gap since the release [m]
+        self.land_speed_max = 0.0  # the true plate's fastest descent (a load point, away from the rail) while the
+        #                            board lands it, up to and including the touch-down on the support [m/s]
 
     def _gap_table(self, hw: Mapping[str, Any]) -> None:
         n = np.arange(self.full + 1, dtype=float)
@@ -329,6 +330,8 @@ class Board:
         if self.released_at is not None:
             P, Q = self._pq
             self.min_gap = min(self.min_gap, x[0], x[2], P * x[0] + Q * x[2], Q * x[0] + P * x[2])
+        if self.sup.mode == Mode.LAND:  # before the support clamps it: the touch-down speed counts
+            self.land_speed_max = max(self.land_speed_max, x[1], x[3])
         sup = self.rc["support_gap"]
         for j in (0, 2):  # the support: the plate cannot move beyond it
             if x[j] >= sup:
@@ -372,15 +375,12 @@ class Board:
 
     def _board_gaps(self, y: np.ndarray, status: int) -> np.ndarray:
         """What the board's firmware feeds its supervisor: a channel out of range (GAPj_RANGE: dead or
-        saturated) is replaced by the other channel when that one is valid (the plate is nearly level),
-        else by its last valid value; the supervisor never steers by a dead sensor."""
-        bad = [bool(status & Status.GAP0_RANGE), bool(status & Status.GAP1_RANGE)]
+        saturated) is no sample (NaN): the supervisor rides its observer through a few, then lands with that
+        gap from its coil's flux (core/safety.py, "Lost sensor samples"); it never steers by a dead sensor,
+        nor by the other channel in its place."""
         for j in (0, 1):
-            if bad[j]:
-                y[j] = y[1 - j] if not bad[1 - j] else self.y_valid[j]
-        for j in (0, 1):
-            if not bad[j]:
-                self.y_valid[j] = y[j]
+            if status & (Status.GAP0_RANGE << j):
+                y[j] = math.nan
         return y
 
     def _nearest_count(self, j: int, d: float) -> int:
@@ -436,6 +436,7 @@ class Board:
                 "supervisor": self.sup.snapshot(),
                 "gaps_mm": [round(x[0] * 1e3, 4), round(x[2] * 1e3, 4)], "failed": self.failed or "",
                 "min_gap_mm": round(self.min_gap * 1e3, 4) if math.isfinite(self.min_gap) else None,
+                "landings": self.sup.counters["landings"], "land_speed_max_mm_s": round(self.land_speed_max * 1e3, 3),
                 "faults": [{"kind": f.kind, "channel": f.channel, "start": f.start, "hits": f.hits} for f in self.faults]}
 
 
@@ -469,11 +470,11 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
     ch = open_channel(cfg["rig"]["url"], "board")
     peer = getattr(ch, "peer_url", cfg["rig"]["url"])
     stop = stop if stop is not None else [False]
-    rt = _realtime()
     import gc
 
-    gc.collect()
-    gc.freeze()
+    gc.collect()  # the start-up garbage now, at normal priority: a collection under SCHED_FIFO would stall
+    gc.freeze()  # the board's clock (and every process below it) for tens of ms
+    rt = _realtime()
     print("RIG " + json.dumps({"event": "listening", "url": peer, "scheduling": rt, "faults": len(faults)}), file=out, flush=True)
     dt_ns = round(board.dt * 1e9)
     t0 = time.monotonic_ns()
@@ -504,7 +505,8 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
                 s = board.summary()
                 print("RIG " + json.dumps({"event": "status", "t_s": round(board.n * board.dt, 3), "mode": s["mode"],
                                            "gaps_mm": s["gaps_mm"], "late_over_1ms": late_over_1ms,
-                                           "rx_frames": s["rx_frames"], "fresh": s["commands_fresh"]}), file=out, flush=True)
+                                           "rx_frames": s["rx_frames"], "fresh": s["commands_fresh"],
+                                           "landings": s["landings"], "reason": s["reason"]}), file=out, flush=True)
             if duration and board.n * board.dt >= duration:
                 break
     finally:

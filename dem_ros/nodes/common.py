@@ -39,12 +39,18 @@ _EMPTY: list[float] = []  # shared by messages without that field; never modifie
 
 
 def all_finite(values) -> bool:
-    """True when every element of a short vector is finite (~10x cheaper than np.all(np.isfinite()))."""
+    """True when every element of a short vector (list, tuple or ndarray) is finite (~10x cheaper than
+    np.all(np.isfinite()) on 6 values; an ndarray is converted with one ``tolist()`` call first, 3x
+    cheaper than iterating its numpy scalars)."""
+    if type(values) is np.ndarray:
+        values = values.tolist()
     return all(map(_isfinite, values))
 
 
 def clipped(values, limit: float) -> list[float]:
     """Each element limited to [-limit, limit], as Python floats (NaN stays NaN)."""
+    if type(values) is np.ndarray:
+        return [min(max(v, -limit), limit) for v in values.tolist()]
     return [min(max(float(v), -limit), limit) for v in values]
 
 

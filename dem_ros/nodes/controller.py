@@ -65,7 +65,7 @@ RESTING_S = 0.2  # s: resting this long under the running law -> the board lande
 ECHO_SAMPLES = 20  # premagnetised samples the board must echo before the law starts (5 coil time constants)
 #: counters that make the once-a-second diagnostics WARN when they grew
 _WARN_KEYS = ("stale", "future", "non_finite_input", "non_finite_output", "reference_range", "reference_rate",
-              "reference_future", "reference_invalid", "reference_held", "waiting_for_applied")
+              "reference_future", "reference_invalid", "reference_held", "waiting_for_applied", "plant_stamp_jump")
 
 
 class ControllerNode:
@@ -94,7 +94,7 @@ class ControllerNode:
         self.counts = dict.fromkeys(("steps", "stale", "future", "non_finite_input", "non_finite_output",
                                      "reference_mismatch", "reference_range", "reference_rate", "reference_future",
                                      "reference_invalid", "reference_held", "waiting_for_applied", "starts",
-                                     "liftoffs", "landed_stops"), 0)
+                                     "liftoffs", "landed_stops", "plant_stamp_jump"), 0)
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
@@ -180,7 +180,10 @@ class ControllerNode:
                 self.u_applied = np.zeros(2)
             self.u_applied[0] = msg.effort[0]
             self.u_applied[1] = msg.effort[1]
-            self.checks.plant_stamp(stamp_ns(msg))
+            if not self.checks.plant_stamp(stamp_ns(msg)):  # a lone jump of the experiment clock: not taken
+                self.counts["plant_stamp_jump"] += 1
+                self._warn_every("plant_stamp_jump", "applied voltage stamped far from the plant's clock: not taken"
+                                 " as the clock until the next sample confirms it")
 
     def on_estimate(self, msg) -> None:
         t = stamp_ns(msg)

@@ -2,8 +2,10 @@
 
 On each ``/dem/measurement`` it takes the voltage applied over the last sample
 (``/dem/applied_voltage`` of the same stamp; the two topics may arrive in either
-order, so a measurement whose voltage is not there yet waits for it, at most
-until the next measurement), runs one predict/update and
+order, so a measurement whose voltage is not there yet waits for it, in stamp order
+with the measurements after it, until a voltage of its stamp or a later one arrives or
+``PENDING_MAX`` wait; a link that delivers a burst of samples, taken topic by topic,
+hands over several measurements before their voltages), runs one predict/update and
 publishes ``/dem/state_estimate`` with the measurement's stamp. Gap rates are
 used when the first measurement delivers them (a non-empty ``velocity``; a later
 one without them updates without rates). Type ``none`` passes the measurement through.
@@ -26,6 +28,7 @@ from __future__ import annotations
 
 import math
 import sys
+from collections import deque
 
 import numpy as np
 
@@ -38,6 +41,9 @@ from .common import OK, WARN, Diagnostics, JointStates, all_finite, meas_into, s
 __all__ = ["EstimatorNode", "main"]
 
 KEEP = 32  # applied voltages kept by stamp
+#: measurements that may wait for their applied voltages (a burst from the hw_driver's link: its frames
+#: arrive together and the executor takes the topics one after the other, measurements before voltages)
+PENDING_MAX = 8
 
 
 class EstimatorNode:
@@ -53,7 +59,7 @@ class EstimatorNode:
         self.u_next = 0
         self.z = np.zeros(6)  # the measurement being processed [d1, d1', d2, d2', i1, i2]
         self.u_zero = np.zeros(2)
-        self.pending = None  # a measurement waiting for its applied voltage
+        self.pending: deque = deque()  # measurements waiting for their applied voltages, oldest first
         self.publishing = False  # the filter has converged since its (re)start (or started in the pre-roll)
         # /diagnostics "estimator", once a second: WARN after rejected or dropped samples, ERROR on a sensor fault
         gates = [f"gap{j}_{why}" for j in (1, 2) for why in ("out_of_range", "innovation")]
@@ -98,9 +104,20 @@ class EstimatorNode:
             u[1] = e[1]
             volts[t] = self.u_prev = u
             pending = self.pending
-            if pending is not None and stamp_ns(pending) == t:
-                self.pending = None
-                self._step(pending)
+            while pending and stamp_ns(pending[0]) <= t:  # voltages come in stamp order: none older will
+                self._release(pending.popleft(), t)
+            if len(pending) > 1 and stamp_ns(pending[-1]) <= t:
+                # the head waits for a voltage from far ahead (a rogue or corrupt stamp): it must not hold
+                # back the measurements behind it whose voltages came (arrival order = stamp order)
+                for m in [m for m in pending if stamp_ns(m) <= t]:
+                    pending.remove(m)
+                    self._release(m, t)
+
+    def _release(self, m, t: int) -> None:
+        """Step a waiting measurement now that the voltage stamped ``t`` came (its own, or a later one)."""
+        if stamp_ns(m) != t and stamp_ns(m) not in self.volts:
+            self._unpaired()
+        self._step(m)
 
     def on_measurement(self, msg) -> None:
         if len(msg.position) < 2 or len(msg.effort) < 2:
@@ -109,16 +126,22 @@ class EstimatorNode:
                 self.node.logger.warn(f"measurement with {len(msg.position)} gaps and {len(msg.effort)} currents"
                                       f" dropped, expected 2 each ({n} so far)")
             return
-        if self.pending is not None:  # its voltage never came: go on with the latest one
-            n = self.diag.count("unpaired")
-            if n in (1, 10, 100, 1000):
-                self.node.logger.warn(f"measurement without the applied voltage of its stamp ({n} so far)")
-            pending, self.pending = self.pending, None
-            self._step(pending)
-        if self.u_prev is not None and stamp_ns(msg) not in self.volts:
-            self.pending = msg  # the voltage of this sample is still on its way
+        pending = self.pending
+        t = stamp_ns(msg)
+        # wait for its voltage, or behind an older one waiting (a later-stamped one waiting - a rogue stamp far
+        # ahead - holds nothing back)
+        if self.u_prev is not None and (t not in self.volts or (pending and any(stamp_ns(m) < t for m in pending))):
+            if len(pending) >= PENDING_MAX:  # the oldest one's voltage never came: go on with the latest one
+                self._unpaired()
+                self._step(pending.popleft())
+            pending.append(msg)  # the voltage of this sample (or of one before it) is still on its way
             return
         self._step(msg)
+
+    def _unpaired(self) -> None:
+        n = self.diag.count("unpaired")
+        if n in (1, 10, 100, 1000):
+            self.node.logger.warn(f"measurement without the applied voltage of its stamp ({n} so far)")
 
     def _step(self, msg) -> None:
         z = self.z

@@ -12,7 +12,17 @@ as it arrives (one lock serialises the driver between the two threads).
 
 The experiment's t = 0 is ``preroll`` s after the driver became active (its first
 forwarded command): frames before it carry ``frame_id = dem/preroll``. After ``duration``
-s the node stops publishing, lands the plate (disarm: LAND) and exits.
+s the node stops publishing, lands the plate (disarm: LAND) and exits once the board has
+landed it. The loop status tells that end-of-run landing (``landing_reason`` "end of the
+run: ...", ``failed`` False) from a failure (``failed`` True, ``fail_time_s`` and ``fault``:
+when and why the driver first faulted during the experiment; ``landing_reason``: why the
+board landed during it).
+
+Stopped from outside (Ctrl-C / SIGTERM, e.g. the launcher at the end of a run): the driver
+lands the plate *before* it lets go of the link: it disarms (LAND in reply to every sensor
+frame) until the board reports LAND or LANDED, for at most ``STOP_LANDING_S``; only then does
+the process exit. A driver that dies without that still lands the plate, by the board's own
+link watchdog (hold, then LAND), which the run then reports as a watchdog landing.
 
 State and link statistics: ``/dem/hw/state`` (DiagnosticStatus, latched, 10 Hz and on
 every change) and ``/diagnostics`` (1 Hz). Requests: the services ``~/arm``, ``~/disarm``,
@@ -38,7 +48,7 @@ import numpy as np
 from .. import contract
 from ..hardware.channel import ChannelError, open_channel
 from ..hardware.driver import DriverState, HwDriver, Sample
-from ..hardware.link import HELLO_REQUEST, Mode, encode
+from ..hardware.link import HELLO_REQUEST, Mode, Status, encode
 from ..realtime import config_from_env
 from ..transport import Node, TransportError, run_node
 from .common import OK, WARN, CommandSource, Diagnostics, LatencyStats, diag_array, joint_state, stamp_ns
@@ -51,6 +61,7 @@ WARN_ON = ("lost", "duplicated", "reordered", "late", "corrupt", "hold_samples",
            "link_loss", "watchdog", "commands_foreign")
 #: board modes that are reported as a standing WARN (the board is landing or has landed the plate)
 BOARD_DOWN = (Mode.LAND, Mode.LANDED, Mode.FAULT)
+STOP_LANDING_S = 1.0  # s: stopped from outside, the driver waits at most this for the board to take up LAND
 
 
 class HwDriverNode:
@@ -87,6 +98,10 @@ class HwDriverNode:
         self.finished = False
         self.t_finish = 0.0  # when the run ended and the landing began (monotonic s)
         self.failed = ""  # the first fault during the experiment
+        self.fail_t: float | None = None  # when it came [s on the experiment clock]
+        self.board_down: tuple[float, str] | None = None  # (t [s], why) the board landed during the experiment
+        self.end_landed_s: float | None = None  # the end-of-run landing took this long [s] (None: not yet landed)
+        self.closing = False  # the node is shut down: no more publishing, the link lands the plate (close())
         self.rx_ns = np.zeros(RING, dtype=np.int64)  # steady receive time of each sample, by seq
         self.lat = LatencyStats()
         self.t_boot = time.monotonic()
@@ -186,10 +201,10 @@ class HwDriverNode:
                     if sample is not None:
                         self.rx_ns[sample.seq % RING] = steady
                         try:
-                            self._publish(sample)
-                        except TransportError:  # the node is shutting down under us (SIGINT): stop reading
-                            self.stop.set()
-                            return
+                            if not self.closing:
+                                self._publish(sample)
+                        except TransportError:  # the node is shut down under us (SIGINT): no more publishing;
+                            self.closing = True  # the link stays up until close() has landed the plate
                 if not ready:
                     self.drv.check(time.monotonic_ns())
 
@@ -206,16 +221,27 @@ class HwDriverNode:
             if self.n_end and s.seq - self.epoch_seq >= self.n_end:
                 self.finished = True
                 self.t_finish = time.monotonic()
-                self.drv.disarm()  # the run is over: land
+                self.drv.disarm()  # the run is over: land (LAND in reply to the next sensor frame)
                 self.node.logger.info(f"finished {self.cfg['duration']:g} s: landing")
                 return
         else:
             frame = contract.FRAME_PREROLL
-        if self.drv.state == DriverState.FAULT and frame == contract.FRAME and not self.failed:
-            self.failed = self.drv.reason
+        if frame == contract.FRAME:
+            self._watch_experiment(s)
         JS = self.JS
         self.pub_applied.publish(joint_state(JS, s.stamp_ns, effort=s.applied, frame=frame))
         self.pub_meas.publish(joint_state(JS, s.stamp_ns, position=s.gap, effort=s.current, frame=frame))
+
+    def _watch_experiment(self, s: Sample) -> None:
+        """The first driver fault and the first board landing during the experiment (what the summary reports)."""
+        assert self.epoch_seq is not None
+        t = (s.seq - self.epoch_seq) * self.cfg["dt"]
+        d = self.drv
+        if d.state == DriverState.FAULT and not self.failed:
+            self.failed, self.fail_t = d.reason or "fault", t
+        if self.board_down is None and Mode(d.board_mode) in BOARD_DOWN:
+            why = d.reason or ("its link watchdog (no command)" if s.status & Status.LINK_TIMEOUT else "its own trip")
+            self.board_down = (t, f"board {Mode(d.board_mode).name} at t = {t:.3f} s: {why}")
 
     def on_command(self, msg, gid: bytes) -> None:
         if not self.source.accepts(gid) or len(msg.effort) < 2:
@@ -242,7 +268,9 @@ class HwDriverNode:
             self.ch.send(encode(HELLO_REQUEST))
         self.publish_state()
         self.report_faults()
-        if self.finished and (self.drv.board_mode in (Mode.OFF, Mode.LANDED) or time.monotonic() - self.t_finish > 5.0):
+        if self.finished and self.drv.board_mode in (Mode.OFF, Mode.LANDED) and self.end_landed_s is None:
+            self.end_landed_s = time.monotonic() - self.t_finish
+        if self.finished and (self.end_landed_s is not None or time.monotonic() - self.t_finish > 5.0):
             self.finish()
 
     def report_faults(self) -> None:
@@ -279,6 +307,8 @@ class HwDriverNode:
         with self.lock:
             st = self.drv.status()
         k = 0 if self.drv.last_sample is None or self.epoch_seq is None else max(self.drv.last_sample.seq - self.epoch_seq, 0)
+        if self.n_end:
+            k = min(k, self.n_end)  # the experiment's samples (the end-of-run landing is not part of it)
         lat = self.lat.summary_us()
         wall = k * self.cfg["dt"]
         cpu = time.process_time() - self.cpu0 if self.cpu0 is not None else 0.0
@@ -287,8 +317,22 @@ class HwDriverNode:
                 **epoch, "realtime_factor": 1.0, "lockstep": False,
                 "cpu_s": round(cpu, 3), "wall_s": round(wall, 3),
                 "latency_p50_us": round(lat["p50"], 1), "latency_p99_us": round(lat["p99"], 1),
-                "latency_max_us": round(lat["max"], 1), "failed": bool(self.failed), "fault": self.failed, **st,
+                "latency_max_us": round(lat["max"], 1), "failed": bool(self.failed), "fault": self.failed,
+                **({"fail_time_s": round(self.fail_t, 3)} if self.fail_t is not None else {}),
+                "holds": st["hold_samples"], **self._landing(), **st,
                 **self.source.values()}
+
+    def _landing(self) -> dict[str, Any]:
+        """``landing`` / ``landing_reason`` of the loop status: a board landing during the experiment (its time and
+        why), else the end-of-run landing (expected: ``failed`` stays False)."""
+        if self.board_down is not None:
+            return {"landing": True, "landing_reason": self.board_down[1]}
+        if not self.finished:
+            return {"landing": False, "landing_reason": ""}
+        end = f"end of the run: disarmed after {self.cfg['duration']:g} s, "
+        end += (f"the board landed the plate in {self.end_landed_s:.2f} s" if self.end_landed_s is not None
+                else f"board {Mode(self.drv.board_mode).name.lower()}")
+        return {"landing": True, "landing_reason": end}
 
     def status(self) -> None:
         s = self.stats()
@@ -312,6 +356,17 @@ class HwDriverNode:
         self.node.timer(0.3, self.node.shutdown)
 
     def close(self) -> None:
+        """After the node is shut down: land the plate before letting go of the link (disarm: LAND in reply to
+        every sensor frame, until the board reports LAND / LANDED / OFF / FAULT or ``STOP_LANDING_S``), then close it."""
+        self.closing = True
+        end = time.monotonic() + STOP_LANDING_S
+        if self.reader.is_alive():
+            with self.lock:
+                if Mode(self.drv.board_mode) in (Mode.RUN, Mode.HOLD):
+                    self.drv.disarm()
+                    self.node.logger.info("stopped: landing the plate before closing the link")
+            while time.monotonic() < end and Mode(self.drv.board_mode) in (Mode.RUN, Mode.HOLD):
+                time.sleep(0.005)
         self.stop.set()
         self.reader.join(timeout=1.0)
         self.ch.close()
@@ -378,7 +433,17 @@ def request(verb: str, reason: str = "", *, domain_id: int | None = None, timeou
 
 
 def main(args=None) -> int:
-    return run_node("hw_driver", HwDriverNode, args=args)
+    made: list[HwDriverNode] = []
+
+    def setup(node: Node) -> HwDriverNode:
+        made.append(HwDriverNode(node))
+        return made[-1]
+
+    try:
+        return run_node("hw_driver", setup, args=args)
+    finally:
+        for drv in made:  # stopped or finished: the plate is landed before the link is let go
+            drv.close()
 
 
 if __name__ == "__main__":

@@ -50,7 +50,7 @@ class RecorderNode:
         # were dropped. A write failure (disk full) stops recording: logged at once from the writer thread,
         # latched as ERROR and published by a timer on the node's own thread within 0.1 s
         self._failure: str | None = None
-        self.diag = Diagnostics(node, "recorder", warn_on=("dropped",), values=self._totals)
+        self.diag = Diagnostics(node, contract.RECORDER_STATUS, warn_on=("dropped",), values=self._totals)
         node.timer(0.1, self._report_failure)
         # the controller's state is the last message of a loop cycle: write while the loop sleeps
         self.rec = Recorder(bag, topics, meta, kick_on=contract.CONTROLLER_STATE.name, on_error=self._on_error)

@@ -15,6 +15,12 @@ the plate is (the first measured gaps) until the plant's loop status gives ``epo
 resumes the schedule at the sample the plant is at (t = stamp - epoch), gliding from there
 through M(s): the step times stay those of the experiment, never re-based to the restart.
 
+The recording is watched here, by a node that lives on the loop's path: the recorder reports on
+``/diagnostics`` once a second (status ``recorder``); after it has been seen, ``RECORDER_SILENT_S``
+without a report latches ERROR on the status ``recording`` (published from this node) and logs it, with
+the experiment time of the recorder's last report: a recorder killed or hung loses the recording from
+there, and nobody else alive can say so (the bag ends without a word).
+
 Implausible measurements are refused (counted, logged once a second), never acted on: fewer than two
 gaps, a stamp more than ``FUTURE_S`` ahead of this node's clock (a rogue or broken clock: a +1 h stamp
 would otherwise make the node compute an hour of reference before it answers again), or a jump of
@@ -38,6 +44,7 @@ __all__ = ["ReferenceNode", "main"]
 PREROLL_KEEP = 1000  # pre-roll gaps whose median is the rest (1 s: the default pre-roll; bounded per sample)
 FUTURE_S = 1.0  # stamps may lead this node's clock by transport jitter, never by a second
 MAX_CATCH_UP_S = 10.0  # lost measurements are caught up sample by sample, at most this much at once
+RECORDER_SILENT_S = 2.5  # the recorder reports once a second: this long without a report, it is dead or hung
 
 
 class ReferenceNode:
@@ -61,6 +68,9 @@ class ReferenceNode:
         self.pub = node.publisher(contract.REFERENCE)
         # /diagnostics "reference" once a second: WARN after refused measurements and while resting after a restart
         self.diag = Diagnostics(node, "reference", warn_on=("refused",), values=self._diag_values)
+        self.last_t: int | None = None  # stamp of the newest measurement [ns]
+        self.recorder_seen: tuple[int, int | None] | None = None  # (our clock, newest stamp) at its last report
+        self.recording = Diagnostics(node, "recording", values=self._recording_values)
         node.subscribe(contract.MEASUREMENT, self.on_measurement)
         node.subscribe(contract.DIAGNOSTICS, self.on_diagnostics)
         node.logger.info("ready")
@@ -93,6 +103,19 @@ class ReferenceNode:
         return {"refused": self.refused, "schedule_t_s": "none" if t is None else round(t, 3),
                 "epoch_ns": self.epoch if self.epoch is not None else "none"}
 
+    def _recording_values(self) -> dict:
+        """The recorder's liveness as seen here (module docstring): a silence latches a fault."""
+        seen = self.recorder_seen
+        if seen is None:
+            return {"recorder": "not seen"}
+        silent = (self.node.now_ns() - seen[0]) * 1e-9
+        if silent > RECORDER_SILENT_S and self.recording.faulted is None:
+            at, epoch = seen[1], self.epoch
+            when = f"t = {(at - epoch) * 1e-9:.3f} s" if at is not None and epoch is not None else "before t = 0"
+            self.recording.fault(f"the recorder has sent no status for {silent:.1f} s (its last at {when} of the"
+                                 " experiment): it is dead or hung, the recording is lost from there")
+        return {"recorder": "silent" if silent > RECORDER_SILENT_S else "alive", "recorder_silent_s": round(silent, 1)}
+
     def _refuse(self, why: str) -> None:
         self.refused += 1
         now = self.node.now_ns()
@@ -103,7 +126,9 @@ class ReferenceNode:
     def on_diagnostics(self, msg) -> None:
         """The plant's (or the hardware driver's) loop status carries the experiment's t = 0 (``epoch_ns``)."""
         for st in msg.status:
-            if st.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
+            if st.name == contract.RECORDER_STATUS:
+                self.recorder_seen = (self.node.now_ns(), self.last_t)
+            elif st.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
                 for kv in st.values:
                     if kv.key == "epoch_ns":
                         try:
@@ -112,7 +137,7 @@ class ReferenceNode:
                             self._refuse(f"loop status epoch_ns {kv.value[:40]!r} is not an integer")
 
     def on_measurement(self, msg) -> None:
-        t = stamp_ns(msg)
+        t = self.last_t = stamp_ns(msg)
         if len(msg.position) < 2:
             self._refuse(f"{len(msg.position)} gaps, expected 2")
             return

@@ -35,6 +35,7 @@ import numpy as np
 from ..realtime import ENV, REPORT_PREFIX, STALLS_PREFIX
 from .common import UsageError
 from .launcher import GraphError, launch
+from .runmetrics import tracking_text
 
 __all__ = ["bench_loop", "bench_record", "bench_sim", "machine", "run"]
 
@@ -333,13 +334,14 @@ def _print_loop(r: dict[str, Any], label: str) -> None:
           f" ({100.0 * L['deadline_misses'] / cyc:.3f} %), holds {r['holds'] if r['holds'] is not None else 'n/a'},"
           f" landing {'n/a' if r['landing'] is None else ('YES: ' + str(r['landing_reason'])) if r['landing'] else 'no'},"
           f" failed {failed}")
-    print(f"  [{label}] latency sensor stamp -> command at plant: p50 {lat['p50']:.0f} us, p99 {lat['p99']:.0f} us,"
-          f" max {lat['max']:.0f} us")
+    if all(isinstance(lat.get(k), (int, float)) and np.isfinite(lat[k]) for k in ("p50", "p99", "max")):  # none: no command came
+        print(f"  [{label}] latency sensor stamp -> command at plant: p50 {lat['p50']:.0f} us, p99 {lat['p99']:.0f} us,"
+              f" max {lat['max']:.0f} us")
     print(f"  [{label}] CPU [% of one core]: " + ", ".join(f"{k} {v:.1f}" for k, v in L["cpu_percent"].items())
           + f"; all nodes {sum(L['cpu_percent'].values()):.1f}")
-    rms, off = r["rms_error_um"], r["offline_rms_error_um"]
-    if rms:
-        print(f"  [{label}] RMS error e1 / e2 [um]: {rms[0]:.2f} / {rms[1]:.2f} (offline, same timing: {off[0]:.2f} / {off[1]:.2f})")
+    rms = tracking_text(r["rms_error_um"], r["offline_rms_error_um"])
+    if rms is not None:  # a plate that landed before t = 0 has none (runmetrics leaves it out, never nan)
+        print(f"  [{label}] RMS error e1 / e2 [um]: {rms}")
     for proc, g in r["rt"].items():
         got = (f"SCHED_FIFO {g['fifo_priority']} ({', '.join(g['fifo_threads'])})" if g["fifo_priority"]
                else "normal scheduling")
@@ -407,7 +409,8 @@ def bench_loop(args: argparse.Namespace) -> dict[str, Any]:
         else:
             _print_loop(peer, "rclpy")
             p50 = peer["loop"]["latency_us"]["p50"] / max(ours["loop"]["latency_us"]["p50"], 1e-9)
-            print(f"  latency p50 rclpy / {args.transport}: {p50:.1f}x")
+            if np.isfinite(p50):  # both runs measured a latency
+                print(f"  latency p50 rclpy / {args.transport}: {p50:.1f}x")
     if steal is not None:  # a VM whose host is busy loses whole milliseconds: say so next to the figures
         print(f"  CPU stolen by the hypervisor during the run: {steal:.1f} % of this VM's time")
     print(f"  machine floor (a bare 1 kHz sleep loop with the same real-time settings, {FLOOR_S:g} s before the run):"

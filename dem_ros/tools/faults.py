@@ -69,6 +69,7 @@ class Injector:
         self.ref: Any = None
         self.t: float | None = None
         self.injected = 0
+        self.killed_ns: int | None = None  # ROS (system) time of a SIGKILL by the kill hook
         self.events: list[str] = []  # what was done when (experiment time)
         self.counts: dict[str, int] = {}  # injected samples, by outcome
         self.pubs: dict[str, Any] = {}
@@ -205,6 +206,13 @@ def _stale(inj: Injector) -> None:
     inj.pub(contract.MEASUREMENT).publish(_copy(inj, inj.meas, t_ns=stamp_ns(inj.meas) + 3600 * 10**9))
 
 
+def _future_applied(inj: Injector) -> None:
+    """One /dem/applied_voltage stamped 1 h ahead: what a corrupt stamp (bad-cdr) looks like to its readers."""
+    from ..nodes.common import stamp_ns
+
+    inj.pub(contract.APPLIED).publish(_copy(inj, inj.meas, t_ns=stamp_ns(inj.meas) + 3600 * 10**9))
+
+
 @dataclass(frozen=True)
 class FaultSpec:
     """One row of the catalogue: a message injection (``act``, ``n`` samples) or a SIGKILL of ``kill``
@@ -219,6 +227,7 @@ class FaultSpec:
     allowed: tuple[str, ...] = ("levitating",)
     composed: bool = True  # also run composed (a kill needs a process per node)
     min_duration: float = 0.0  # s: a restarted node needs seconds to start (imports, kernels, discovery)
+    disk_kib: int = 0  # record onto a tmpfs of this size (KiB; root), the logs elsewhere: the disk fills mid-run
 
 
 _KILLED = ("levitating", "landed safely")
@@ -233,6 +242,9 @@ CATALOGUE: tuple[FaultSpec, ...] = (
     FaultSpec("spike-10mm", "one foreign /dem/measurement +10 mm at the plant's stamp", _spike(10.0), 1),
     FaultSpec("spike-50mm", "one foreign /dem/measurement +50 mm at the plant's stamp", _spike(50.0), 1),
     FaultSpec("stale-stamps", "estimates stamped 100 ms old and measurements +1 h, 20 samples", _stale, 20),
+    FaultSpec("future-applied", "one foreign /dem/applied_voltage stamped +1 h (a corrupt stamp)", _future_applied, 1),
+    FaultSpec("disk-full", "the bag on a 768 KiB tmpfs: the disk fills about 1.5 s into the run (S1, zstd)",
+              disk_kib=768),
     FaultSpec("kill-controller", "SIGKILL the controller, restart after 0.1 s", kill="controller", restart_after=0.1,
               allowed=_KILLED, composed=False, min_duration=_RESTART_S),
     FaultSpec("kill-controller-long", "SIGKILL the controller, restart after 1 s (> hold_timeout)", kill="controller",
@@ -245,7 +257,8 @@ CATALOGUE: tuple[FaultSpec, ...] = (
               allowed=_KILLED, composed=False, min_duration=_RESTART_S),
     FaultSpec("kill-reference-long", "SIGKILL the reference, restart after 1 s", kill="reference", restart_after=1.0,
               allowed=_KILLED, composed=False, min_duration=_RESTART_S),
-    FaultSpec("kill-recorder", "SIGKILL the recorder (not restarted)", kill="recorder", allowed=_KILLED, composed=False),
+    FaultSpec("kill-recorder", "SIGKILL the recorder (not restarted)", kill="recorder", allowed=("levitating",),
+              composed=False, min_duration=8.0),  # the reference reports it after 2.5 s of silence
 )
 
 
@@ -280,6 +293,7 @@ def _kill_hook(spec: FaultSpec, inj: Injector) -> Callable[..., Collection[str]]
             os.killpg(procs[name].pid, signal.SIGKILL)
             procs[name].wait()
             killed.append(time.monotonic())
+            inj.killed_ns = time.time_ns()  # ROS time of the kill: the restarted node's 'ready' ends the outage
             inj.events.append(f"{name} killed at t = {inj.t:.3f} s")
         if spec.restart_after is None:
             return (name,)  # stays down
@@ -413,6 +427,7 @@ def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
     try:
         m, _ = load_run(bag)
         out["problems"] += list(m.problems)
+        out["recorded_s"] = m.samples * cfg["plant_sim"]["dt"]  # experiment time the bag covers from t = 0
     except BagError as exc:  # the bag layer's own error (one line): reported as the data lost
         out["problems"].append(f"bag unreadable: {exc}")
     if truncated is not None and not any("truncated" in p for p in out["problems"]):
@@ -422,50 +437,120 @@ def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
 
 def run_row(spec: FaultSpec, *, compose: bool, scenario: str, duration: float, at: float, free_run: bool,
             workdir: Path, domain_id: int, sets: list[str]) -> Row:
-    """Launch the graph, inject ``spec`` at ``at`` s, judge the bag."""
+    """Launch the graph, inject ``spec`` at ``at`` s, judge the bag (a disk row: on a small tmpfs)."""
+    how = "composed" if compose else "per process"
+    os.environ["ROS_DOMAIN_ID"] = str(domain_id)
+    workdir.mkdir(parents=True, exist_ok=True)
+    disk = workdir / "disk" if spec.disk_kib else None
+    if disk is not None:
+        disk.mkdir(exist_ok=True)
+        r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={spec.disk_kib}k", "tmpfs", str(disk)],
+                           capture_output=True, text=True)
+        if r.returncode != 0:
+            return Row(spec.name, how, "not run", None, None, "", "", False,
+                       f"cannot mount a {spec.disk_kib} KiB tmpfs (needs root): {r.stderr.strip()}")
+    try:
+        return _run_row(spec, how, compose=compose, scenario=scenario, duration=duration, at=at, free_run=free_run,
+                        workdir=workdir, disk=disk, domain_id=domain_id, sets=sets)
+    finally:
+        if disk is not None:
+            subprocess.run(["umount", "-l", str(disk)], check=False)
+
+
+def _plant_end(logs: dict[str, str]) -> str:
+    """The plant's own last word in its log: "finished 4 s", "landed safely at ...", "plant failure ..." ("": none)."""
+    end = ""
+    for name in ("plant_sim", "container"):
+        try:
+            text = Path(logs[name]).read_text(errors="replace") if name in logs else ""
+        except OSError:
+            continue
+        for line in text.splitlines():
+            if "] [plant_sim]: " in line:
+                said = line.split("] [plant_sim]: ", 1)[1]
+                if said.startswith(("finished", "landed safely", "plant failure")):
+                    end = said
+    return end
+
+
+def _outage_s(logs: dict[str, str], name: str, killed_ns: int | None) -> float | None:
+    """Seconds from the SIGKILL of ``name`` to the 'ready' of its restarted process (its log), or None."""
+    if killed_ns is None or name not in logs:
+        return None
+    try:
+        text = Path(logs[name]).read_text(errors="replace")
+    except OSError:
+        return None
+    for line in text.splitlines():
+        if line.startswith("[INFO] [") and line.endswith(f"[{name}]: ready"):
+            t = float(line.split("] [", 1)[1].split("]", 1)[0])
+            if t * 1e9 > killed_ns:
+                return t - killed_ns * 1e-9
+    return None
+
+
+def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duration: float, at: float, free_run: bool,
+             workdir: Path, disk: Path | None, domain_id: int, sets: list[str]) -> Row:
     from ..bag import BagError
     from .launcher import GraphError, launch
 
-    how = "composed" if compose else "per process"
-    os.environ["ROS_DOMAIN_ID"] = str(domain_id)
-    args = _launch_args(scenario, duration, compose, free_run, workdir, domain_id, sets)
+    args = _launch_args(scenario, duration, compose, free_run, disk or workdir, domain_id, sets)
     inj = Injector(_n_times(spec.n, spec.act) if spec.act is not None else None, at)
     hook = _kill_hook(spec, inj) if spec.kill else None
     info: dict[str, Any] = {}
+    logdir = workdir / "logs" if disk is not None else None
     try:
-        _metrics, info = launch(args, quiet=True, supervise=hook)
+        _metrics, info = launch(args, quiet=True, supervise=hook, logs_dir=logdir)
     except GraphError as exc:
         return Row(spec.name, how, "failed", None, None, "", "", False, f"run cut short: {exc}")
     except BagError as exc:  # the run ended, but its summary could not read the bag: judge it here
         info = {"recorder": None, "summary_error": str(exc)}
     finally:
         inj.close()
-    bags = sorted(p for p in workdir.iterdir() if p.is_dir() and not p.name.endswith("_logs"))
+    root = disk or workdir
+    bags = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.endswith("_logs"))
     bag = Path(info["bag"]) if info.get("bag") else bags[-1]
     from .launcher import _config_from_args
 
     cfg, _, _ = _config_from_args(args)
-    j = _judge(bag, at, cfg)
+    j = _judge(bag, 0.0 if disk is not None else at, cfg)  # a disk fills when it fills: every report counts
     logs = json.loads((bag / "summary.json").read_text()).get("logs", {}) if (bag / "summary.json").exists() else {}
-    logdir = bag.parent / (bag.name + "_logs")
+    logdir = logdir or bag.parent / (bag.name + "_logs")
     logs = {p.stem: str(p) for p in logdir.glob("*.log")} if logdir.is_dir() else logs
+    end = _plant_end(logs)
+    if disk is not None and j["outcome"] == "levitating" and not end.startswith("finished"):
+        # the bag stops where the disk filled: the plant's log says how the run ended
+        j["outcome"] = "landed safely" if end.startswith("landed") else "failed"
+        j["detail"] = f"the plant: {end or 'no last word in its log'}"
     levels = _log_levels(logs, j["fault_ns"] - 10**9)
+    exits = info.get("exits") or []  # node processes the launcher saw die (reported on its stderr at once)
     reported = ", ".join(j["diagnostics"]) or "no diagnostics"
     reported += "; log: " + (", ".join(f"{n} {c}" for n, c in sorted(levels.items())) or "nothing")
+    if exits:
+        reported += "; launch: " + ", ".join(f"{e['node']} exited ({e['code']})" for e in exits)
     rec = info.get("recorder") or {}
     dropped = sum(v.get("dropped", 0) for v in rec.values()) if rec else None
     lost = [f"{dropped} dropped"] if dropped else []
     lost += j["problems"]
     if info.get("summary_error"):
         lost.append(f"dem-ros launch could not summarise the bag: {info['summary_error']}")
-    if spec.kill == "recorder" and rec is None:
+    if spec.kill == "recorder" and not rec:
         lost.append("recorder counters lost with the process")
+    for e in exits:  # the launcher saw a node die: the recorder's death costs the rest of the recording
+        if e["node"] == "recorder" and "recorded_s" in j:
+            lost.insert(0, f"recording lost from t = {j['recorded_s']:.3f} s (recorder killed)")
     data_lost = "; ".join(lost) or "none"
     # the plant's loop status is at WARN whenever it waited for a command or held (lockstep on a loaded
     # machine: most runs); it counts as a report of the fault only at ERROR (a landing, a failure)
     told = [d for d in j["diagnostics"] if not (d.startswith(contract.LOOP_STATUS) and d.endswith("WARN"))]
     ok = j["outcome"] in spec.allowed and (bool(told) or bool(levels))
     sent = [f"{v} {k}" for k, v in inj.counts.items()]
+    if spec.kill and spec.restart_after is not None:  # what the outage was, against the board's hold
+        down = _outage_s(logs, spec.kill, inj.killed_ns)
+        hold = (f"lockstep_timeout {cfg['plant_sim']['lockstep_timeout']:g} s" if cfg["plant_sim"]["lockstep"]
+                else f"hold_timeout {cfg['plant_sim']['hold_timeout'] * 1e3:g} ms")
+        sent.append(f"down {down:.1f} s (SIGKILL to the restarted node's 'ready'; {hold})" if down is not None
+                    else f"the restarted node was not ready again before the run ended ({hold})")
     detail = "; ".join([*inj.events, *sent, j.get("detail", "")]).strip("; ")
     return Row(spec.name, how, j["outcome"], j["min_gap_mm"], j.get("max_error_um"), reported, data_lost, ok, detail,
                j["diagnostics"])

@@ -159,6 +159,8 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     cpu: dict[str, float] = {}
     interrupted = False
     cpu_start: dict[str, float] | None = None  # CPU seconds of each process when t = 0 was reached
+    exits: list[dict[str, Any]] = []  # node processes that exited before the end (reported at once, see _report_exit)
+    seen_exits: set[int] = set()  # their pids
 
     def on_signal(signum, frame):
         nonlocal interrupted
@@ -214,7 +216,10 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
                 may_be_down = supervise(None if t_zero is None else time.monotonic() - t_zero, procs, restart) \
                     if supervise is not None else ()
                 for name, p in procs.items():
-                    if name != lead and name not in may_be_down and p.poll() is not None:
+                    if name == lead or p.poll() is None:
+                        continue
+                    _report_exit(exits, seen_exits, name, p, t_zero, logs[name])
+                    if name not in may_be_down and name != "recorder":  # a dead recorder costs the recording, not the plate
                         raise GraphError(f"node {name} exited early with code {p.returncode}; see {logs[name]}")
                 time.sleep(0.1)
                 try:
@@ -251,8 +256,14 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
             cpu[name] = _cpu_seconds(p.pid)
         halt = Progress("dem-ros launch", None, enabled=status)
         halt.stage("stopping the nodes (the recorder last, so the bag is complete)")
-        # stop: plant (if still running) and controllers first, recorder last
-        for name in ("container", "plant_sim", "hw_driver", "controller", "estimator", "reference", "recorder"):
+        # stop: plant (if still running) and controllers first, recorder last. On hardware the driver goes first:
+        # stopped, it lands the plate before it lets go of the link (nodes/hw_driver.py), while the controller
+        # still runs; stopping the controller first would leave the board without commands, and its watchdog
+        # landing would end the run as a failure
+        order: tuple[str, ...] = ("container", "plant_sim", "hw_driver", "controller", "estimator", "reference", "recorder")
+        if hardware is not None:
+            order = ("hw_driver", *(n for n in order if n != "hw_driver"))
+        for name in order:
             proc = procs.get(name)
             if proc is None or proc.poll() is not None:
                 continue
@@ -275,7 +286,22 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
                 recorder_counts = json.loads(line[len("RECORDER "):])
     return {"interrupted": interrupted, "wall_s": wall, "cpu_percent": cpu_pct, "returncodes": {n: p.returncode for n, p in procs.items()},
             "logs": {n: str(p) for n, p in logs.items()}, "recorder": recorder_counts, "domain_id": domain_id, "workdir": str(workdir),
-            "rig": rig_summary}
+            "rig": rig_summary, "exits": exits}
+
+
+def _report_exit(exits: list[dict[str, Any]], seen: set[int], name: str, proc: subprocess.Popen,
+                 t_zero: float | None, log: Path) -> None:
+    """A node process that ended before the run: said at once on stderr (always: a fault is never silent) and
+    kept in ``exits`` as {node, code, wall_s (since t = 0, None before), log}; each process once."""
+    if proc.pid in seen:
+        return
+    seen.add(proc.pid)
+    wall = None if t_zero is None else round(time.monotonic() - t_zero, 3)
+    exits.append({"node": name, "code": proc.returncode, "wall_s": wall, "log": str(log)})
+    when = "before t = 0" if wall is None else f"{wall:.1f} s (wall) after t = 0"
+    what = {"recorder": "the recording is lost from then on; the bag keeps what was written (see dem-ros bag check)"}
+    print(f"dem-ros launch: node {name} exited with code {proc.returncode} {when}: "
+          + what.get(name, "its topics stop") + f"; see {log}", file=sys.stderr, flush=True)
 
 
 def _start_rig(cfg: dict, kind: str, faults: Sequence[str], workdir: Path) -> tuple[subprocess.Popen, str]:
@@ -355,8 +381,12 @@ def _config_from_args(args: Any) -> tuple[dict[str, dict[str, Any]], Scenario, f
     return cfg, sc, duration
 
 
-def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None) -> tuple[RunMetrics, dict[str, Any]]:
+def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None,
+           logs_dir: Path | None = None) -> tuple[RunMetrics, dict[str, Any]]:
     """Run the graph as ``dem-ros launch`` does: (metrics read back from the bag, launch facts).
+
+    ``logs_dir``: where the node logs go (default: beside the bag, ``<bag>_logs``; ``dem-ros faults``
+    keeps them off the small disk its disk-full row fills).
 
     The facts: ``composed``, ``offline_rms_error_um`` (the same configuration
     simulated offline), ``bag`` (None without recording), ``recorder`` (per-topic
@@ -404,7 +434,7 @@ def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None
         meta["hardware"] = hardware
     try:
         facts = run_graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id,
-                          status=not quiet, workdir=(bag.parent / (bag.name + "_logs")) if record else None,
+                          status=not quiet, workdir=logs_dir or ((bag.parent / (bag.name + "_logs")) if record else None),
                           compose=compose, hardware=hardware, faults=getattr(args, "fault", None) or (),
                           supervise=supervise)
         with Progress("dem-ros launch", None, enabled=not quiet) as bar:
@@ -418,6 +448,11 @@ def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
     metrics.wall_time_s = facts["wall_s"]
+    for e in facts["exits"]:  # a node that died during the run: the summary says so (and what it cost)
+        when = "before t = 0" if e["wall_s"] is None else f"{e['wall_s']:.1f} s (wall) after t = 0"
+        cost = (f"the recording is lost from t = {metrics.samples * cfg['plant_sim']['dt']:.3f} s (the bag's last"
+                " complete chunk)" if e["node"] == "recorder" else "see its log")
+        metrics.problems.insert(0, f"node {e['node']} exited with code {e['code']} {when}: {cost}")
     if metrics.loop is not None:  # the plant's process exits before the launcher can read its CPU time: it reports it
         cpu = dict(facts["cpu_percent"])
         if metrics.loop.plant_cpu_percent is not None:
@@ -432,9 +467,12 @@ def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None
                            scenario=sc.name).metrics() if ran > 0 else {"rms_error_um": None}
     info = {"composed": compose, "offline_rms_error_um": offline["rms_error_um"], "offline_duration_s": ran, "bag": str(bag) if record else None,
             "hardware": hardware, "rig": facts.get("rig"),
-            "recorder": facts["recorder"], "interrupted": facts["interrupted"]}
+            "recorder": facts["recorder"], "interrupted": facts["interrupted"], "exits": facts["exits"]}
     if record and bag.is_dir():  # the run-time summary travels with the bag (replay compares against it)
-        write_json(bag / "summary.json", metrics.to_dict() | info)
+        try:
+            write_json(bag / "summary.json", metrics.to_dict() | info)
+        except OSError as exc:  # a full disk (the recorder reported it): the summary is still printed
+            metrics.problems.append(f"summary.json not written beside the bag: {exc.strerror or exc}")
     return metrics, info
 
 

@@ -336,6 +336,8 @@ def _bag_info(rep: Any) -> str:
     w = max([len(t.name) for t in rep.topics] + [5])
     lines.append("Topic information:")
     lines += [f"  {t.name:<{w}}  {t.type:<38} {t.count:>9} msgs" for t in rep.topics]
+    if rep.truncation:  # what a killed writer left: recovered up to its last complete chunk
+        lines.append(f"TRUNCATED:         {rep.truncation}")
     if not rep.ok:
         lines.append(f"({len(rep.problems)} problem(s): see dem-ros bag check)")
     return "\n".join(lines)

@@ -26,7 +26,7 @@ from .. import contract
 from ..core.metrics import error_metrics
 from .common import fmt_pair
 
-__all__ = ["LoopStats", "RunMetrics", "load_run"]
+__all__ = ["LoopStats", "RunMetrics", "load_run", "tracking_text"]
 
 _NAN = float("nan")
 
@@ -149,14 +149,16 @@ class RunMetrics:
             ("samples", f"{self.samples} (e = {self.error_source} gap - y_m)"),
             ("failed", f"yes, at t = {self.fail_time_s:.3f} s" if self.failed and self.fail_time_s is not None
              else ("yes" if self.failed else "no")),
-            ("RMS error e1 / e2 [um]", fmt_pair(self.rms_error_um)),
-            ("max error e1 / e2 [um]", fmt_pair(self.max_error_um)),
         ]
-        if _finite(self.rms_error_after_40s_um):  # a run shorter than 40 s has none
-            rows.append(("RMS error after 40 s [um]", fmt_pair(self.rms_error_after_40s_um)))
-        if self.peak_voltage_v is not None:
+        # a figure that does not apply is left out, never printed as nan: no sample from t = 0 (a plate that
+        # landed in the pre-roll) has no error, a run shorter than 40 s no error after 40 s
+        for label, v in (("RMS error e1 / e2 [um]", self.rms_error_um), ("max error e1 / e2 [um]", self.max_error_um),
+                         ("RMS error after 40 s [um]", self.rms_error_after_40s_um)):
+            if _finite(v):
+                rows.append((label, fmt_pair(v)))
+        if self.peak_voltage_v is not None and math.isfinite(self.peak_voltage_v):
             rows.append(("peak |u| [V]", f"{self.peak_voltage_v:.2f}"))
-        if self.peak_current_a is not None:
+        if self.peak_current_a is not None and math.isfinite(self.peak_current_a):
             rows.append(("peak |i| [A]", f"{self.peak_current_a:.3f}"))
         fe = self.final_estimates
         if fe:
@@ -180,6 +182,23 @@ class RunMetrics:
 
     def print(self, file: IO[str] | None = None, extra: Iterable[tuple[str, str]] = ()) -> None:
         print(self.format(extra), file=file)
+
+
+def tracking_text(rms_um: Iterable[float] | None, offline_um: Iterable[float] | None = None) -> str | None:
+    """``"a / b"`` RMS error e1 / e2 [um] (with the offline run's ``"(offline, same timing: c / d)"``), or None.
+
+    None when the run has no such figure (no sample with gap and reference from t = 0, e.g. a plate that
+    landed in the pre-roll): the caller leaves the line out instead of printing nan. The offline part is
+    left out the same way.
+    """
+    if not _finite(rms_um):
+        return None
+    assert rms_um is not None
+    text = fmt_pair(list(rms_um))
+    if _finite(offline_um):
+        assert offline_um is not None
+        text += f" (offline, same timing: {fmt_pair(list(offline_um))})"
+    return text
 
 
 def _finite(v: Iterable[float] | None) -> bool:
@@ -254,7 +273,7 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     m = RunMetrics(
         scenario=run.get("scenario"), controller=run.get("controller"), estimator=run.get("estimator"),
         transport=run.get("transport"), error_source="truth" if truth is not None else "measurement",
-        samples=int(ts.size), failed=failed, fail_time_s=float(last.get("t_sim_s", "nan")) if failed else None,
+        samples=int(ts.size), failed=failed, fail_time_s=float(last.get("fail_time_s", last.get("t_sim_s", "nan"))) if failed else None,
         rms_error_um=em["rms_error_um"], max_error_um=em["max_error_um"],
         rms_error_after_40s_um=em["rms_error_after_40s_um"], loop=loop,
         duration_s=float(run["duration_s"]) if "duration_s" in run else None,

@@ -62,6 +62,27 @@ def _checks(**over) -> InputChecks:
     return c
 
 
+def _clock(ch: InputChecks, t_ns: int) -> None:
+    """Move the plant's clock to ``t_ns``: a jump takes two samples in a row (a lone one is refused)."""
+    ch.plant_stamp(t_ns - MS)
+    ch.plant_stamp(t_ns)
+    assert ch.t_plant == t_ns
+
+
+def test_a_lone_plant_stamp_far_ahead_or_behind_does_not_move_the_clock():
+    """One corrupt /dem/applied_voltage (+1 h, or far behind) is refused and counted; the next samples
+    go on; two samples in a row after a real jump (lost samples) move it."""
+    ch = _checks()
+    for k in range(1, 10):
+        assert ch.plant_stamp(k * MS)
+    assert not ch.plant_stamp(3_600_000 * MS) and ch.t_plant == 9 * MS
+    assert ch.plant_stamp(10 * MS) and ch.estimate(10 * MS) == ""  # the stream goes on, estimates on time
+    assert not ch.plant_stamp(-5000 * MS) and ch.t_plant == 10 * MS
+    assert ch.plant_stamp(8 * MS) and ch.t_plant == 10 * MS  # an older sample taken late: the clock stays
+    assert not ch.plant_stamp(200 * MS) and ch.plant_stamp(201 * MS) and ch.t_plant == 201 * MS  # confirmed
+    assert ch.stamps_refused == 3
+
+
 def test_every_sample_of_the_default_schedule_is_accepted():
     cfg = {**RC, "dt": 1e-3}
     m = ReferenceModel(cfg)
@@ -87,9 +108,9 @@ def test_a_resumed_stream_is_accepted_as_soon_as_the_bound_allows_it():
     ch = _checks()
     assert ch.reference(0, np.array([0.008, 0.008, 0, 0, 0, 0, 0, 0])).ok
     moved = np.array([0.0075, 0.008, 0, 0, 0, 0, 0, 0])  # 0.5 mm away
-    ch.plant_stamp(100 * MS)
+    _clock(ch, 100 * MS)
     assert not ch.reference(100 * MS, moved).ok  # 100 ms at 1.55 mm/s: 0.155 mm at most
-    ch.plant_stamp(350 * MS)
+    _clock(ch, 350 * MS)
     assert ch.reference(350 * MS, moved).ok  # 350 ms: 0.54 mm
 
 
@@ -100,7 +121,7 @@ def test_a_too_fast_reference_is_refused():
 
 def test_stamps_are_judged_on_the_plants_clock():
     ch = _checks()
-    ch.plant_stamp(100 * MS)
+    _clock(ch, 100 * MS)
     assert ch.estimate(100 * MS) == "" and ch.estimate(98 * MS) == ""  # d T = 1 ms late: on time; 2 ms: max_age
     assert ch.estimate(97 * MS) == "stale"
     assert ch.estimate(103 * MS) == "future"

@@ -324,12 +324,16 @@ def test_never_raises_near_zero_gap():
 
 
 def test_convergence_after_a_restart():
-    """A (re)start counts as converged after converge_samples samples in a row that passed every gate; a
-    rejected sample starts the count again; a start on an implausible measurement is refused (NaN output)."""
+    """Rates not measured: a (re)start counts as converged after converge_samples samples in a row that
+    passed every gate; a rejected sample starts the count again; a start on an implausible measurement is
+    refused (NaN output). Rates measured: converged on the start sample (it is the measurement)."""
     from dem_ros.core.model import hover_state
 
     x0, u0 = hover_state(default_config()["plant_sim"], 0.008)
-    est = KalmanEstimator(EC)
+    measured = KalmanEstimator(EC)
+    measured.step(x0, u0)
+    assert measured.converged
+    est = KalmanEstimator(EC, measure_velocity=False)
     bad = x0.copy()
     bad[0] = 0.05
     assert np.all(np.isnan(est.step(bad, u0))) and not est.started  # a 50 mm reading cannot start the filter

@@ -759,12 +759,21 @@ def test_a_lost_current_sensor_leads_to_a_controlled_landing(chan, variant):
     assert sup.counters["sensor_losses"] == 1 and f"current sensor {chan - 1} lost" in sup.fault
 
 
+@pytest.mark.parametrize("variant", LOSS_VARIANTS, ids=[f"m{v[0]:g}+{v[1]:g}kg-R{v[2]:g}-K{v[3]:g}" for v in LOSS_VARIANTS])
 @pytest.mark.parametrize("chan", [0, 1])
-def test_a_lost_gap_sensor_drops_the_plate_away_from_the_rail(chan):
-    """A gap sensor lost for good: no landing law without it (module docstring): after SENSOR_BLIND_SAMPLES,
-    FAULT and 0 V; the plate falls onto its support, never toward the rail. (Not a controlled landing.)"""
-    X, M, sup = hover_with_lost_sensor(chan, None)
-    assert M[-1] == Mode.FAULT and f"gap sensor {chan + 1} lost" in sup.fault
-    assert len(M) == 300 + SENSOR_BLIND_SAMPLES + 1
-    np.testing.assert_array_equal(sup.u, [0.0, 0.0])
-    assert min(X[:, 0].min(), X[:, 2].min()) >= 0.008 - 50e-6
+def test_a_lost_gap_sensor_leads_to_a_landing_on_the_coil_flux(chan, variant):
+    """A gap sensor lost for good at an 8 mm hover: after SENSOR_BLIND_SAMPLES the board lands with that gap
+    from its coil's flux (never 0 V at hover). Measured: peak descent 5.1-7.0 mm/s with R nominal (m, K off by
+    25 %, 3 kg added), 11.2 mm/s with R 1.4x; the plate never moves toward the rail. The flux estimate drifts
+    with the learned R's error (module docstring): with R 0.75x the board declares LANDED with the lost end's
+    true gap 9.5-9.7 mm, whose remaining fall onto the support (away from the rail) is not a controlled one."""
+    cfg = board_cfg()
+    X, M, sup = hover_with_lost_sensor(chan, None, variant)
+    assert M[-1] == Mode.LANDED, sup.snapshot()
+    land_ = M == Mode.LAND
+    assert np.flatnonzero(land_)[0] == 300 + SENSOR_BLIND_SAMPLES
+    assert f"gap sensor {chan + 1} lost" in sup.fault and "flux" in sup.fault and sup.counters["sensor_losses"] == 1
+    assert min(X[:, 0].min(), X[:, 2].min()) >= 0.008 - 50e-6  # never toward the rail
+    bound = 1.0 if variant[2] == 1.0 else 1.15
+    assert np.max(X[land_][:, [1, 3]]) <= bound * cfg["landing_speed"]
+    assert min(X[-1, 0], X[-1, 2]) >= 9.5e-3  # at LANDED: at most 1.7 mm above the support

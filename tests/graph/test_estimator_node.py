@@ -32,24 +32,41 @@ def _graph(*ros_args: str):
     return bus, node, est, diags
 
 
-def _feed(bus, k: int, gaps=(X0[0], X0[2]), frame=contract.FRAME, position=None) -> int:
+def _feed(bus, k: int, gaps=(X0[0], X0[2]), frame=contract.FRAME, position=None, rates=(0.0, 0.0)) -> int:
     JS = bus.msg("sensor_msgs/msg/JointState")
     t = bus.now_ns + k * T
     bus.publish(contract.APPLIED, joint_state(JS, t, effort=U0))
     pos = position if position is not None else gaps
-    bus.publish(contract.MEASUREMENT, joint_state(JS, t, position=pos, velocity=(0.0, 0.0), effort=(X0[4], X0[5]),
+    bus.publish(contract.MEASUREMENT, joint_state(JS, t, position=pos, velocity=rates, effort=(X0[4], X0[5]),
                                                   frame=frame))
     bus.spin_once()
     return t
 
 
-def test_a_restart_publishes_only_once_converged():
+def test_a_restart_without_measured_rates_publishes_only_once_converged():
     bus, node, est, _ = _graph()
     n = EC["converge_samples"]
-    stamps = [_feed(bus, k) for k in range(n + 10)]
+    stamps = [_feed(bus, k, rates=()) for k in range(n + 10)]
     assert sorted(est) == stamps[n - 1:], (len(est), n)  # the n-th sample in a row that passed the gates is the first out
     assert node.counts["withheld"] == n - 1
     assert any("converged after" in line[2] for line in bus.log)
+
+
+def test_a_restart_mid_run_with_measured_rates_publishes_at_once():
+    """Every published state measured: the start is the measurement (core/estimator.py), so a restart after
+    t = 0 costs the controller no sample; the gates still test every later one."""
+    bus, node, est, _ = _graph()
+    stamps = [_feed(bus, k) for k in range(5)]
+    assert sorted(est) == stamps and node.counts["withheld"] == 0
+    t_spike = _feed(bus, 5, gaps=(X0[0] + 0.005, X0[2]))  # a 5 mm spike right after the start: held, not taken
+    assert abs(est[t_spike][0] - X0[0]) < 1e-6
+
+
+def test_convergence_fits_inside_the_boards_hold():
+    """Without measured rates a restarted filter withholds converge_samples samples: shorter than the
+    board's hold_timeout, so the convergence itself never costs a landing (a process restart still may)."""
+    cfg = default_config()
+    assert EC["converge_samples"] * EC["dt"] < cfg["plant_sim"]["hold_timeout"]
 
 
 def test_a_start_in_the_preroll_publishes_at_once():
@@ -83,7 +100,7 @@ def test_spikes_are_held_counted_and_warned_and_a_dead_sensor_is_an_error():
     assert level == ERROR and message.startswith("gap sensor 2:"), diags[-1]  # published at once
     assert sum("fault: gap sensor 2" in line[2] for line in bus.log) == 1
     _feed(bus, k)  # estimates go on (from the other sensor, the currents and the model)
-    assert len(est) == 200 - EC["converge_samples"] + 1 + 2 + EC["fault_samples"] + 1
+    assert len(est) == 200 + 2 + EC["fault_samples"] + 1  # rates measured: published from the first sample
 
 
 def test_malformed_measurements_are_dropped_and_settings_retune_without_a_restart():
@@ -100,3 +117,27 @@ def test_malformed_measurements_are_dropped_and_settings_retune_without_a_restar
     bus.advance(1.0)
     assert diags[-1][0] == WARN and "malformed +1" in diags[-1][1]
     assert np.isclose(node.est.rm[0], 4e-10)
+
+
+def test_a_measurement_stamped_far_ahead_holds_nothing_back():
+    """A foreign measurement stamped +1 h (a corrupt stamp) waits for a voltage that never comes: the
+    measurements after it, whose voltages come, go on at once (held behind it, the controller would get no
+    estimate: measured, a lockstep landing in the faults row stale-stamps)."""
+    bus, node, est, _ = _graph()
+    for k in range(5):
+        _feed(bus, k)
+    JS = bus.msg("sensor_msgs/msg/JointState")
+    far = bus.now_ns + 3_600_000 * T
+    bus.publish(contract.MEASUREMENT, joint_state(JS, far, position=(X0[0], X0[2]), velocity=(0.0, 0.0),
+                                                  effort=(X0[4], X0[5])))
+    bus.spin_once()
+    stamps = [_feed(bus, k) for k in range(5, 10)]
+    assert all(t in est for t in stamps) and far not in est
+    # measurement before voltage (either order is allowed): still its own voltage, one sample late at most
+    t = bus.now_ns + 10 * T
+    bus.publish(contract.MEASUREMENT, joint_state(JS, t, position=(X0[0], X0[2]), velocity=(0.0, 0.0),
+                                                  effort=(X0[4], X0[5])))
+    bus.spin_once()
+    bus.publish(contract.APPLIED, joint_state(JS, t, effort=U0))
+    bus.spin_once()
+    assert t in est and node.counts["unpaired"] == 0

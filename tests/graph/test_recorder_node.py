@@ -87,3 +87,28 @@ def test_sigkill_leaves_a_bag_readable_up_to_its_last_chunk(tmp_path):
     # and the CLI says the same, without a traceback
     res = subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", "bag", "check", str(bag)], capture_output=True, text=True)
     assert "truncated" in res.stdout and "Traceback" not in res.stderr
+
+
+def test_a_silent_recorder_is_reported_on_diagnostics_by_the_reference_node():
+    """A recorder killed or hung says nothing: the reference node, alive on the loop's path, latches ERROR on
+    the status 'recording' RECORDER_SILENT_S after the recorder's last once-a-second report, and logs it."""
+    from dem_ros import contract
+    from dem_ros.nodes.common import ERROR, OK, Diagnostics
+    from dem_ros.nodes.reference import RECORDER_SILENT_S, ReferenceNode
+    from dem_ros.transport.memory import MemoryBus
+
+    bus = MemoryBus()
+    ReferenceNode(bus.node("reference"))
+    seen: list[tuple[int, str]] = []
+    bus.node("probe").subscribe(contract.DIAGNOSTICS, lambda m: seen.extend(
+        (s.level if isinstance(s.level, int) else int.from_bytes(bytes(s.level), "little"), s.message)
+        for s in m.status if s.name == "recording"))
+    recorder = Diagnostics(bus.node("recorder"), contract.RECORDER_STATUS)  # the recorder node's reporter
+    bus.advance(3.0)
+    assert seen and all(level == OK for level, _ in seen), seen  # alive: it reports every second
+    assert recorder.timer is not None
+    recorder.timer.cancel()  # the recorder dies
+    bus.advance(RECORDER_SILENT_S + 1.5)
+    level, message = seen[-1]
+    assert level == ERROR and "the recorder has sent no status" in message, seen[-3:]
+    assert sum("fault: the recorder has sent no status" in line[2] for line in bus.log) == 1

@@ -118,6 +118,8 @@ def test_without_commands_the_board_holds_then_lands_on_its_support_and_never_ne
     assert Mode(b.sup.mode) == Mode.LANDED
     assert gaps.min() > pc["trip_gap_min"]  # no rail contact, not even near it
     assert b.plant.x[0] == pytest.approx(cfg["rig"]["support_gap"]) and abs(b.plant.x[4]) < 0.05  # resting, no current
+    s = b.summary()  # what a process-level test reads: one landing, touch-down no faster than landing_speed
+    assert s["landings"] == 1 and 0 < s["land_speed_max_mm_s"] <= pc["landing_speed"] * 1e3, s
     landing = np.array([f.mode == Mode.LAND for f in frames])
     v = np.diff(gaps, axis=0)[landing[1:]] / 1e-3  # descent speed while the landing law flies (quantised gaps)
     assert landing.sum() > 100 and v.max() <= pc["landing_speed"] * 1.2
@@ -129,7 +131,7 @@ def landed(b, d):
 
 
 @pytest.mark.parametrize("spec, check", [
-    # a dead sensor: held by the driver, then a trip; the board lands on the other sensor
+    # a dead sensor: held by the driver, then a trip; the board (NaN for that channel) rides its observer, lands
     ("dropout:1@0.1+0.05", lambda b, d: landed(b, d) and "gap sensor 1" in d.reason and d.counters["sensor_holds"] >= 3),
     # one saturated sample: held for that sample, counted, no trip
     ("spike:2@0.1", lambda b, d: d.status_counts["GAP1_RANGE"] == 1 == d.counters["sensor_holds"] and d.state.name == "ACTIVE"),

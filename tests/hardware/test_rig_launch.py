@@ -1,7 +1,8 @@
 """``dem-ros launch --hardware rig``: the whole graph with hw_driver and the emulator, recorded and read
 back with rosbags. Whether the plate levitates free-running depends on the machine's load (README:
 hardware in the loop), so this asserts what does not: the run ends by itself with a metrics summary
-and no traceback, the bag holds plant_sim's contract without a truth topic plus the driver's state
+and no traceback, an end-of-run landing (the driver disarms first, the board lands the plate, then
+the graph stops) is told from a failure, the bag holds plant_sim's contract without a truth topic plus the driver's state
 and loop statistics, and the emulator reports its summary."""
 
 from __future__ import annotations
@@ -31,6 +32,14 @@ def test_launch_hardware_rig_runs_records_and_summarises(tmp_path, domain_id):
     s = json.loads(out.read_text())
     assert s["hardware"] == "rig" and s["rig"]["ticks"] > 3000 and s["rig"]["hellos"] >= 1
     assert s["error_source"] == "measurement"
+    loop = s["loop"]
+    if s["failed"]:  # lost during the run (load): when, on the experiment clock, not after its end
+        assert s["fail_time_s"] is not None and s["fail_time_s"] <= 3.0 and loop["landing"]
+        assert not loop["landing_reason"].startswith("end of the run")
+    else:  # the end of the run: the driver disarmed, the board landed the plate, and that is no failure
+        assert loop["landing_reason"].startswith("end of the run: disarmed after 3 s"), loop
+        assert s["rig"]["mode"] == "LANDED" and s["rig"]["reason"] == "LAND requested", s["rig"]
+    assert loop["cycles"] <= 3000  # the experiment's samples; the landing after it is not part of it
     bag = Path(s["bag"])
     with AnyReader([bag]) as r:
         topics = {c.topic for c in r.connections}

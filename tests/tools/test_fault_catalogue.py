@@ -29,7 +29,21 @@ def test_the_catalogue_covers_the_issue():
     names = {f.name for f in CATALOGUE}
     assert {"rogue-command", "empty-position", "non-utf8-frame", "bad-cdr", "reference-step", "spike-10mm",
             "spike-50mm", "stale-stamps", "kill-controller", "kill-estimator", "kill-reference",
-            "kill-recorder"} <= names
+            "kill-recorder", "future-applied", "disk-full"} <= names
+
+
+def test_the_plants_last_word_and_a_restart_outage_are_read_from_the_node_logs(tmp_path):
+    from dem_ros.tools.faults import _outage_s, _plant_end
+
+    plant = tmp_path / "plant_sim.log"
+    plant.write_text("[INFO] [100.0] [plant_sim]: levitating at 8.000 mm\nt =     1.0 s  gaps\n"
+                     "[WARN] [104.5] [plant_sim]: landed safely at t = 2.1 s\n")
+    est = tmp_path / "estimator.log"
+    est.write_text("[INFO] [90.0] [estimator]: ready\n[INFO] [106.25] [estimator]: ready\n")
+    logs = {"plant_sim": str(plant), "estimator": str(est)}
+    assert _plant_end(logs) == "landed safely at t = 2.1 s"
+    assert _outage_s(logs, "estimator", 102_000_000_000) == 4.25  # SIGKILL at 102 s, 'ready' again at 106.25 s
+    assert _outage_s(logs, "estimator", None) is None and _plant_end({}) == ""
 
 
 def test_a_reference_step_and_stale_stamps_leave_the_plate_levitating_and_are_reported(tmp_path, domain_id):

@@ -80,3 +80,49 @@ def test_disabled_prints_nothing_and_close_is_idempotent():
     bar.close()
     bar.close()
     assert out.getvalue() == "" and bar.done == 2
+
+
+def test_a_command_that_cannot_run_still_shows_its_elapsed_time(tmp_path):
+    """The lines on a real stream come from a helper process: a command stalled for seconds (here stopped
+    outright, SIGSTOP: the extreme of a loaded machine or a compile holding the interpreter) still reports."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    log = tmp_path / "progress.log"
+    code = ("import sys, time\nfrom dem_ros.tools.progress import Progress\n"
+            "bar = Progress('dem-ros x', None, stage='stalled work', quiet=0.0, every=0.2)\ntime.sleep(600)\n")
+    root = Path(__file__).resolve().parents[2]
+    with open(log, "w") as err:
+        cmd = subprocess.Popen([sys.executable, "-c", code], stderr=err, env={**os.environ, "PYTHONPATH": str(root)})
+
+    def lines() -> list[str]:
+        return log.read_text().splitlines()
+
+    try:
+        end = time.monotonic() + WAIT_S
+        while not lines() and time.monotonic() < end:
+            time.sleep(0.05)
+        assert lines(), "no progress line at all"
+        cmd.send_signal(signal.SIGSTOP)  # the command cannot run at all from here
+        before = len(lines())
+        end = time.monotonic() + WAIT_S
+        while len(lines()) < before + 3 and time.monotonic() < end:
+            time.sleep(0.05)
+        stalled = lines()[before:]
+        assert len(stalled) >= 3, f"{len(stalled)} line(s) while the command was stopped"
+        assert all(x.startswith("dem-ros x: stalled work ... (") and x.endswith(" s)") for x in stalled)
+    finally:
+        cmd.send_signal(signal.SIGCONT)
+        cmd.kill()
+        cmd.wait()
+    # the command is gone: its helper sees the end of its input and exits (nothing left behind)
+    end = time.monotonic() + WAIT_S
+    n = len(lines())
+    time.sleep(1.0)
+    while len(lines()) != n and time.monotonic() < end:
+        n = len(lines())
+        time.sleep(1.0)
+    assert len(lines()) == n

@@ -9,7 +9,7 @@ import pytest
 from dem_ros.core.scenarios import get_scenario
 from dem_ros.core.simulate import simulate
 from dem_ros.tools.common import json_safe, json_text, write_json
-from dem_ros.tools.runmetrics import LoopStats, RunMetrics
+from dem_ros.tools.runmetrics import LoopStats, RunMetrics, tracking_text
 
 
 def _strict_loads(text: str):
@@ -33,6 +33,25 @@ def test_metrics_that_do_not_apply_are_omitted_not_nan(short_run):
     assert "nan" not in text.lower()
     assert "after 40 s" not in text and "latency" not in text
     assert "RMS error e1 / e2 [um]" in text
+
+
+def test_a_run_without_a_sample_from_t0_has_no_error_figures_not_nan():
+    """A plate that landed in the pre-roll (bench loop on rclpy, free-running, under load): no sample with
+    gap and reference from t = 0, so no RMS or max error; the summary and the bench line leave them out."""
+    nan2 = [math.nan, math.nan]
+    m = RunMetrics(scenario="S1", controller="adaptive", estimator="kf", transport="rclpy", error_source="truth",
+                   samples=0, failed=True, fail_time_s=0.111, rms_error_um=nan2, max_error_um=nan2,
+                   rms_error_after_40s_um=nan2, peak_voltage_v=math.nan,
+                   loop=LoopStats(cycles=111, deadline_misses=40, latency_us={"p50": 900.0, "p99": 5e3, "max": 9e3},
+                                  landing=True, landing_reason="command lost"))
+    text = m.format()
+    assert "nan" not in text.lower(), text
+    assert "RMS error" not in text and "max error" not in text and "peak |u|" not in text
+    assert "landing: yes (command lost)" in text and "failed" in text
+    assert tracking_text(nan2, [1.0, 2.0]) is None
+    assert tracking_text([1.234, 5.0], nan2) == "1.23 / 5.00"
+    assert tracking_text([1.234, 5.0], [1.0, 2.0]) == "1.23 / 5.00 (offline, same timing: 1.00 / 2.00)"
+    assert tracking_text([1.0, 2.0], None) == "1.00 / 2.00"
 
 
 def test_lockstep_waits_are_reported_as_waits_not_misses():

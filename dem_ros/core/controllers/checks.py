@@ -47,10 +47,20 @@ largest age at which acting can still matter, with one period of slack for the o
 which the two topics are taken. A stamp more than ``max_age`` *ahead* of t_plant cannot be
 a sample of this plant (a rogue or broken clock) and is refused as from the future; a
 reference, published one period ahead, may lead by ``max_age`` + T.
+
+The clock itself is guarded the same way: a plant stamp more than ``max_age`` (at least 2 T) away
+from t_plant, either way, is not taken on its own. One corrupt or foreign ``/dem/applied_voltage``
+stamped ahead would otherwise move the clock there, every estimate would be "stale" until the
+plant caught up, and the controller would command nothing (measured, ``dem-ros faults`` row
+``future-applied``: one sample stamped +1 h landed the plate). A second stamp in a row within
+``max_age`` after the first confirms a real jump (samples lost on a stalled host, a re-anchored
+plant): the clock then moves one sample late, which only makes estimates look younger for that
+sample.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -109,6 +119,8 @@ class InputChecks:
 
     def __init__(self, cfg: Mapping[str, Any]):
         self.t_plant: int | None = None
+        self._jump: int | None = None  # a plant stamp far from t_plant, waiting for the next to confirm it
+        self.stamps_refused = 0  # plant stamps not taken (a lone jump of the clock)
         self.last_ref = np.zeros(8)
         self.last_ref_t: int | None = None
         self.configure(cfg)
@@ -121,10 +133,26 @@ class InputChecks:
         self.hi = float(cfg["reference_gap_max"])
         self.v_max = float(cfg["reference_max_speed"])
 
-    def plant_stamp(self, t_ns: int) -> None:
-        """A stamp straight from the plant (``/dem/applied_voltage``): advances the experiment clock."""
-        if self.t_plant is None or t_ns > self.t_plant:
+    def plant_stamp(self, t_ns: int) -> bool:
+        """A stamp straight from the plant (``/dem/applied_voltage``): advances the experiment clock.
+        False when it is a lone jump, not taken (module docstring; counted in ``stamps_refused``)."""
+        t = self.t_plant
+        jump = max(self.max_age_ns, 2 * self.dt_ns)
+        if t is None or self.max_age_ns <= 0 or 0 < t_ns - t <= jump:
+            if t is None or t_ns > t:
+                self.t_plant = t_ns
+            self._jump = None
+            return True
+        if abs(t_ns - t) <= jump:
+            return True  # an older sample taken late: the clock stays
+        c = self._jump
+        if c is not None and 0 < t_ns - c <= jump:  # two in a row agree: the plant's clock did move
             self.t_plant = t_ns
+            self._jump = None
+            return True
+        self._jump = t_ns
+        self.stamps_refused += 1
+        return False
 
     def age_ns(self, t_ns: int) -> int | None:
         """Age of a sample stamped ``t_ns`` on the experiment clock [ns] (None before any plant stamp)."""
@@ -143,8 +171,10 @@ class InputChecks:
 
     def reference(self, t_ns: int, ref: np.ndarray) -> ReferenceVerdict:
         """Check a received reference (8+ values) stamped ``t_ns``; accepted ones become ``last_ref``."""
-        y1, y2, d1, d2 = float(ref[0]), float(ref[1]), float(ref[2]), float(ref[3])
-        if not all(np.isfinite(np.asarray(ref[:8], float))):
+        # Python floats (one conversion; no numpy scalars): the controller checks every sample
+        vals = ref[:8].tolist() if isinstance(ref, np.ndarray) else list(ref[:8])
+        y1, y2, d1, d2 = vals[0], vals[1], vals[2], vals[3]
+        if not all(map(math.isfinite, vals)):
             return ReferenceVerdict(False, "reference_invalid", "non-finite values")
         age = self.age_ns(t_ns)
         if age is not None and self.max_age_ns > 0 and -age > self.max_age_ns + self.dt_ns:
@@ -166,7 +196,7 @@ class InputChecks:
                                         f"gap moved {step * 1e3:.3g} mm in {abs(t_ns - self.last_ref_t) * 1e-6:.3g} ms"
                                         f" (at most {allowed * 1e3:.3g} mm at {v * 1e3:.3g} mm/s)")
         if self.last_ref_t is None or t_ns >= self.last_ref_t:
-            self.last_ref[:] = np.asarray(ref[:8], float)
+            self.last_ref[:] = vals
             self.last_ref_t = t_ns
         return _OK
 

@@ -248,8 +248,13 @@ def lift_fraction(z: np.ndarray, cfg: Mapping[str, Any]) -> float:
     m_nominal, K_nominal, gap_floor). About 1 at hover; below ``RESTING_FRACTION`` the plate rests
     on its support (or falls).
     """
-    de = _deltas(cfg, z)
-    f = cfg["K_nominal"] * (z[4] ** 2 / de[0] ** 2 + z[5] ** 2 / de[1] ** 2)
+    # Python floats throughout (one tolist(), no numpy scalars): the controller evaluates this every sample
+    d1, _, d2, _, i1, i2 = z.tolist()[:6] if isinstance(z, np.ndarray) else [float(v) for v in z[:6]]
+    L, l, floor = cfg["L"], cfg["l"], cfg["gap_floor"]
+    P, Q = (L + l) / (2 * L), (L - l) / (2 * L)
+    d1, d2 = max(d1, floor), max(d2, floor)
+    de1, de2 = P * d1 + Q * d2, Q * d1 + P * d2  # Eq. (6), as _deltas
+    f = cfg["K_nominal"] * (i1 * i1 / (de1 * de1) + i2 * i2 / (de2 * de2))
     return float(f / (cfg["m_nominal"] * cfg["g"] + cfg["N1"] + cfg["N2"]))
 
 

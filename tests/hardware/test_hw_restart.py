@@ -1,0 +1,133 @@
+"""A controller killed mid-run on a rig, then restarted and re-armed: real processes over real UDP.
+
+``dem-ros rig`` (the emulated board, its own 1 kHz process), ``hw_driver``, estimator, controller and
+reference (each its own process, DDS on loopback) and the recorder, as ``dem-ros launch --hardware rig``
+runs them. The controller is killed (SIGKILL) while the plate levitates: the driver's command watchdog
+faults (reported on /diagnostics and in the bag) and the board lands the plate (its landing law: no
+faster than ``landing_speed``, never near the rail). The controller is started again and
+``dem-ros hw arm`` (a process of its own) re-arms the driver: the board leaves its latched landing and
+the controller lifts the plate off its support. Then the driver is stopped (SIGINT): it lands the
+plate before it lets go of the link (the board's reason is the driver's LAND request, not its watchdog).
+
+What is asserted is what the design guarantees whatever the load: the board's true-plant figures
+(rail contact, smallest gap, fastest descent while landing) and the sequence of states, once the host
+keeps the free-running loop in time (it is a timing property: run with ``DEM_ROS_HIL=1``; the same
+sequence tick by tick, with no clock, is tests/graph/test_restart.py). The command
+delay is 4 samples so a loaded machine keeps the loop in time (the controller predicts over it), and
+the driver's own watchdogs (``hw_driver.hold_timeout``, ``link_timeout``) are 0.3 s: a host stall of
+50 ms on a loaded 2-core machine must not fault the driver before the kill; the board's hold_timeout
+(50 ms) stays what lands the plate. A stall can still make the board land the plate by itself (no
+command for 50 ms): the script then re-arms (the same restart path), at most ``REARMS`` times.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+from pathlib import Path
+
+import pytest
+
+from dem_ros import contract
+from dem_ros.bag import BagReader
+from dem_ros.core.scenarios import get_scenario
+from dem_ros.nodes.hw_driver import request
+from dem_ros.tools.launcher import run_graph
+
+DELAY = 4
+LIMIT_S = 300.0  # s: the whole sequence, start-up included, on a loaded machine; then the run is stopped
+REARMS = 3  # re-arms after a landing the board made by itself during the lift-off (a host stall)
+
+
+def _rig_status(workdir: Path) -> dict:
+    """The emulated board's newest status line (mode, true gaps, landings), {} before the first."""
+    try:
+        lines = (workdir / "rig.log").read_text(errors="replace").splitlines()
+    except OSError:
+        return {}
+    for line in reversed(lines):
+        if line.startswith("RIG ") and '"status"' in line:
+            return json.loads(line[4:])
+    return {}
+
+
+class Script:
+    """The operator: kill the controller while levitating, restart it once the board has landed the plate,
+    arm the driver, and stop the driver once the plate is up again (``run_graph``'s ``supervise``)."""
+
+    def __init__(self, workdir: Path, domain: int, support_mm: float):
+        self.workdir, self.domain, self.support_mm = workdir, domain, support_mm
+        self.phase = "levitate"
+        self.t: dict[str, float] = {}
+        self.arm_out = ""
+        self.start = time.monotonic()
+        self.rearms = 0
+        self.landings_at_arm = 0
+
+    def arm(self) -> None:
+        """``dem-ros hw arm`` (its function, in this process: a CLI process takes 10-100 s to start at load 15-25)."""
+        self.arm_out = str(request("arm", domain_id=self.domain, timeout_s=30.0))
+
+    def __call__(self, t: float | None, procs: dict, restart) -> set[str]:
+        st = _rig_status(self.workdir)
+        now = time.monotonic()
+        flying = st.get("mode") == "RUN" and max(st.get("gaps_mm", [99, 99])) < self.support_mm - 1.0
+        if now - self.start > LIMIT_S and self.phase != "stop":
+            self.phase = "gave up in phase " + self.phase
+            procs["hw_driver"].send_signal(signal.SIGINT)
+        elif self.phase == "levitate" and ((t is not None and t >= 1.0 and flying) or st.get("landings", 0) >= 1):
+            procs["controller"].send_signal(signal.SIGKILL)  # (or the board has landed it already: a stall)
+            self.phase, self.t["killed"] = "landing", now
+        elif self.phase == "landing" and st.get("mode") == "LANDED" and st.get("landings", 0) >= 1:
+            restart("controller")
+            self.phase, self.t["restarted"] = "restarting", now
+        elif self.phase == "restarting" and (self.workdir / "controller.log").read_text(errors="replace").count("ready") >= 2:
+            self.arm()
+            self.phase, self.t["armed"], self.landings_at_arm = "lift", now, st.get("landings", 0)
+        elif self.phase == "lift" and st.get("landings", 0) > self.landings_at_arm and st.get("mode") == "LANDED" \
+                and self.rearms < REARMS:  # landed again by the board itself (a stall): arm again
+            self.rearms += 1
+            self.arm()
+            self.landings_at_arm = st.get("landings", 0)
+        elif self.phase == "lift" and flying:
+            self.phase, self.t["lifted"] = "stop", now
+            procs["hw_driver"].send_signal(signal.SIGINT)  # the driver lands the plate, then exits: the run ends
+        return {"controller"}
+
+
+@pytest.mark.skipif(os.environ.get("DEM_ROS_HIL") != "1", reason=(
+    "free-running hardware in the loop: whether the 1 kHz loop holds the plate depends on the host keeping it in "
+    "time (README: hardware in the loop; at load 15-25 on the 2-core VM the restarted controller ran 84-87 ms behind "
+    "and the plate never lifted); a timing property, measured on demand: DEM_ROS_HIL=1"))
+def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path, domain_id):
+    cfg = get_scenario("S1").config()
+    cfg["plant_sim"]["measure_velocity"] = False  # a rig has no gap-rate sensors
+    for g in ("controller", "hw_driver", "plant_sim"):
+        cfg[g]["command_delay"] = DELAY
+    cfg["controller"]["max_age"] = (DELAY + 1) * cfg["controller"]["dt"]
+    cfg["hw_driver"]["hold_timeout"] = cfg["hw_driver"]["link_timeout"] = 0.3  # the PC's watchdogs; the board's: 50 ms
+    support_mm = cfg["rig"]["support_gap"] * 1e3
+    workdir = tmp_path / "run"
+    script = Script(workdir, domain_id, support_mm)
+    bag = tmp_path / "bag"
+    facts = run_graph(cfg, duration=2 * LIMIT_S, transport="dds", bag=bag, meta={"scenario": "S1", "duration_s": LIMIT_S},
+                      domain_id=domain_id, status=False, workdir=workdir, hardware="rig", supervise=script)
+    rig = facts["rig"]
+    logs = {n: Path(p).read_text(errors="replace")[-3000:] for n, p in facts["logs"].items()}
+    assert script.phase == "stop", (script.phase, script.t, _rig_status(workdir), logs)
+    # the board: never near the rail, landed no faster than landing_speed (twice: the watchdog landing, the stop)
+    pc = cfg["plant_sim"]
+    assert rig["failed"] == ""
+    assert rig["min_gap_mm"] > pc["trip_gap_min"] * 1e3, rig
+    assert rig["landings"] >= 2 and rig["land_speed_max_mm_s"] <= pc["landing_speed"] * 1e3, rig
+    assert rig["mode"] in ("LAND", "LANDED") and rig["reason"] == "LAND requested", rig  # the driver's stop, not its watchdog
+    # the fault on /diagnostics, in the bag; the levitation after the arm, in the bag
+    r = BagReader(bag)
+    faults = [s.message for _, _, m in r.messages([contract.DIAGNOSTICS.name]) for s in m.status
+              if s.name == contract.HW_LOOP_STATUS and "command watchdog" in s.message]
+    assert faults, "the driver's watchdog fault is not on /diagnostics"
+    print(f"\nkilled -> board landed -> restarted -> armed -> lifted in {script.t['lifted'] - script.t['killed']:.1f} s; "
+          f"fastest descent while landing {rig['land_speed_max_mm_s']:.2f} mm/s (bound {pc['landing_speed'] * 1e3:g}), "
+          f"smallest gap {rig['min_gap_mm']:.3f} mm (trip_gap_min {pc['trip_gap_min'] * 1e3:g})")

@@ -13,14 +13,17 @@ PYTHON ?= python3
 $(STAMP): setup.py
 	@echo "make: first run: creating $(VENV) and installing dem_ros with its test dependencies (numpy, scipy, numba, cyclonedds, ...)"
 	@t0=$$(date +%s); me=$$$$; \
-	( while sleep 5 && kill -0 $$me 2>/dev/null; do echo "make:   ... ($$(( $$(date +%s) - t0 )) s)"; done ) & beat=$$!; \
+	( while sleep 5 && kill -0 $$me 2>/dev/null; do echo "make: setting up $(VENV) (pip installs from the package index; minutes) ... ($$(( $$(date +%s) - t0 )) s)"; done ) & beat=$$!; \
 	{ echo "make: $(PYTHON) -m venv $(VENV)" && $(PYTHON) -m venv $(VENV) && \
 	  echo "make: $(PY) -m pip install -qq -e '.[test]'" && \
 	  $(PY) -m pip install -qq --upgrade pip && $(PY) -m pip install -qq -e '.[test]'; }; rc=$$?; \
 	kill $$beat; \
 	if [ $$rc -eq 0 ]; then echo "make: $(VENV) ready in $$(( $$(date +%s) - t0 )) s"; fi; exit $$rc
-	@# compile the numba kernels once, here, with progress (demo, test and the nodes then load the cache)
-	$(PY) -c "from dem_ros.tools.common import warm_kernels; warm_kernels('make')"
+	@# compile the numba kernels once, here, with progress (demo, test and the nodes then load the cache),
+	@# with the offline closed loop of the default laws (the demo compares its run with it). os._exit: the
+	@# interpreter's teardown after a compile (numba's LLVM state) took 10-16 s at load 10-27 with nothing
+	@# to show for it; the kernels are on disk by then
+	$(PY) -c "import os, sys; from dem_ros.tools.common import warm_kernels; warm_kernels('make', offline=[(None, None)]); sys.stdout.flush(); sys.stderr.flush(); os._exit(0)"
 	touch $(STAMP)
 
 # the figures' command also after a degraded run (exit 1: its bag is there, the summary says what is missing)

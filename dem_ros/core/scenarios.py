@@ -24,7 +24,6 @@ from typing import Any
 
 import numpy as np
 
-from .model import NSCHED, SI, SM, SN1, SN2, SR1, SR2, coil_resistances
 from .params import ConfigError, apply_overrides, default_config
 
 __all__ = [
@@ -114,6 +113,8 @@ def mass_profile(pc: Mapping[str, Any], t: np.ndarray) -> np.ndarray:
 
 def plant_schedule(pc: Mapping[str, Any], t: np.ndarray) -> np.ndarray:
     """The time-varying truth at times ``t`` (s): shape (n, NSCHED), columns m, I, N1, N2, R1, R2 (module docstring)."""
+    from .model import NSCHED, SI, SM, SN1, SN2, SR1, SR2, coil_resistances  # here: loading scenarios needs no numba
+
     t = np.asarray(t, float)
     out = np.empty((t.size, NSCHED))
     dm = pc["mass_delta"] * _ramp(t, pc["mass_ramp_start"], pc["mass_ramp_end"])

@@ -6,12 +6,16 @@ second); either would make the first samples of a run stale. Nodes call
 every kernel is resident. ``dem-ros launch`` and ``dem-ros sim`` call it first in
 their own process with ``progress`` (a callback given the name of what is being
 compiled), so a first run compiles once, visibly, and the nodes then load the cache.
+The commands that also simulate offline (``sim``, ``launch``'s comparison run, ``make``'s
+set-up) warm the compiled closed loop of :func:`~dem_ros.core.simulate.simulate` too
+(``offline``): it is specialised per control law and estimator, and is the longest compile
+of all (minutes on a loaded 2-core machine).
 """
 
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -20,11 +24,14 @@ from .params import default_config
 __all__ = ["warm_up"]
 
 
-def warm_up(progress: Callable[[str], None] | None = None) -> None:
+def warm_up(progress: Callable[[str], None] | None = None, offline: Sequence[tuple[str | None, str | None]] = ()) -> None:
     """Call every kernel once (compiling it, or loading it from numba's cache).
 
     Args:
         progress: called with the name of each part before it is warmed (e.g. ``"controller adaptive"``).
+        offline: (control law, estimator) pairs whose offline closed loop to warm as well
+            (``simulate``'s kernel); None for either: the configured default (``controller.type``,
+            ``estimator.type``).
     """
     say = progress or (lambda _what: None)
     from numba.core.errors import NumbaPerformanceWarning
@@ -32,6 +39,8 @@ def warm_up(progress: Callable[[str], None] | None = None) -> None:
     with warnings.catch_warnings():  # numba's advice on small matrix products; nothing a user can act on
         warnings.simplefilter("ignore", NumbaPerformanceWarning)
         _warm(say)
+        if offline:
+            _warm_offline(say, offline)
 
 
 def _warm(say: Callable[[str], None]) -> None:
@@ -67,3 +76,17 @@ def _warm(say: Callable[[str], None]) -> None:
     from .safety import Supervisor
 
     Supervisor(cfg["plant_sim"], cfg["plant_sim"]["dt"])
+
+
+def _warm_offline(say: Callable[[str], None], pairs: Sequence[tuple[str | None, str | None]]) -> None:
+    from .simulate import simulate
+
+    cfg = default_config()
+    done = set()
+    for law, est in pairs:
+        key = (law or cfg["controller"]["type"], est or cfg["estimator"]["type"])
+        if key in done:
+            continue
+        done.add(key)
+        say(f"offline closed loop ({key[0]}, {key[1]})")
+        simulate(cfg, controller=key[0], estimator=key[1], duration=2 * cfg["plant_sim"]["dt"])

@@ -22,30 +22,16 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from .. import __version__
-from ..core.params import SCHEMA, ConfigError
-from ..nodes import NODES
-from ..transport import param_get, param_set
-from . import bench, faults, launcher, node_main, replay, study
-from .common import (
-    CONTROLLER_TYPES,
-    ESTIMATOR_TYPES,
-    UsageError,
-    domain_id,
-    env_domain_id,
-    load_config,
-    out_dir,
-    out_file,
-    seconds,
-    seed,
-    warm_kernels,
-    write_json,
-)
-from .runmetrics import RunMetrics
+from .progress import Progress
+
+# Only the standard library and the progress line above are imported with this module: the rest (numpy,
+# the schema, the commands' modules) loads in main() under a progress line, so that a loaded machine,
+# where that takes seconds, never shows a silent start. Each command imports what it runs (numba,
+# scipy, cyclonedds) itself, under its own progress.
 
 __all__ = ["build_parser", "main"]
 
@@ -65,14 +51,20 @@ def _positive_int(text: str) -> int:
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
-    from ..core.simulate import simulate
+    from ..core.params import SCHEMA
+    from .common import load_config, warm_kernels, write_json
+    from .runmetrics import RunMetrics
 
     cfg, sc = load_config(args)
     duration = args.duration if args.duration is not None else sc.duration
     if args.delay is not None:  # checked here, before the kernels load (simulate checks it again)
         SCHEMA.spec("controller", "command_delay").coerce(args.delay, "--delay (controller.command_delay)")
     print(f"dem-ros sim: {sc.name} ({sc.description}), {duration:g} s", flush=True)
-    warm_kernels("dem-ros sim")
+    # numba loads (or compiles) here, under a progress line, with the offline loop of this run's laws
+    warm_kernels("dem-ros sim", offline=[(args.controller or cfg["controller"]["type"],
+                                          args.estimator or cfg["estimator"]["type"])])
+    from ..core.simulate import simulate
+
     res = simulate(cfg, controller=args.controller, estimator=args.estimator, duration=duration,
                    seed=args.seed, delay=args.delay, scenario=sc.name)
     m = RunMetrics.from_sim(res)
@@ -109,6 +101,9 @@ def cmd_report(args) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    from . import bench
+    from .common import write_json
+
     result = bench.run(args.what, args)
     if args.json:
         write_json(args.json, result)
@@ -117,6 +112,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_config(args: argparse.Namespace) -> int:
+    from ..core.params import SCHEMA
+    from .common import UsageError
+
     if args.what == "schema":
         for g, specs in SCHEMA.groups.items():
             if args.group and g != args.group:
@@ -135,6 +133,9 @@ def cmd_config(args: argparse.Namespace) -> int:
 
 
 def cmd_node(args: argparse.Namespace) -> int:
+    from . import node_main
+    from .common import UsageError
+
     transport, rest = args.transport, list(args.ros_args)
     # argparse's REMAINDER takes everything after NAME: our own --transport may stand there (before --ros-args)
     head = rest.index("--ros-args") if "--ros-args" in rest else len(rest)
@@ -150,6 +151,9 @@ def cmd_node(args: argparse.Namespace) -> int:
 
 
 def cmd_param(args: argparse.Namespace) -> int:
+    from ..transport import param_get, param_set
+    from .common import UsageError
+
     if args.action == "set" and args.value is not None:
         _check_param_value(args.node, args.name, args.value)
     if args.action == "get":
@@ -169,6 +173,8 @@ def _check_param_value(node: str, name: str, text: str) -> None:
     """A malformed value for one of our nodes' parameters is a usage error, found before the node is asked."""
     import yaml
 
+    from ..core.params import SCHEMA
+
     group = node.strip("/").rsplit("/", 1)[-1]
     if group not in SCHEMA.groups or name not in {p.name for p in SCHEMA.groups[group]}:
         return  # not one of ours (or not known here): the node answers
@@ -182,6 +188,7 @@ def _check_param_value(node: str, name: str, text: str) -> None:
 
 def cmd_hw(args: argparse.Namespace) -> int:
     from ..nodes.hw_driver import request
+    from .common import UsageError
 
     try:
         v = request(args.action, args.reason, domain_id=args.domain_id, timeout_s=args.timeout)
@@ -202,17 +209,10 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="dem-ros", description="DEM maglev adaptive control: simulation, ROS 2 graph, recording and analysis.",
-                epilog="first steps: 'dem-ros launch --duration 30' (the node graph, recorded to bags/), 'dem-ros replay BAG "
-                       "--plot figs/' (its figures), 'dem-ros sim --scenario S2 --plot figs/' (offline); 'dem-ros COMMAND "
-                       "--help' for each command; the manual is docs/manual/README.md. A mistake ends with one line and "
-                       "exit status 2.")
-    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = p.add_subparsers(dest="command", required=True)
-
-    s = sub.add_parser("sim", help="offline closed-loop simulation of one scenario")
+def _add_sim(s: argparse.ArgumentParser) -> None:
+    from ..core.params import SCHEMA
     from ..core.scenarios import load_scenarios
+    from .common import CONTROLLER_TYPES, ESTIMATOR_TYPES, out_dir, out_file, seconds, seed
 
     s.add_argument("--scenario", default="S1", help=f"scenario from config/scenarios.yaml: {', '.join(load_scenarios())}"
                    " (default S1; docs/manual/scenarios.md)")
@@ -229,13 +229,19 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--record", type=out_dir, default=None, metavar="DIR", help="also write the run as a rosbag2 MCAP bag under DIR")
     s.set_defaults(func=cmd_sim)
 
-    r = sub.add_parser("report", help="controller x scenario matrix with figures and a markdown report")
+
+def _add_report(r: argparse.ArgumentParser) -> None:
+    from .common import out_dir, seconds
+
     r.add_argument("--out", type=out_dir, default="report", help="output directory (default ./report)")
     r.add_argument("--duration", type=seconds, default=None, help="override every scenario's duration (s)")
     r.add_argument("--jobs", type=_positive_int, default=None, help="parallel processes (default: cores)")
     r.set_defaults(func=cmd_report)
 
-    b = sub.add_parser("bench", help="benchmarks: sim | loop | record")
+
+def _add_bench(b: argparse.ArgumentParser) -> None:
+    from .common import out_file, seconds
+
     b.add_argument("what", choices=["sim", "loop", "record"],
                    help="sim: offline simulator speed; loop: the 1 kHz node graph's timing; record: the bag writer's throughput")
     b.add_argument("--json", type=out_file, default=None, help="write the figures as JSON")
@@ -251,7 +257,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="bench loop: real-time process settings for the nodes (SCHED_FIFO, mlockall; default on)")
     b.set_defaults(func=cmd_bench)
 
-    c = sub.add_parser("config", help="print the parameter schema or a params file of the defaults")
+
+def _add_config(c: argparse.ArgumentParser) -> None:
+    from ..core.params import SCHEMA
+
     c.add_argument("what", choices=["schema", "params"],
                    help="schema: every parameter with type, default, range, unit and meaning; params: a ROS 2 params "
                         "file of the defaults (config/dem_ros.yaml)")
@@ -259,31 +268,45 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"schema: only this group ({', '.join(SCHEMA.groups)})")
     c.set_defaults(func=cmd_config)
 
-    lg = sub.add_parser("launch", help="run the node graph (each node its own process), record a bag, print a summary")
+
+def _add_launch(lg: argparse.ArgumentParser) -> None:
+    from . import launcher
+
     launcher.add_arguments(lg)
     lg.set_defaults(func=launcher.cmd_launch)
 
+
+def _add_rig(rg: argparse.ArgumentParser) -> None:
     from ..hardware import rig
 
-    rg = sub.add_parser("rig", help="emulate the DEM rig and its I/O board behind the device link (free-running 1 kHz)")
     rig.build_parser(rg)
     rg.set_defaults(func=rig.cmd_rig)
 
-    hw = sub.add_parser("hw", help="the hardware driver: arm | disarm (a controlled landing) | estop | status")
+
+def _add_hw(hw: argparse.ArgumentParser) -> None:
+    from .common import domain_id
+
     hw.add_argument("action", choices=["arm", "disarm", "estop", "status"])
     hw.add_argument("reason", nargs="?", default="", help="estop: why (recorded with the fault)")
     hw.add_argument("--domain-id", type=domain_id, default=None, help="ROS_DOMAIN_ID of the driver (default: the environment's)")
     hw.add_argument("--timeout", type=float, default=5.0, help="seconds to find the driver and get its answer (default 5)")
     hw.set_defaults(func=cmd_hw)
 
-    nd = sub.add_parser("node", help="run one node of the graph")
+
+def _add_node(nd: argparse.ArgumentParser) -> None:
+    from ..nodes import NODES
+
     nd.add_argument("name", choices=NODES, help="the node; container: several in one process (--nodes a,b,...)")
     nd.add_argument("--transport", default="auto", choices=_TRANSPORTS,
                     help="auto (rclpy when it imports) | rclpy | dds; before or after NAME")
     nd.add_argument("ros_args", nargs=argparse.REMAINDER, help="node options, then --ros-args ... (params file, remaps)")
     nd.set_defaults(func=cmd_node)
 
-    rp = sub.add_parser("replay", help="metrics, figures and what-if re-runs from a recorded bag")
+
+def _add_replay(rp: argparse.ArgumentParser) -> None:
+    from . import replay
+    from .common import CONTROLLER_TYPES, out_dir, out_file
+
     rp.add_argument("bag", help="a bag directory (dem-ros launch, dem-ros sim --record) or its .mcap file")
     rp.add_argument("--json", type=out_file, default=None, help="write the metrics as JSON")
     rp.add_argument("--plot", type=out_dir, default=None, metavar="DIR", help="write figures (PNG) to DIR")
@@ -292,18 +315,27 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--publish", action="store_true", help="play the bag back onto the graph at its recorded rate")
     rp.set_defaults(func=replay.cmd_replay)
 
-    ft = sub.add_parser("faults", help="inject the fault catalogue into the real graph; a table of outcomes")
+
+def _add_faults(ft: argparse.ArgumentParser) -> None:
+    from . import faults
+
     faults.add_arguments(ft)
     ft.set_defaults(func=faults.cmd_faults)
 
-    bg = sub.add_parser("bag", help="inspect bags")
+
+def _add_bag(bg: argparse.ArgumentParser) -> None:
+    from . import replay
+
     bg.add_argument("action", choices=["check", "info"],
                     help="info: what the bag holds (topics, types, counts, the run); check: its integrity "
                          "(summary, chunks, sample gaps, rates, problems; exit 1 if any)")
     bg.add_argument("bag", help="a bag directory or its .mcap file")
     bg.set_defaults(func=replay.cmd_bag)
 
-    pm = sub.add_parser("param", help="get or set a parameter of a running node (DDS parameter services)")
+
+def _add_param(pm: argparse.ArgumentParser) -> None:
+    from .common import domain_id
+
     pm.add_argument("action", choices=["get", "set"])
     pm.add_argument("node", help="node name, e.g. controller or /controller")
     pm.add_argument("name", help="parameter name, e.g. k1 (dem-ros config schema lists them)")
@@ -312,14 +344,64 @@ def build_parser() -> argparse.ArgumentParser:
     pm.add_argument("--timeout", type=float, default=5.0, help="seconds to find the node and get its reply (default 5)")
     pm.set_defaults(func=cmd_param)
 
-    sy = sub.add_parser("study", help="robustness study: plant truth (grid or Monte Carlo) x controllers on Dask distributed")
+
+def _add_study(sy: argparse.ArgumentParser) -> None:
+    from . import study
+
     study.add_arguments(sy)
     sy.set_defaults(func=study.cmd_study)
+
+
+#: each command: (its line in ``dem-ros --help``, the function that adds its options, importing what they need)
+_COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
+    "sim": ("offline closed-loop simulation of one scenario", _add_sim),
+    "report": ("controller x scenario matrix with figures and a markdown report", _add_report),
+    "bench": ("benchmarks: sim | loop | record", _add_bench),
+    "config": ("print the parameter schema or a params file of the defaults", _add_config),
+    "launch": ("run the node graph (each node its own process), record a bag, print a summary", _add_launch),
+    "rig": ("emulate the DEM rig and its I/O board behind the device link (free-running 1 kHz)", _add_rig),
+    "hw": ("the hardware driver: arm | disarm (a controlled landing) | estop | status", _add_hw),
+    "node": ("run one node of the graph", _add_node),
+    "replay": ("metrics, figures and what-if re-runs from a recorded bag", _add_replay),
+    "faults": ("inject the fault catalogue into the real graph; a table of outcomes", _add_faults),
+    "bag": ("inspect bags", _add_bag),
+    "param": ("get or set a parameter of a running node (DDS parameter services)", _add_param),
+    "study": ("robustness study: plant truth (grid or Monte Carlo) x controllers on Dask distributed", _add_study),
+}
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``dem-ros`` parser: every command, or (``command``) only that command's options.
+
+    A command's options import what they need (the schema, numpy; the rig's the board's kernels), so
+    ``main`` builds only the options of the command it runs; every command is listed either way.
+    """
+    from .. import __version__
+
+    p = _Parser(prog="dem-ros", description="DEM maglev adaptive control: simulation, ROS 2 graph, recording and analysis.",
+                epilog="first steps: 'dem-ros launch --duration 30' (the node graph, recorded to bags/), 'dem-ros replay BAG "
+                       "--plot figs/' (its figures), 'dem-ros sim --scenario S2 --plot figs/' (offline); 'dem-ros COMMAND "
+                       "--help' for each command; the manual is docs/manual/README.md. A mistake ends with one line and "
+                       "exit status 2.")
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+    for name, (text, add) in _COMMANDS.items():
+        sp = sub.add_parser(name, help=text)
+        if command is None or command == name:
+            add(sp)
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command = next((a for a in argv if not a.startswith("-")), "")
+    prefix = f"dem-ros {command}" if command in _COMMANDS else "dem-ros"
+    # a cold start on a loaded machine reads numpy and the package for seconds: say so after 2 s (and every
+    # 5 s), so that no command starts silently; a warm start prints nothing here
+    with Progress(prefix, stage="starting: loading numpy and the dem_ros modules", quiet=2.0):
+        parser = build_parser(command)  # only this command's options (none for --help, --version, a typo)
+        from ..core.params import ConfigError
+        from .common import UsageError, env_domain_id
     args = parser.parse_args(argv)
     try:
         if args.command in _DDS_COMMANDS:

@@ -14,16 +14,19 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import hashlib
 import json
 import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from ..contract import DOMAIN_ID_MAX
 from ..core.params import SCHEMA, ConfigError, apply_overrides, load_params_file, parse_assignment
-from ..core.scenarios import Scenario, get_scenario
+
+if TYPE_CHECKING:  # the scenarios (and numpy) load with the first configuration, not with every command
+    from ..core.scenarios import Scenario
 
 __all__ = ["CONTROLLER_TYPES", "ESTIMATOR_TYPES", "UsageError", "domain_id", "env_domain_id", "fmt_pair", "json_safe", "json_text",
            "load_config", "out_dir", "out_file", "seconds", "seed", "warm_kernels", "write_json", "yaml_scalar"]
@@ -44,6 +47,8 @@ def load_config(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], Sc
     ``args`` needs ``scenario``; ``params`` (a ROS 2 params file) and ``set``
     (``GROUP.NAME=VALUE`` strings) are optional. Every value is validated by the schema.
     """
+    from ..core.scenarios import get_scenario
+
     sc = get_scenario(args.scenario)
     base = load_params_file(args.params) if getattr(args, "params", None) else None
     cfg = sc.config(base)
@@ -181,8 +186,12 @@ def write_json(path: Path | str, obj: Any) -> Path:
     return path
 
 
-def warm_kernels(prefix: str, stream: IO[str] | None = None) -> float:
+def warm_kernels(prefix: str, stream: IO[str] | None = None,
+                 offline: Sequence[tuple[str | None, str | None]] = ()) -> float:
     """Compile (first run) or load numba's cache of every kernel here, with progress on ``stream``.
+
+    ``offline``: also the offline closed loop of these (control law, estimator) pairs (None: the
+    configured default), for a command that simulates (see :func:`dem_ros.core.warmup.warm_up`).
 
     Reported through :class:`.progress.Progress`: nothing when the cache loads within a second;
     otherwise a line says whether the kernels compile (an empty cache: the first run after an
@@ -193,13 +202,16 @@ def warm_kernels(prefix: str, stream: IO[str] | None = None) -> float:
     from ..core.warmup import warm_up
     from .progress import Progress
 
-    cache = Path(configure())
-    cold = not (cache.is_dir() and any(cache.rglob("*.nbi")))
+    # numba keeps a source directory's kernels in <cache>/<dir name>_<sha1 of its absolute path> (its
+    # _UserProvidedCacheLocator): another checkout of the same version shares the cache directory, not the kernels
+    core = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, "core"))  # as numba: abspath, not resolve
+    mine = Path(configure()) / f"core_{hashlib.sha1(core.encode()).hexdigest()}"
+    cold = not (mine.is_dir() and any(mine.glob("*.nbi")))
     doing = ("compiling numba kernels (first run only; cached for later runs)" if cold
              else "loading the compiled numba kernels")
-    bar = Progress(prefix, stream=stream)
+    bar = Progress(prefix, stream=stream, stage=f"{doing}: loading numba")
     try:
-        warm_up(lambda what: bar.stage(f"{doing}: {what}"))
+        warm_up(lambda what: bar.stage(f"{doing}: {what}"), offline)
     finally:
         dt = bar.close(f"{prefix}: kernels ready in {bar.elapsed:.0f} s")
     return dt

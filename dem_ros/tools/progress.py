@@ -41,10 +41,12 @@ __all__ = ["Progress"]
 _ELAPSED = "\x00"
 
 #: the helper: prints the latest line received on stdin (``_ELAPSED`` -> its own elapsed time) after
-#: ``quiet`` s and then every ``period`` s; exits on EOF, status 3 if it printed anything. Arguments:
+#: ``quiet`` s and then every ``period`` s; exits on EOF (also when the command dies), status 3 if it printed
+#: anything; Ctrl-C (the whole foreground group gets it) is the command's to handle. Arguments:
 #: t0 (CLOCK_MONOTONIC of the start, shared by every process on Linux), quiet, period, 1 = redraw in place
 _HELPER = r"""
-import os, select, sys, time
+import os, select, signal, sys, time
+signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the command's to handle; it ends this with EOF
 t0, quiet, period, tty = float(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3]), sys.argv[4] == "1"
 line, buf, said, due = "", b"", False, t0 + quiet
 while True:

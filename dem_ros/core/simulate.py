@@ -91,10 +91,16 @@ def _closed_loop(law: LawArgs, est: EstimatorArgs, plant: PlantArgs, ref: np.nda
     driver, :class:`dem_ros.core.safety.Supervisor` in RUN), plus the input perturbation.
     """
     n = ref.shape[0]
+    # the records' fields as locals, once: an array field read inside the loop costs numba a
+    # reference-count increment and decrement per sample (#9 item 5: records at no cost)
     delay = plant.delay
     x = plant.x
     pp = plant.p
     u_max = plant.u_max
+    sg, sb, noise, pert, sched = plant.sg, plant.sb, plant.noise, plant.pert, plant.sched
+    ce, ce_state, pid_cp, pid_integ = law.ce, law.ce_state, law.pid_cp, law.pid_integ
+    s, Pe, mask, pe, qc, rm = est.s, est.P, est.mask, est.p, est.qc, est.rm
+    X_log, U_log, D_log = logs.X, logs.U, logs.D
     ubuf = np.zeros((delay + 1, 2))
     for j in range(delay + 1):
         ubuf[j, 0] = plant.u0[0]
@@ -107,16 +113,16 @@ def _closed_loop(law: LawArgs, est: EstimatorArgs, plant: PlantArgs, ref: np.nda
     ua = np.empty(2)
     for k in range(n):
         for i in range(6):
-            z[i] = plant.sg[i] * x[i] + plant.sb[i] + plant.noise[k, i]
+            z[i] = sg[i] * x[i] + sb[i] + noise[k, i]
         if est.on:
-            ekf_step(est.s, est.P, z, est.mask, u_prev, est.p, est.T, est.qc, est.rm, xh)
+            ekf_step(s, Pe, z, mask, u_prev, pe, est.T, qc, rm, xh)
         else:
             for i in range(6):
-                xh[i] = z[i] if est.mask[i] > 0.0 else 0.0
+                xh[i] = z[i] if mask[i] > 0.0 else 0.0
         if law.is_pid:
-            CK.pid_step(law.pid_cp, law.pid_integ, xh, ref[k], u, diag)
+            CK.pid_step(pid_cp, pid_integ, xh, ref[k], u, diag)
         else:
-            CK.ce_step(law.ce, law.ce_state, xh, ref[k], u, diag)
+            CK.ce_step(ce, ce_state, xh, ref[k], u, diag)
         # delay line: slot k % (delay+1) holds u_k; apply u_{k-delay}, clipped by the coil driver
         slot = k % (delay + 1)
         ubuf[slot, 0] = u[0]
@@ -124,15 +130,15 @@ def _closed_loop(law: LawArgs, est: EstimatorArgs, plant: PlantArgs, ref: np.nda
         old = (k + 1) % (delay + 1) if delay > 0 else slot
         for j in range(2):
             u_prev[j] = min(max(ubuf[old, j], -u_max), u_max)
-            ua[j] = u_prev[j] + plant.pert[k, j]
+            ua[j] = u_prev[j] + pert[k, j]
         if logs.on:
             for i in range(6):
-                logs.X[k, i] = x[i]
-            logs.U[k, 0] = u_prev[0]
-            logs.U[k, 1] = u_prev[1]
+                X_log[k, i] = x[i]
+            U_log[k, 0] = u_prev[0]
+            U_log[k, 1] = u_prev[1]
             for i in range(CK.NDIAG):
-                logs.D[k, i] = diag[i]
-        apply_schedule(pp, plant.sched[k], plant.L, plant.l)
+                D_log[k, i] = diag[i]
+        apply_schedule(pp, sched[k], plant.L, plant.l)
         rk4(x, ua, pp, plant.dt, plant.nsub)
         de1 = pp[IP] * x[0] + pp[IQ] * x[2]
         de2 = pp[IQ] * x[0] + pp[IP] * x[2]

@@ -51,7 +51,7 @@ def test_gap_sensor_offset_is_a_bounded_offset_not_a_drift(scenarios):
 
 def test_coil_rows_vanish_at_rest_and_measure_a_resistance_error():
     """At rest (u = R i, b' = 0) the weighted coil residual is kappa (R_hat - R) i per coil, and
-    d rc / dv is kappa lp(i) times the scales in R and +-rho (K, 1/m: 0)."""
+    d rc / dv is kappa lp(i) times the scales in R and +-rho (the rows' only non-zero derivatives)."""
     ctrl = make_controller(CC, "adaptive")
     cp, scale = ctrl.cp, ctrl.scale
     R_true = (21.0, 19.0)
@@ -59,18 +59,18 @@ def test_coil_rows_vanish_at_rest_and_measure_a_resistance_error():
     d = 0.008
     b = (i[0] / d, i[1] / d)
     coil = np.full((5, 2), np.nan)
-    Xc, rc = np.zeros((K.NPHI, 2)), np.zeros(2)
     u = np.array([R_true[0] * i[0], R_true[1] * i[1]])
-    for _ in range(3):  # first call starts the filters, the next ones measure
-        K._coil_rows(cp, scale, ctrl.v, coil, u, i[0], i[1], b[0], b[1], Xc, rc)
+    assert K._coil_rows(cp, scale, ctrl.v, coil, u, i[0], i[1], b[0], b[1]) == K.NO_COIL_ROWS  # starts the filters
+    for _ in range(2):  # the next calls measure
+        rows = K._coil_rows(cp, scale, ctrl.v, coil, u, i[0], i[1], b[0], b[1])
+    rc, dR, drho = rows[0:2], rows[2:4], rows[4:6]
     phi = scale[:4] * ctrl.v[:4]
     R_hat = (phi[1] + phi[3], phi[1] - phi[3])
     for j in range(2):
         kappa = CC["coil_weight"] * (phi[0] + cp[K.CP_CA]) * b[j] / CC["k3"]
         assert rc[j] == pytest.approx(kappa * (R_hat[j] - R_true[j]) * i[j], rel=1e-12)
-        assert Xc[1, j] == pytest.approx(kappa * scale[1] * i[j], rel=1e-12)
-        assert Xc[3, j] == pytest.approx((1 if j == 0 else -1) * kappa * scale[3] * i[j], rel=1e-12)
-        assert Xc[0, j] == 0.0 and Xc[2, j] == 0.0
+        assert dR[j] == pytest.approx(kappa * scale[1] * i[j], rel=1e-12)
+        assert drho[j] == pytest.approx((1 if j == 0 else -1) * kappa * scale[3] * i[j], rel=1e-12)
 
 
 def test_offline_loop_clips_at_the_boards_u_max(scenarios):

@@ -434,7 +434,7 @@ def test_enhanced_dead_zone_gates_the_whole_least_squares_step():
         ctrl = make_controller({**CC, "deadzone": "error", "e0": e0, "w": 0.0}, "adaptive_enhanced")
         v, P = ctrl.v.copy(), ctrl.P.copy()
         flag = K._update_adaptive(ctrl.cp, ctrl.theta, v, ctrl.scale, ctrl.v0, P, xi, ec, True, K.DZ_ERROR,
-                                  np.zeros((K.NPHI, 2)), np.zeros(2))  # no coil rows
+                                  K.NO_COIL_ROWS)
         q = np.diag([CC["q_m"], CC["q_R"], CC["q_K"], CC["q_rho"]]) * CC["dt"]
         assert flag == float(adapting)
         if adapting:

@@ -220,7 +220,7 @@ class CEController(Controller):
 
     # -- loop -------------------------------------------------------------
     def step(self, meas: np.ndarray, ref: np.ndarray) -> np.ndarray:
-        kernels.ce_step(self.law, self.state, meas, ref, self.u, self.diag)
+        kernels.ce_step_arrays(*self.law, *self.state, meas, ref, self.u, self.diag)  # records typed in Python cost ~1.4 us
         return self.u
 
     def set_params(self, cfg: Mapping[str, Any]) -> None:

@@ -13,7 +13,9 @@ used; when none is recent (the reference node is down) the last good gaps are
 held at rest. An estimate older than ``max_age`` on the experiment clock (the
 newest ``/dem/applied_voltage`` stamp; default (command_delay + 1) dt), stamped
 ahead of it, or non-finite is not acted on (no command: the board holds) and is
-counted; a law that produces a non-finite voltage publishes nothing.
+counted; a law that produces a non-finite voltage publishes nothing. An applied voltage whose stamp
+is refused as a lone jump of the experiment clock (a corrupt or foreign sample) is not taken as the
+applied voltage either.
 
 Start and restart (the same path: a controller started mid-run, or a law swapped
 during the run): nothing is commanded before the plant's applied voltage has been
@@ -176,14 +178,17 @@ class ControllerNode:
 
     def on_applied(self, msg) -> None:
         if len(msg.effort) >= 2 and all_finite(msg.effort[:2]):
+            # the stamp first: a sample it refuses (a lone jump of the experiment clock: a corrupt or foreign
+            # stamp) is not the plant's, so its effort is not either (u_applied feeds the hover fit and restarts)
+            if not self.checks.plant_stamp(stamp_ns(msg)):
+                self.counts["plant_stamp_jump"] += 1
+                self._warn_every("plant_stamp_jump", "applied voltage stamped far from the plant's clock: not taken"
+                                 " (neither as the clock nor as the applied voltage) until the next sample confirms it")
+                return
             if self.u_applied is None:
                 self.u_applied = np.zeros(2)
             self.u_applied[0] = msg.effort[0]
             self.u_applied[1] = msg.effort[1]
-            if not self.checks.plant_stamp(stamp_ns(msg)):  # a lone jump of the experiment clock: not taken
-                self.counts["plant_stamp_jump"] += 1
-                self._warn_every("plant_stamp_jump", "applied voltage stamped far from the plant's clock: not taken"
-                                 " as the clock until the next sample confirms it")
 
     def on_estimate(self, msg) -> None:
         t = stamp_ns(msg)

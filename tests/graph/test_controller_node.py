@@ -91,3 +91,34 @@ def test_hover_window_holds_the_applied_voltage_then_initialises_from_it():
     assert ctl.started and ctl.ctrl.hover_fit.samples == n and ctl.ctrl.hover_fit.determined == 3
     assert ctl.ctrl.diag[1] == 20.0  # R_hat = u/i of the window
     assert all(abs(v - 80.0) < 1e-6 for k in range(n, n + 5) for v in cmds[t0 + k * T])  # the law holds the hover
+
+
+def test_an_applied_voltage_with_a_refused_stamp_is_not_taken_as_the_applied_voltage():
+    """Review defect: a /dem/applied_voltage whose stamp the plant clock's guard refuses (the ``future-applied``
+    fault: a copy of a measurement, its currents ~4 A where the voltages are ~80 V, stamped +1 h) still
+    overwrote ``u_applied``: the hover window took 4 V for that sample (R_hat 18.1 instead of 20) and a
+    restart on the next estimate would start the law from it. Refused stamp: nothing of the sample is taken."""
+    bus, ctl, cmds, _, _ = _graph("-p", "hover_window:=0.01")
+    n = ctl.window_n
+    JS = bus.msg("sensor_msgs/msg/JointState")
+    t0 = bus.now_ns
+    bad = 4
+    for k in range(n + 3):
+        t = t0 + k * T
+        bus.now_ns = t
+        bus.publish(contract.APPLIED, joint_state(JS, t, effort=(80.0, 80.0), frame=contract.FRAME_PREROLL))
+        if k == bad:  # the injected fault: the measurement's copy, stamped an hour ahead
+            bus.publish(contract.APPLIED, joint_state(JS, t + 3600 * 10**9, position=(0.008, 0.008),
+                                                      effort=(4.0, 4.0), frame=contract.FRAME_PREROLL))
+        bus.publish(contract.REFERENCE, named_vector(JS, t, contract.REFERENCE_NAMES, REF, frame=contract.FRAME_PREROLL))
+        bus.publish(contract.ESTIMATE, joint_state(JS, t, position=(0.008, 0.008), velocity=(0.0, 0.0),
+                                                   effort=(4.0, 4.0), frame=contract.FRAME_PREROLL))
+        bus.spin_once()
+        if k == bad:
+            assert ctl.counts["plant_stamp_jump"] == 1
+            assert ctl.u_applied is not None and ctl.u_applied.tolist() == [80.0, 80.0]
+            assert cmds[t] == [80.0, 80.0]  # the hover held with the plant's voltage, not the copy's 4 V
+    assert ctl.started and ctl.ctrl.hover_fit.samples == n
+    assert ctl.ctrl.diag[1] == 20.0  # R_hat = u/i of the window: the refused sample's 4 V is not in it
+    assert all(abs(v - 80.0) < 1e-6 for k in range(n, n + 3) for v in cmds[t0 + k * T])
+    assert ctl.node.callback_errors == {}

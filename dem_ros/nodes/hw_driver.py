@@ -22,7 +22,11 @@ Stopped from outside (Ctrl-C / SIGTERM, e.g. the launcher at the end of a run): 
 lands the plate *before* it lets go of the link: it disarms (LAND in reply to every sensor
 frame) until the board reports LAND or LANDED, for at most ``STOP_LANDING_S``; only then does
 the process exit. A driver that dies without that still lands the plate, by the board's own
-link watchdog (hold, then LAND), which the run then reports as a watchdog landing.
+link watchdog (hold, then LAND), which the run then reports as a watchdog landing. The reader
+thread lives until then, on every transport: it uses nothing of the shut-down node but its
+publishers, and a frame whose handling raises (a publisher the transport destroyed) is skipped,
+not the end of the thread. While the node is up, a sample the transport fails to publish is
+counted (``publish_errors`` on ``/diagnostics``: WARN) and the next one is published as usual.
 
 State and link statistics: ``/dem/hw/state`` (DiagnosticStatus, latched, 10 Hz and on
 every change) and ``/diagnostics`` (1 Hz). Requests: the services ``~/arm``, ``~/disarm``,
@@ -50,7 +54,7 @@ from ..hardware.channel import ChannelError, open_channel
 from ..hardware.driver import DriverState, HwDriver, Sample
 from ..hardware.link import HELLO_REQUEST, Mode, Status, encode
 from ..realtime import config_from_env
-from ..transport import Node, TransportError, run_node
+from ..transport import Node, run_node
 from .common import OK, WARN, CommandSource, Diagnostics, LatencyStats, diag_array, joint_state, stamp_ns
 
 __all__ = ["HwDriverNode", "main"]
@@ -58,7 +62,7 @@ __all__ = ["HwDriverNode", "main"]
 RING = 256  # receive times kept by sample number (latency: sample received -> command sent)
 #: link and board counters whose growth makes the next /diagnostics report a WARN
 WARN_ON = ("lost", "duplicated", "reordered", "late", "corrupt", "hold_samples", "commands_dropped", "sensor_holds",
-           "link_loss", "watchdog", "commands_foreign")
+           "link_loss", "watchdog", "commands_foreign", "publish_errors", "reader_errors")
 #: board modes that are reported as a standing WARN (the board is landing or has landed the plate)
 BOARD_DOWN = (Mode.LAND, Mode.LANDED, Mode.FAULT)
 STOP_LANDING_S = 1.0  # s: stopped from outside, the driver waits at most this for the board to take up LAND
@@ -102,6 +106,8 @@ class HwDriverNode:
         self.board_down: tuple[float, str] | None = None  # (t [s], why) the board landed during the experiment
         self.end_landed_s: float | None = None  # the end-of-run landing took this long [s] (None: not yet landed)
         self.closing = False  # the node is shut down: no more publishing, the link lands the plate (close())
+        self.publish_errors = 0  # samples the transport failed to publish while the node was up (not lost for good)
+        self.reader_errors = 0  # frames whose handling raised in the reader thread (it carries on with the next)
         self.rx_ns = np.zeros(RING, dtype=np.int64)  # steady receive time of each sample, by seq
         self.lat = LatencyStats()
         self.t_boot = time.monotonic()
@@ -182,7 +188,10 @@ class HwDriverNode:
                 os.sched_setscheduler(threading.get_native_id(), os.SCHED_FIFO, os.sched_param(rt.priority))
         poller = select.poll()
         poller.register(self.ch.fileno(), select.POLLIN)
-        now_ns = self.node.now_ns
+        # This thread outlives the node: close() runs after the node was shut down and needs it to reply LAND
+        # to every frame. So nothing of the node is used here but its publishers (guarded, _publish_sample):
+        # the board-to-ROS clock map reads ROS time off the system clock, as every transport's now_ns() does
+        # (the DDS node's is time.time_ns(); the rclpy node's clock is gone with its node after shutdown).
         while not self.stop.is_set():
             ready = poller.poll(5)
             with self.lock:
@@ -194,19 +203,42 @@ class HwDriverNode:
                         break
                     if data is None:
                         break
-                    steady = time.monotonic_ns()
-                    sample, reply = self.drv.on_bytes(data, now_ns(), steady)
-                    if reply is not None:
-                        self.ch.send(reply)
-                    if sample is not None:
-                        self.rx_ns[sample.seq % RING] = steady
-                        try:
-                            if not self.closing:
-                                self._publish(sample)
-                        except TransportError:  # the node is shut down under us (SIGINT): no more publishing;
-                            self.closing = True  # the link stays up until close() has landed the plate
+                    try:
+                        self._on_frame(data)
+                    except Exception as exc:  # never the end of the thread that lands the plate: count, go on
+                        self.reader_errors += 1
+                        if self.reader_errors in (1, 10, 100, 1000) or self.reader_errors % 10000 == 0:
+                            self.node.logger.error(f"link reader: a frame raised {exc!r} ({self.reader_errors} so far);"
+                                                   " carrying on with the next")
                 if not ready:
                     self.drv.check(time.monotonic_ns())
+
+    def _on_frame(self, data: bytes) -> None:
+        """One received frame (the lock held): through the driver, its reply to the board, its sample out."""
+        steady = time.monotonic_ns()
+        sample, reply = self.drv.on_bytes(data, time.time_ns(), steady)
+        if reply is not None:
+            self.ch.send(reply)
+        if sample is not None:
+            self.rx_ns[sample.seq % RING] = steady
+            if not self.closing:
+                self._publish_sample(sample)
+
+    def _publish_sample(self, s: Sample) -> None:
+        """Publish a sample; a failure never stops the reader. The node shut down under us (SIGINT): no more
+        publishing (the link stays up until close() has landed the plate). Otherwise a transport error of this
+        sample (a DDS write error, or any transport's own exception) is counted (``publish_errors`` on
+        /diagnostics: WARN) and the next sample is published as usual."""
+        try:
+            self._publish(s)
+        except Exception as exc:  # TransportError, or the transport's own (rclpy's on a destroyed publisher)
+            if self.node.is_shutdown:
+                self.closing = True
+                return
+            self.publish_errors += 1
+            n = self.publish_errors
+            if n in (1, 10, 100, 1000) or n % 10000 == 0:
+                self.node.logger.warn(f"sample {s.seq} not published: {exc!r} ({n} so far); carrying on")
 
     def _publish(self, s: Sample) -> None:
         if self.finished:
@@ -320,6 +352,7 @@ class HwDriverNode:
                 "latency_max_us": round(lat["max"], 1), "failed": bool(self.failed), "fault": self.failed,
                 **({"fail_time_s": round(self.fail_t, 3)} if self.fail_t is not None else {}),
                 "holds": st["hold_samples"], **self._landing(), **st,
+                "publish_errors": self.publish_errors, "reader_errors": self.reader_errors,
                 **self.source.values()}
 
     def _landing(self) -> dict[str, Any]:

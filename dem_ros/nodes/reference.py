@@ -16,10 +16,14 @@ resumes the schedule at the sample the plant is at (t = stamp - epoch), gliding 
 through M(s): the step times stay those of the experiment, never re-based to the restart.
 
 The recording is watched here, by a node that lives on the loop's path: the recorder reports on
-``/diagnostics`` once a second (status ``recorder``); after it has been seen, ``RECORDER_SILENT_S``
-without a report latches ERROR on the status ``recording`` (published from this node) and logs it, with
-the experiment time of the recorder's last report: a recorder killed or hung loses the recording from
-there, and nobody else alive can say so (the bag ends without a word).
+``/diagnostics`` once a second (status ``recorder``); this node checks once a second (its own timer,
+status ``recording``) whether a report came since its previous check. After the recorder has been
+seen, ``RECORDER_MISSED`` consecutive checks without a report latch ERROR on ``recording`` and log it,
+with the experiment time of the recorder's last report: a recorder killed or hung loses the recording
+from there, and nobody else alive can say so (the bag ends without a word). Periods are counted, not
+wall seconds: after a stall of the host or the executor (seconds without either timer) this node's
+timer may fire before the recorder's, which is one missed check, not a dead recorder; a dead one is
+reported 2 to 3 s after its last report.
 
 Implausible measurements are refused (counted, logged once a second), never acted on: fewer than two
 gaps, a stamp more than ``FUTURE_S`` ahead of this node's clock (a rogue or broken clock: a +1 h stamp
@@ -44,7 +48,8 @@ __all__ = ["ReferenceNode", "main"]
 PREROLL_KEEP = 1000  # pre-roll gaps whose median is the rest (1 s: the default pre-roll; bounded per sample)
 FUTURE_S = 1.0  # stamps may lead this node's clock by transport jitter, never by a second
 MAX_CATCH_UP_S = 10.0  # lost measurements are caught up sample by sample, at most this much at once
-RECORDER_SILENT_S = 2.5  # the recorder reports once a second: this long without a report, it is dead or hung
+RECORDER_CHECK_S = 1.0  # this node checks the recorder's reports this often (the recorder reports once a second)
+RECORDER_MISSED = 2  # consecutive checks without a report: the recorder is dead or hung
 
 
 class ReferenceNode:
@@ -70,7 +75,11 @@ class ReferenceNode:
         self.diag = Diagnostics(node, "reference", warn_on=("refused",), values=self._diag_values)
         self.last_t: int | None = None  # stamp of the newest measurement [ns]
         self.recorder_seen: tuple[int, int | None] | None = None  # (our clock, newest stamp) at its last report
-        self.recording = Diagnostics(node, "recording", values=self._recording_values)
+        self.recorder_reports = 0  # the recorder's reports received
+        self._reports_checked = 0  # ... of which were there at the previous check
+        self.recorder_missed = 0  # consecutive checks with no report since the one before
+        self.recording = Diagnostics(node, "recording", values=self._recording_values, timer=False)
+        node.timer(RECORDER_CHECK_S, self._check_recorder)
         node.subscribe(contract.MEASUREMENT, self.on_measurement)
         node.subscribe(contract.DIAGNOSTICS, self.on_diagnostics)
         node.logger.info("ready")
@@ -103,18 +112,34 @@ class ReferenceNode:
         return {"refused": self.refused, "schedule_t_s": "none" if t is None else round(t, 3),
                 "epoch_ns": self.epoch if self.epoch is not None else "none"}
 
+    def _check_recorder(self) -> None:
+        """Once a second: did the recorder report since the previous check? ``RECORDER_MISSED`` checks in a row
+        without latch the fault (module docstring); then the status ``recording`` is published."""
+        seen = self.recorder_seen
+        if seen is not None:
+            if self.recorder_reports != self._reports_checked:
+                self._reports_checked = self.recorder_reports
+                self.recorder_missed = 0
+            else:
+                self.recorder_missed += 1
+            if self.recorder_missed >= RECORDER_MISSED and self.recording.faulted is None:
+                silent = (self.node.now_ns() - seen[0]) * 1e-9
+                at, epoch = seen[1], self.epoch
+                when = f"t = {(at - epoch) * 1e-9:.3f} s" if at is not None and epoch is not None else "before t = 0"
+                self.recording.fault(f"the recorder has sent no status for {silent:.1f} s ({self.recorder_missed} checks"
+                                     f" in a row; its last at {when} of the experiment): it is dead or hung, the"
+                                     " recording is lost from there")
+                return  # (published at once by the fault)
+        self.recording.publish()
+
     def _recording_values(self) -> dict:
-        """The recorder's liveness as seen here (module docstring): a silence latches a fault."""
+        """The recorder's liveness as seen here (module docstring)."""
         seen = self.recorder_seen
         if seen is None:
             return {"recorder": "not seen"}
         silent = (self.node.now_ns() - seen[0]) * 1e-9
-        if silent > RECORDER_SILENT_S and self.recording.faulted is None:
-            at, epoch = seen[1], self.epoch
-            when = f"t = {(at - epoch) * 1e-9:.3f} s" if at is not None and epoch is not None else "before t = 0"
-            self.recording.fault(f"the recorder has sent no status for {silent:.1f} s (its last at {when} of the"
-                                 " experiment): it is dead or hung, the recording is lost from there")
-        return {"recorder": "silent" if silent > RECORDER_SILENT_S else "alive", "recorder_silent_s": round(silent, 1)}
+        state = "alive" if not self.recorder_missed else "silent" if self.recorder_missed >= RECORDER_MISSED else "late"
+        return {"recorder": state, "recorder_missed_checks": self.recorder_missed, "recorder_silent_s": round(silent, 1)}
 
     def _refuse(self, why: str) -> None:
         self.refused += 1
@@ -128,6 +153,7 @@ class ReferenceNode:
         for st in msg.status:
             if st.name == contract.RECORDER_STATUS:
                 self.recorder_seen = (self.node.now_ns(), self.last_t)
+                self.recorder_reports += 1
             elif st.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
                 for kv in st.values:
                     if kv.key == "epoch_ns":

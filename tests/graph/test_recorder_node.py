@@ -89,12 +89,12 @@ def test_sigkill_leaves_a_bag_readable_up_to_its_last_chunk(tmp_path):
     assert "truncated" in res.stdout and "Traceback" not in res.stderr
 
 
-def test_a_silent_recorder_is_reported_on_diagnostics_by_the_reference_node():
-    """A recorder killed or hung says nothing: the reference node, alive on the loop's path, latches ERROR on
-    the status 'recording' RECORDER_SILENT_S after the recorder's last once-a-second report, and logs it."""
+def _recording_watch():
+    """A reference node and the recorder's once-a-second reporter on one memory bus; the levels and
+    messages of the status 'recording' as published."""
     from dem_ros import contract
-    from dem_ros.nodes.common import ERROR, OK, Diagnostics
-    from dem_ros.nodes.reference import RECORDER_SILENT_S, ReferenceNode
+    from dem_ros.nodes.common import Diagnostics
+    from dem_ros.nodes.reference import ReferenceNode
     from dem_ros.transport.memory import MemoryBus
 
     bus = MemoryBus()
@@ -104,11 +104,53 @@ def test_a_silent_recorder_is_reported_on_diagnostics_by_the_reference_node():
         (s.level if isinstance(s.level, int) else int.from_bytes(bytes(s.level), "little"), s.message)
         for s in m.status if s.name == "recording"))
     recorder = Diagnostics(bus.node("recorder"), contract.RECORDER_STATUS)  # the recorder node's reporter
+    return bus, recorder, seen
+
+
+def _stall(bus, seconds: float) -> None:
+    """The host (or the executor) stalls for ``seconds``: then each timer fires once, as the DDS and rclpy
+    timers do (missed periods are skipped, never burst), in the order of the bus (the reference's first)."""
+    bus.now_ns += round(seconds * 1e9)
+    for t in bus.timers:
+        if t.next_ns <= bus.now_ns:
+            t.next_ns += (bus.now_ns - t.next_ns) // t.period_ns * t.period_ns  # the latest missed deadline
+    bus.spin_once()
+
+
+def test_a_stall_of_the_host_is_not_a_dead_recorder():
+    """Review defect: the reference latched ERROR when the recorder had been silent > 2.5 s of wall time at one
+    of its own checks: after a 3 s stall its timer fired before the recorder's and latched a false, permanent
+    'recording lost'. Counted in its own checks: one missed report is not a dead recorder."""
+    from dem_ros.nodes.common import ERROR, OK
+
+    bus, _recorder, seen = _recording_watch()
+    bus.advance(3.5)
+    assert seen and all(level == OK for level, _ in seen), seen
+    _stall(bus, 3.0)
+    bus.advance(5.0)
+    assert all(level != ERROR for level, _ in seen), seen
+    assert seen[-1][0] == OK, seen[-3:]
+    assert not any("fault: the recorder" in line[2] for line in bus.log)
+
+
+def test_a_silent_recorder_is_reported_on_diagnostics_by_the_reference_node():
+    """A recorder killed or hung says nothing: the reference node, alive on the loop's path, latches ERROR on
+    the status 'recording' when the recorder's once-a-second report is missing at RECORDER_MISSED of its own
+    once-a-second checks in a row (2 to 3 s after its last report), and logs it."""
+    from dem_ros.nodes.common import ERROR, OK
+    from dem_ros.nodes.reference import RECORDER_MISSED
+
+    bus, recorder, seen = _recording_watch()
     bus.advance(3.0)
     assert seen and all(level == OK for level, _ in seen), seen  # alive: it reports every second
     assert recorder.timer is not None
-    recorder.timer.cancel()  # the recorder dies
-    bus.advance(RECORDER_SILENT_S + 1.5)
-    level, message = seen[-1]
+    recorder.timer.cancel()  # the recorder dies (its last report at t = 3 s)
+    bus.advance(RECORDER_MISSED - 0.01)
+    assert all(level == OK for level, _ in seen), seen  # not before 2 s
+    bus.advance(1.02)
+    level, message = seen[-1]  # by 3 s after the last report
     assert level == ERROR and "the recorder has sent no status" in message, seen[-3:]
+    bus.advance(5.0)
+    assert seen[-1][0] == ERROR  # latched
     assert sum("fault: the recorder has sent no status" in line[2] for line in bus.log) == 1
+

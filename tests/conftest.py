@@ -7,15 +7,18 @@ call, a launch - talks on that private domain, on loopback. A test that needs a 
 own takes the ``domain_id`` fixture (or ``module_domain_id``).
 
 numba: the run sets ``NUMBA_CACHE_DIR`` (``dem_ros.core.numba_cache``: the cache of this version of the
-core's sources) for every process a test starts, and when the suite has not yet filled that cache (the
-first run after an edit of ``dem_ros/core``) compiles the kernels into it once, here, with progress: otherwise every node
-process of the first graph test compiles the same kernels at once, and on a loaded 2-core machine they
-were not ready within the launcher's 120 s. Only tests/tools/test_first_use.py uses an empty cache of its
-own (it proves first use).
+core's sources) for every process a test starts, and when the suite has not yet filled that cache for this
+checkout (the first run after an edit of ``dem_ros/core``, or the first run of another checkout of the same
+version: the directory is keyed by the sources' contents, but numba keeps kernels per source *path*, see
+``dem_ros.tools.common.warm_kernels``) compiles the kernels into it once, here, with progress: otherwise
+every node process of the first graph test compiles the same kernels at once, and on a loaded 2-core
+machine they were not ready within the launcher's 120 s. The marker that says so is keyed the same way
+(:func:`warm_marker`). Only tests/tools/test_first_use.py uses an empty cache of its own (it proves first use).
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 import sys
 from collections.abc import Iterator
@@ -37,11 +40,23 @@ def pytest_configure(config: pytest.Config) -> None:
     _fill_numba_cache()
 
 
+def warm_marker(cache: str) -> Path:
+    """The file in numba cache directory ``cache`` that says the suite compiled every kernel of *this checkout*
+    into it: keyed as numba keys the kernels, by the absolute path of the sources' directory
+    (``<cache>/core_<sha1 of that path>``, what ``dem_ros.tools.common.warm_kernels`` looks at; abspath, not
+    resolve, as numba does), not only by the sources' contents (the cache directory's key)."""
+    import dem_ros.core
+
+    core = os.path.abspath(os.path.dirname(dem_ros.core.__file__))
+    return Path(cache) / f"warmed-by-tests-core_{hashlib.sha1(core.encode()).hexdigest()}"
+
+
 def _fill_numba_cache() -> None:
-    """Point this run and its child processes at the shared numba cache; compile into it once if it is empty."""
+    """Point this run and its child processes at the shared numba cache; compile into it once if this
+    checkout's kernels are not all in it."""
     from dem_ros.core.numba_cache import configure
 
-    done = Path(configure()) / "warmed-by-tests"  # every kernel is in (not only those a killed process wrote)
+    done = warm_marker(configure())  # every kernel is in (not only those a killed process wrote)
     if done.exists():
         return  # each process loads what it needs
     from dem_ros.tools.common import warm_kernels

@@ -6,6 +6,7 @@ its own type definition) listens to the commands. Nothing of the middleware is m
 No ``from __future__ import annotations`` here: this module defines an IdlStruct.
 """
 
+import contextlib
 import itertools
 import subprocess
 import sys
@@ -35,7 +36,51 @@ PREROLL = 1.0
 #: the plant waits for this many readers of /dem/measurement before t = 0 (up to start_delay + 30 s): the
 #: estimator, the reference, the recorder and the test's gate, which joins once the parameter changes are made
 GATED_READERS = 4
+CLI_TIMEOUT_S = 120.0  # one round of concurrent `dem-ros param` calls (each a process start: seconds when loaded)
 
+
+def run_concurrently(cmds: dict, timeout_s: float) -> dict:
+    """Start every command of ``{key: argv}`` at once; ``{key: (exit code, stdout + stderr)}``, all within one
+    shared deadline ``timeout_s`` (subprocess.TimeoutExpired past it). Whatever ends the wait (a timeout, an
+    error, an interrupt), no process outlives it: those still running are killed and reaped."""
+    procs: dict = {}
+    try:
+        for key, argv in cmds.items():
+            procs[key] = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        end = time.monotonic() + timeout_s
+        out = {}
+        for key, p in procs.items():
+            o, e = p.communicate(timeout=max(end - time.monotonic(), 0.0))
+            out[key] = (p.returncode, o + e)
+        return out
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+        for p in procs.values():
+            with contextlib.suppress(Exception):
+                p.communicate(timeout=10)
+
+
+def test_a_timed_out_round_of_concurrent_calls_leaves_no_process_behind(monkeypatch):
+    """Review defect: the fixture's concurrent CLI calls had no common deadline and, on a timeout, were left
+    running (and the graph thread was never joined). Checked here on processes that never finish."""
+    hang = [sys.executable, "-c", "import time; time.sleep(60)"]
+    started: list = []
+    real_popen = subprocess.Popen
+
+    def popen(*args, **kwargs):
+        started.append(real_popen(*args, **kwargs))
+        return started[-1]
+
+    monkeypatch.setattr(subprocess, "Popen", popen)
+    t0 = time.monotonic()
+    with pytest.raises(subprocess.TimeoutExpired):
+        run_concurrently({"a": hang, "b": hang, "c": hang}, timeout_s=1.0)
+    assert time.monotonic() - t0 < 15  # one shared deadline, not one per call
+    monkeypatch.undo()
+    assert len(started) == 3 and all(p.poll() is not None for p in started), [p.poll() for p in started]
+    assert run_concurrently({"ok": [sys.executable, "-c", "print('hi')"]}, timeout_s=60) == {"ok": (0, "hi\n")}
 
 
 @pytest.fixture(scope="module")
@@ -55,15 +100,38 @@ def graph_run(tmp_path_factory, module_domain_id):
     dp = DomainParticipant(domain, qos=Qos(Policy.Userdata(b"enclave=/;")))
     reader = DataReader(dp, Topic(dp, "rt/dem/command", RJointState), qos=Qos(
         Policy.Reliability.Reliable(duration(seconds=1)), Policy.History.KeepLast(20000)))
+    abort = threading.Event()  # the fixture failed: stop the graph (its nodes killed) so that its thread ends
+
+    def supervise(_t, procs, _restart):
+        if abort.is_set():
+            for p in procs.values():
+                if p.poll() is None:
+                    p.kill()
+        return ()
+
     def run() -> None:
         try:
             out["facts"] = launcher.run_graph(cfg, duration=DURATION, transport="dds", bag=bag, meta=meta,
-                                              domain_id=domain, status=False, workdir=root / "logs")
+                                              domain_id=domain, status=False, workdir=root / "logs",
+                                              supervise=supervise)
         except Exception as exc:  # reported by the fixture, with the logs' place
             out["error"] = exc
 
     t = threading.Thread(target=run)
     t.start()
+    try:
+        return _drive(t, out, dp, reader, domain, root, bag, cfg)
+    except BaseException:
+        abort.set()
+        raise
+    finally:
+        t.join(timeout=120)  # never leave the graph running behind a failed fixture
+        dp.__del__()
+        dom.__del__()
+
+
+def _drive(t, out, dp, reader, domain, root, bag, cfg) -> dict:
+    """The graph_run fixture while its graph runs: the live parameter changes, then the commands off the wire."""
     # every node up, the plant still in its start delay: change the controller's parameters live,
     # through the rcl_interfaces services over DDS, the way a user does (dem-ros param)
     ctl_log = root / "logs" / "controller.log"
@@ -73,14 +141,8 @@ def graph_run(tmp_path_factory, module_domain_id):
 
     def cli(calls: dict) -> dict:
         """Run ``dem-ros param ARGS`` for each entry at once; {key: (exit code, stdout + stderr)}."""
-        procs = {key: subprocess.Popen([sys.executable, "-m", "dem_ros.tools.cli", "param", *args, "--domain-id",
-                                        str(domain)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-                 for key, args in calls.items()}
-        out_ = {}
-        for key, p in procs.items():
-            o, e = p.communicate(timeout=60)
-            out_[key] = (p.returncode, o + e)
-        return out_
+        return run_concurrently({key: [sys.executable, "-m", "dem_ros.tools.cli", "param", *args, "--domain-id",
+                                       str(domain)] for key, args in calls.items()}, CLI_TIMEOUT_S)
 
     # two rounds of concurrent calls (each call is a process start: seconds on a loaded machine). k1 is never
     # changed (its set is rejected), so its first read may run beside the two sets; the reads after follow them
@@ -102,8 +164,6 @@ def graph_run(tmp_path_factory, module_domain_id):
     time.sleep(0.5)
     raw += [m for m in reader.take(20000) if isinstance(m, RJointState)]
     del gate
-    dp.__del__()
-    dom.__del__()
     return {"bag": bag, "facts": out["facts"], "changes": changes, "cfg": cfg, "logs": root / "logs", "raw_commands": raw}
 
 

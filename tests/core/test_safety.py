@@ -703,6 +703,20 @@ def hover_with_lost_sensor(chan: int, n_lost: int | None, variant=(1.0, 0.0, 1.0
     """Hover at 8 mm on the true plant (rig support at SUPPORT) under the exact hover command; from 300 ms on
     channel ``chan`` (0, 1: gap 1, 2; 2, 3: current 1, 2) reads NaN for ``n_lost`` samples (None: for good).
     Returns (true states (n, 6), modes (n,), supervisor)."""
+
+    def lose(k, y, i):
+        if k >= 300 and (n_lost is None or k < 300 + n_lost):
+            (y if chan < 2 else i)[chan % 2] = np.nan
+
+    X, M, _, sup, _ = hover_with_losses(lose, variant, seed, t_max)
+    return X, M, sup
+
+
+def hover_with_losses(lose, variant=(1.0, 0.0, 1.0, 1.0), seed=3, t_max=4.0, t_after_fault=0.0):
+    """Hover at 8 mm on the true plant (rig support at SUPPORT) under the exact hover command; ``lose(k, y, i)``
+    blanks the measured gaps y (2,) / currents i (2,) of sample k in place. Runs to LANDED, or to FAULT and then
+    ``t_after_fault`` [s] more under the board's 0 V (the drop onto the support). Returns (true states (n, 6),
+    modes (n,), applied voltages (n, 2), supervisor, support impact speeds [m/s])."""
     fm, dm, fR, fK = variant
     pc = SCHEMA.defaults("plant_sim")
     pc.update(m=TABLE2["m"] * fm + dm, R=TABLE2["R"] * fR, K=TABLE2["K"] * fK, noise_scale=0.03, seed=seed,
@@ -711,23 +725,28 @@ def hover_with_lost_sensor(chan: int, n_lost: int | None, variant=(1.0, 0.0, 1.0
     x0, u0 = equilibrium(pc, 0.008, 0.008)
     plant.x[:] = x0
     sup = Supervisor(board_cfg(), T)
-    X, M = [], []
+    X, M, U, impacts = [], [], [], []
+    k_fault = None
     for k in range(round(t_max / T)):
         z = plant.measurement()
         y, i = z[[0, 2]].copy(), z[[4, 5]].copy()
-        if k >= 300 and (n_lost is None or k < 300 + n_lost):
-            (y if chan < 2 else i)[chan % 2] = np.nan
+        lose(k, y, i)
         u = sup.step(k * T_NS, y, i, u0)
         X.append(plant.x.copy())
         M.append(int(sup.mode))
-        if sup.mode in (Mode.LANDED, Mode.FAULT):
+        U.append(u.copy())
+        if sup.mode == Mode.FAULT and k_fault is None:
+            k_fault = k
+        if sup.mode == Mode.LANDED or (k_fault is not None and k - k_fault >= round(t_after_fault / T)):
             break
         plant.advance(u)
         for j in (0, 2):
             if plant.x[j] >= SUPPORT:
+                if plant.x[j + 1] > 0.0:
+                    impacts.append(plant.x[j + 1])
                 plant.x[j], plant.x[j + 1] = SUPPORT, min(plant.x[j + 1], 0.0)
         assert plant.fault is None, plant.fault
-    return np.array(X), np.array(M), sup
+    return np.array(X), np.array(M), np.array(U), sup, impacts
 
 
 @pytest.mark.parametrize("chan", [0, 1, 2, 3])
@@ -766,10 +785,17 @@ def test_a_lost_gap_sensor_leads_to_a_landing_on_the_coil_flux(chan, variant):
     from its coil's flux (never 0 V at hover). Measured: peak descent 5.1-7.0 mm/s with R nominal (m, K off by
     25 %, 3 kg added), 11.2 mm/s with R 1.4x; the plate never moves toward the rail. The flux estimate drifts
     with the learned R's error (module docstring): with R 0.75x the board declares LANDED with the lost end's
-    true gap 9.5-9.7 mm, whose remaining fall onto the support (away from the rail) is not a controlled one."""
+    true gap 9.5-9.7 mm, whose remaining fall onto the support (away from the rail) is not a controlled one; with
+    R 1.4x it reads the plate resting on its support 1.7 mm short, the landing law lowers that coil's current under
+    FLUX_GAP_MIN_CURRENT and the board FAULTs, 0 V, with the plate on its support (before: it rode the observer
+    blind, its estimate through the rail, braking and pulsing the coil at up to 200 V for 0.8 s before LANDED)."""
     cfg = board_cfg()
     X, M, sup = hover_with_lost_sensor(chan, None, variant)
-    assert M[-1] == Mode.LANDED, sup.snapshot()
+    if variant[2] > 1.0 and M[-1] == Mode.FAULT:  # on the support, no flux left to tell the gap: 0 V there
+        assert "FLUX_GAP_MIN_CURRENT" in sup.fault and np.all(X[-1, [0, 2]] == SUPPORT), sup.snapshot()
+        assert np.all(X[M == Mode.LAND][-20:, [0, 2]] == SUPPORT)  # resting there before the current went
+    else:
+        assert M[-1] == Mode.LANDED, sup.snapshot()
     land_ = M == Mode.LAND
     assert np.flatnonzero(land_)[0] == 300 + SENSOR_BLIND_SAMPLES
     assert f"gap sensor {chan + 1} lost" in sup.fault and "flux" in sup.fault and sup.counters["sensor_losses"] == 1
@@ -777,3 +803,125 @@ def test_a_lost_gap_sensor_leads_to_a_landing_on_the_coil_flux(chan, variant):
     bound = 1.0 if variant[2] == 1.0 else 1.15
     assert np.max(X[land_][:, [1, 3]]) <= bound * cfg["landing_speed"]
     assert min(X[-1, 0], X[-1, 2]) >= 9.5e-3  # at LANDED: at most 1.7 mm above the support
+
+
+# -- the flux landing's own losses (review of the flux-landing path) ---------------------------------------------
+#
+# k_d = 300 + SENSOR_BLIND_SAMPLES is the deciding sample: the first one with gap j blind beyond the bound.
+
+K_DECIDE = 300 + SENSOR_BLIND_SAMPLES
+
+
+@pytest.mark.parametrize("variant", LOSS_VARIANTS[:3], ids=[f"m{v[0]:g}+{v[1]:g}kg-R{v[2]:g}-K{v[3]:g}" for v in LOSS_VARIANTS[:3]])
+@pytest.mark.parametrize("chan", [0, 1])
+def test_a_flux_landing_that_loses_its_current_faults_instead_of_landing_blind(chan, variant):
+    """Gap j lost for good (a landing on coil j's flux), then current j lost for good 20 samples later: no gap j
+    and no current j any more, a landing would run end j open loop on the coil model (the unstable plant, e
+    every 17-20 ms). The designed outcome is FAULT, 0 V, SENSOR_BLIND_SAMPLES after the current went: the
+    plate drops onto its support, away from the rail. Measured: FAULT at the bound, the true plate never
+    closer to the rail than its 8 mm hover, support impact 0.30-0.33 m/s. Before the fix the board landed on
+    with end j blind: rail contact 105-176 ms after the current went, in 8 of 10 (end, plant) cases."""
+    k_cur = K_DECIDE + 20
+
+    def lose(k, y, i):
+        if k >= 300:
+            y[chan] = np.nan
+        if k >= k_cur:
+            i[chan] = np.nan
+
+    X, M, U, sup, impacts = hover_with_losses(lose, variant, t_after_fault=0.3)
+    assert M[K_DECIDE] == Mode.LAND and np.all(M[K_DECIDE:k_cur] == Mode.LAND)  # the flux landing started
+    k_fault = int(np.flatnonzero(M == Mode.FAULT)[0])
+    assert k_fault == k_cur + SENSOR_BLIND_SAMPLES, sup.snapshot()  # no blind landing beyond the bound
+    assert np.all(M[k_fault:] == Mode.FAULT) and np.all(U[k_fault:] == 0.0)
+    assert f"current sensor {chan + 1} lost" in sup.fault and "flux" in sup.fault, sup.fault
+    assert sup.counters["sensor_losses"] == 2, sup.snapshot()
+    assert min(X[:, 0].min(), X[:, 2].min()) >= 0.008 - 50e-6  # never toward the rail
+    assert min(X[-1, 0], X[-1, 2]) == SUPPORT and impacts and max(impacts) < 0.4  # dropped onto the support
+
+
+@pytest.mark.parametrize("variant", LOSS_VARIANTS[:3], ids=[f"m{v[0]:g}+{v[1]:g}kg-R{v[2]:g}-K{v[3]:g}" for v in LOSS_VARIANTS[:3]])
+@pytest.mark.parametrize("other", ["gap", "current"])
+@pytest.mark.parametrize("n_nan", [1, 2, SENSOR_BLIND_SAMPLES])
+@pytest.mark.parametrize("chan", [0, 1])
+def test_a_brief_gap_in_the_other_channels_at_the_deciding_sample_still_lands_on_the_flux(chan, n_nan, other, variant):
+    """Gap j lost for good; the other gap (or coil j's current) reads NaN for n_nan samples starting exactly at
+    the deciding sample (a spike or a dropped frame): the board rides on its observer, decides again once the
+    channel is back (within 2 x SENSOR_BLIND_SAMPLES) and lands on the flux, never FAULT at 0 V from hover.
+    Measured (R nominal; m, K off by 25 %, 3 kg added): the plate never closer to the rail than its 8 mm hover, peak
+    descent 5.2-7.0 mm/s (landing_speed 10). Before the fix: FAULT, 0 V at hover, on the deciding sample."""
+    cfg = board_cfg()
+    k_other = 1 - chan if other == "gap" else 2 + chan
+
+    def lose(k, y, i):
+        if k >= 300:
+            y[chan] = np.nan
+        if K_DECIDE <= k < K_DECIDE + n_nan:
+            (y if k_other < 2 else i)[k_other % 2] = np.nan
+
+    X, M, U, sup, _ = hover_with_losses(lose, variant)
+    assert not np.any(M == Mode.FAULT), sup.snapshot()
+    assert M[-1] == Mode.LANDED, sup.snapshot()
+    land_ = M == Mode.LAND
+    assert np.flatnonzero(land_)[0] == K_DECIDE + n_nan  # decided on the first sample with the channel back
+    assert f"gap sensor {chan + 1} lost" in sup.fault and "flux" in sup.fault
+    assert min(X[:, 0].min(), X[:, 2].min()) >= 0.008 - 50e-6  # never toward the rail
+    assert np.max(X[land_][:, [1, 3]]) <= cfg["landing_speed"]
+    assert np.all(U[land_] >= 0.0) and np.min(U[land_]) > 0.0  # never 0 V while airborne
+
+
+@pytest.mark.parametrize("chan", [0, 1])
+def test_the_wait_for_the_flux_landing_is_bounded(chan):
+    """Gap j lost for good; from the deciding sample the other gap and coil j's current flicker in turn (never
+    both there in one sample, neither blind beyond the bound): the board waits 2 x SENSOR_BLIND_SAMPLES in all,
+    then FAULT, 0 V (no flux landing anchored on a stale observer); the plate drops away from the rail.
+    The other gap lost for good during the wait: FAULT at once (both gaps gone)."""
+
+    def flicker(k, y, i):
+        if k >= 300:
+            y[chan] = np.nan
+        if k >= K_DECIDE:
+            if (k - K_DECIDE) % 2 == 0:
+                y[1 - chan] = np.nan
+            else:
+                i[chan] = np.nan
+
+    X, M, U, sup, _ = hover_with_losses(flicker, t_after_fault=0.3)
+    k_fault = int(np.flatnonzero(M == Mode.FAULT)[0])
+    assert k_fault == 300 + 2 * SENSOR_BLIND_SAMPLES, sup.snapshot()
+    assert np.all(M[:k_fault] == Mode.RUN) and np.all(U[k_fault:] == 0.0)
+    assert f"gap sensor {chan + 1} lost" in sup.fault, sup.fault
+    assert min(X[:, 0].min(), X[:, 2].min()) >= 0.008 - 50e-6
+
+    def other_lost(k, y, i):
+        if k >= 300:
+            y[chan] = np.nan
+        if k >= K_DECIDE:
+            y[1 - chan] = np.nan
+
+    X, M, U, sup, _ = hover_with_losses(other_lost, t_after_fault=0.3)
+    k_fault = int(np.flatnonzero(M == Mode.FAULT)[0])
+    assert k_fault == K_DECIDE + SENSOR_BLIND_SAMPLES, sup.snapshot()  # gap k lost for good: no wait left
+    assert np.all(M[:k_fault] == Mode.RUN)
+    assert min(X[:, 0].min(), X[:, 2].min()) >= 0.008 - 50e-6
+
+
+@pytest.mark.parametrize("n_nan", [1, SENSOR_BLIND_SAMPLES])
+@pytest.mark.parametrize("chan", [0, 1])
+def test_a_flux_landing_rides_through_a_brief_loss_of_its_current(chan, n_nan):
+    """Gap j lost for good; 100 samples into the flux landing coil j's current reads NaN for up to
+    SENSOR_BLIND_SAMPLES: gap j is blind as long (prediction only), then comes from the flux again; the landing
+    completes, never toward the rail, descent <= landing_speed."""
+    cfg = board_cfg()
+
+    def lose(k, y, i):
+        if k >= 300:
+            y[chan] = np.nan
+        if K_DECIDE + 100 <= k < K_DECIDE + 100 + n_nan:
+            i[chan] = np.nan
+
+    X, M, _, sup, _ = hover_with_losses(lose)
+    assert M[-1] == Mode.LANDED and not np.any(M == Mode.FAULT), sup.snapshot()
+    land_ = M == Mode.LAND
+    assert min(X[:, 0].min(), X[:, 2].min()) >= 0.008 - 50e-6
+    assert np.max(X[land_][:, [1, 3]]) <= cfg["landing_speed"]

@@ -18,6 +18,29 @@ levitating; a killed node may end in a safe landing where the outage outlasts th
 fault is reported. Injected messages come from this process, a foreign DDS participant on the graph's
 domain (:class:`Injector`); nodes are killed with SIGKILL and restarted by the launcher's hook.
 
+**Hardware rows** (``--hardware rig``, :data:`RIG_CATALOGUE`): ``dem-ros launch --hardware rig --compose`` (the
+hardware driver, and the emulated board and rig ``dem-ros rig`` as its own free-running 1 kHz process, over UDP on
+loopback; ``controller.command_delay=2``), one row per rig fault (``dem-ros rig --fault``, scheduled on the board's
+clock at the experiment's t = ``--at``), an e-stop on ``/dem/hw/estop`` or a killed controller (a process per node
+for that row: composed, the controller's process is also the recorder's). A rig has no truth topic, so the
+plate's truth is the emulator's own (its ``RIG`` summary in ``rig.log``: smallest true gap since the release,
+fastest descent while the board landed it, rail contact):
+
+* **outcome**: ``failed`` on rail contact (the emulated plant's failure, or a true gap at ``gap_min``), a board
+  FAULT (0 V), a landing nearer the rail than ``trip_gap_min`` or descending faster than ``landing_speed`` (where
+  the row's design bounds it: a failed coil's end or a bus below what holds the plate cannot be bounded); else
+  ``landed safely`` when the driver's loop status says the board landed the plate (or the driver faulted) during
+  the experiment, ``levitating`` when the measured gaps end within 1 mm of the reference (the max error column:
+  measured gap - reference, from the fault on).
+* **reported**: one of the row's words (``reports``) in a WARN/ERROR ``/diagnostics`` status or a WARN/ERROR log
+  line from the fault on (e.g. the driver's "e-stop: ..." ERROR, its "corrupt +48" WARN).
+* **counted**: the row's counters (``counts``) of the driver (its last loop status in the bag), the board (the
+  emulated board's Supervisor counters) or, for a stuck sensor that only the estimator can tell, the estimator,
+  each at least its minimum; the emulator's own hit count beside them.
+
+A hardware row passes when its outcome is allowed, the fault is reported and counted, and the board did not land
+the plate before the fault (a host stall on a loaded machine: that landing is not the fault's, the row says so).
+
 Exit status: 0 when every row passes, 1 otherwise (2: usage).
 """
 
@@ -43,7 +66,7 @@ import numpy as np
 from .. import contract
 from .common import UsageError, write_json
 
-__all__ = ["CATALOGUE", "FaultSpec", "Injector", "Row", "add_arguments", "cmd_faults", "run_row"]
+__all__ = ["CATALOGUE", "RIG_CATALOGUE", "FaultSpec", "Injector", "Row", "add_arguments", "cmd_faults", "run_row"]
 
 DT_NS = 1_000_000
 _LEVEL = re.compile(r"^\[(WARN|ERROR)\] \[[0-9.]+\] \[([^\]]+)\]")
@@ -57,7 +80,7 @@ class Injector:
     until it returns False.
     """
 
-    def __init__(self, act: Callable[[Injector], bool] | None, at: float):
+    def __init__(self, act: Callable[[Injector], bool] | None, at: float, extra: tuple[contract.Topic, ...] = ()):
         from ..transport import make_node
 
         self.node = make_node("dem_ros_faults", transport="dds", args=[])
@@ -73,7 +96,7 @@ class Injector:
         self.events: list[str] = []  # what was done when (experiment time)
         self.counts: dict[str, int] = {}  # injected samples, by outcome
         self.pubs: dict[str, Any] = {}
-        for topic in (contract.COMMAND, contract.MEASUREMENT, contract.ESTIMATE, contract.REFERENCE, contract.APPLIED):
+        for topic in (contract.COMMAND, contract.MEASUREMENT, contract.ESTIMATE, contract.REFERENCE, contract.APPLIED, *extra):
             self.pub(topic)  # matched long before t = 0 (a writer made at the fault would miss its first samples)
         self.node.subscribe(contract.MEASUREMENT, self._on_meas)
         self.node.subscribe(contract.ESTIMATE, lambda m: setattr(self, "est", m))
@@ -228,6 +251,12 @@ class FaultSpec:
     composed: bool = True  # also run composed (a kill needs a process per node)
     min_duration: float = 0.0  # s: a restarted node needs seconds to start (imports, kernels, discovery)
     disk_kib: int = 0  # record onto a tmpfs of this size (KiB; root), the logs elsewhere: the disk fills mid-run
+    # hardware rows (RIG_CATALOGUE: hw_driver and the emulated board, `dem-ros launch --hardware rig`)
+    hardware: bool = False
+    rig_fault: str | None = None  # a `dem-ros rig --fault` spec; {t}: the fault's time on the board's clock
+    reports: tuple[str, ...] = ()  # one of these words in a WARN/ERROR status or log line after the fault
+    counts: tuple[tuple[str, str, int], ...] = ()  # (driver | board | estimator, counter, at least): who counted it
+    descent_bounded: bool = True  # a landing must stay within landing_speed (the emulator's truth)
 
 
 _KILLED = ("levitating", "landed safely")
@@ -262,6 +291,75 @@ CATALOGUE: tuple[FaultSpec, ...] = (
 )
 
 
+def _estop(inj: Injector) -> None:
+    """An e-stop on /dem/hw/estop (what `dem-ros hw estop` sends), from a foreign participant."""
+    msg = inj.node.msg("std_msgs/msg/String")()
+    msg.data = "dem-ros faults: e-stop"
+    inj.pub(contract.HW_ESTOP).publish(msg)
+
+
+# The rig rows: `dem-ros launch --hardware rig --compose` (UDP on loopback, the emulator free-running at 1 kHz,
+# controller.command_delay=2), the fault at t = --at s of the experiment. What the design makes of each
+# (hw_driver.trip_samples = 3, the board's SENSOR_BLIND_SAMPLES = 5, hold_timeout = link_timeout = 50 ms,
+# bus_min = 100 V; the landing law needs R i = 113 V at the support, nominal):
+_DRIVER_TRIP = ("driver", "trips", 1)
+RIG_CATALOGUE: tuple[FaultSpec, ...] = (
+    # 2 samples out of range: below the driver's trip (3) and the board's blind limit (5): held, ridden through
+    FaultSpec("dropout-short", "gap sensor 1 reads 0 counts for 2 samples (dead): held, ridden through", hardware=True,
+              rig_fault="dropout:1@{t}+0.0015", reports=("sensor_holds",),
+              counts=(("driver", "sensor_holds", 2), ("board", "sensor_gaps", 2))),
+    # 300 ms dead: the driver trips after 3 samples, the board after 5 lands with gap 1 from coil 1's flux
+    FaultSpec("dropout-long", "gap sensor 1 reads 0 counts for 300 ms: the driver trips, the board lands on the flux gap",
+              hardware=True, rig_fault="dropout:1@{t}+0.3", allowed=("landed safely",), reports=("gap sensor 1",),
+              counts=(("driver", "sensor_holds", 3), _DRIVER_TRIP, ("board", "sensor_losses", 1))),
+    # a plausible frozen reading: neither board nor driver can tell (one channel); the estimator's bias check
+    # declares it once the plate moves (gap 1 is on its way to 5 mm); the plate flies on the model and gap 2
+    FaultSpec("stuck", "gap sensor 1 repeats its reading for 1 s while gap 1 moves: the estimator declares it",
+              hardware=True, rig_fault="stuck:1@{t}+1", allowed=("levitating", "landed safely"),
+              reports=("gap sensor 1",), counts=(("estimator", "faults", 1),)),
+    # one full-scale sample: flagged out of range, held one sample by driver and board
+    FaultSpec("spike", "gap sensor 1 at full scale for one sample: held, ridden through", hardware=True,
+              rig_fault="spike:1@{t}", reports=("sensor_holds",),
+              counts=(("driver", "sensor_holds", 1), ("board", "sensor_gaps", 1))),
+    # 10 % of the sensor frames fail their CRC for 0.5 s: each one dropped and counted, the board holds a sample
+    FaultSpec("corrupt", "10 % of the board's frames with a flipped byte (CRC) for 0.5 s: counted, ridden through",
+              hardware=True, rig_fault="corrupt@{t}+0.5:0.1", reports=("corrupt",), counts=(("driver", "corrupt", 1),)),
+    # 20 ms silent: the board holds ~21 ms (< hold_timeout): ridden through
+    FaultSpec("linkloss-20ms", "nothing sent or received for 20 ms: the board holds, ridden through", hardware=True,
+              rig_fault="linkloss@{t}+0.02", reports=("lost",),
+              counts=(("driver", "lost", 18), ("board", "hold_events", 1))),
+    # 50 ms silent = hold_timeout: the board goes without a fresh command for the loss plus a round trip
+    # (51-52 samples) and the driver without a command as long: both watchdogs are at their limit, so either
+    # outcome is the design's (landing the usual one); never a failure
+    FaultSpec("linkloss-50ms", "nothing sent or received for 50 ms (= hold_timeout): held, then most likely landed",
+              hardware=True, rig_fault="linkloss@{t}+0.05", allowed=("levitating", "landed safely"),
+              reports=("lost",), counts=(("driver", "lost", 45), ("board", "hold_events", 1))),
+    # a 0.2 s dip to 95 V (< bus_min): the driver trips on BUS_UNDERVOLTAGE, the board lands; the bus is back
+    # before the landing needs more than 95 V (the plate is held up to ~9 mm at 95 V)
+    FaultSpec("sag", "bus sags to 95 V (< bus_min 100 V) for 0.2 s: the driver trips, the board lands", hardware=True,
+              rig_fault="sag@{t}+0.2:95", allowed=("landed safely",), reports=("BUS_UNDERVOLTAGE",),
+              counts=(("driver", "board: BUS_UNDERVOLTAGE", 3), _DRIVER_TRIP)),
+    # 95 V to the end: below the 113 V the landing law needs at the support: the plate sinks faster than
+    # landing_speed onto its support, away from the rail (the README's limit; the descent is reported)
+    FaultSpec("sag-sustained", "bus at 95 V to the end: landed, the last mm faster than landing_speed (design limit)",
+              hardware=True, rig_fault="sag@{t}:95", allowed=("landed safely",), reports=("BUS_UNDERVOLTAGE",),
+              counts=(("driver", "board: BUS_UNDERVOLTAGE", 3), _DRIVER_TRIP), descent_bounded=False),
+    # coil 1's bridge open to the end: its end falls onto the support (the current decays in ~7 ms, nothing can
+    # bound that descent), the board lands the other end
+    FaultSpec("coil", "coil driver 1 fails open (DRIVER0_FAULT) to the end: the driver trips, the board lands",
+              hardware=True, rig_fault="coil:1@{t}", allowed=("landed safely",), reports=("DRIVER0_FAULT",),
+              counts=(("driver", "board: DRIVER0_FAULT", 3), _DRIVER_TRIP), descent_bounded=False),
+    FaultSpec("estop", "e-stop on /dem/hw/estop (as dem-ros hw estop): the driver latches it, the board lands",
+              _estop, 3, hardware=True, allowed=("landed safely",), reports=("e-stop",),
+              counts=(("driver", "estops", 1),)),
+    # the controller alone is killed (a process per node: composed, its process is also the recorder's);
+    # the driver's command watchdog and the board's hold both end after 50 ms: LAND
+    FaultSpec("kill-controller", "SIGKILL the controller (not restarted): the driver's watchdog, the board lands",
+              kill="controller", hardware=True, composed=False, allowed=("landed safely",),
+              reports=("command watchdog",), counts=(("driver", "watchdog", 1),)),
+)
+
+
 @dataclass
 class Row:
     """One measured row (see the module docstring)."""
@@ -276,6 +374,9 @@ class Row:
     passed: bool
     detail: str = ""
     diagnostics: list[str] = field(default_factory=list)
+    counted: str = ""  # hardware rows: the driver's, board's (or estimator's) counters of the fault
+    counts: dict[str, float] = field(default_factory=dict)  # the same, by "driver corrupt", "emulator corrupt" ...
+    descent_mm_s: float | None = None  # hardware rows: the plate's fastest true descent while the board landed it
 
 
 # -- one run -----------------------------------------------------------------------------------------------
@@ -306,11 +407,12 @@ def _kill_hook(spec: FaultSpec, inj: Injector) -> Callable[..., Collection[str]]
 
 
 def _launch_args(scenario: str, duration: float, compose: bool, free_run: bool, bag_dir: Path, domain_id: int,
-                 sets: list[str]) -> argparse.Namespace:
+                 sets: list[str], hardware: str | None = None) -> argparse.Namespace:
     argv = ["--scenario", scenario, "--duration", str(duration), "--bag-dir", str(bag_dir),
             "--domain-id", str(domain_id), "--transport", "dds"]
     argv += ["--compose"] if compose else []
     argv += ["--free-run"] if free_run else []
+    argv += ["--hardware", hardware] if hardware else []
     for s in sets:
         argv += ["--set", s]
     from .launcher import add_arguments
@@ -320,9 +422,9 @@ def _launch_args(scenario: str, duration: float, compose: bool, free_run: bool, 
     return parser.parse_args(argv)
 
 
-def _log_levels(logs: dict[str, str], since_ns: int) -> dict[str, int]:
-    """WARN/ERROR lines per node logged at or after ``since_ns`` (ROS time) in the run's node logs."""
-    out: dict[str, int] = {}
+def _log_lines(logs: dict[str, str], since_ns: int) -> list[tuple[str, str]]:
+    """(node, line) of every WARN/ERROR line logged at or after ``since_ns`` (ROS time) in the run's node logs."""
+    out: list[tuple[str, str]] = []
     for path in logs.values():
         try:
             text = Path(path).read_text(errors="replace")
@@ -331,17 +433,23 @@ def _log_levels(logs: dict[str, str], since_ns: int) -> dict[str, int]:
         for line in text.splitlines():
             m = _LEVEL.match(line)
             if m and float(line.split("] [", 1)[1].split("]", 1)[0]) * 1e9 >= since_ns:
-                node = m.group(2)
-                out[node] = out.get(node, 0) + 1
+                out.append((m.group(2), line))
     return out
 
 
-def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
-    """Outcome, min gap, diagnostics and bag problems of a recorded run."""
-    from ..bag import BagError, BagReader
-    from .runmetrics import load_run
+def _log_levels(logs: dict[str, str], since_ns: int) -> dict[str, int]:
+    """WARN/ERROR lines per node logged at or after ``since_ns`` (ROS time) in the run's node logs."""
+    out: dict[str, int] = {}
+    for node, _ in _log_lines(logs, since_ns):
+        out[node] = out.get(node, 0) + 1
+    return out
 
-    out: dict[str, Any] = {"diagnostics": [], "problems": []}
+
+def _read_bag(bag: Path, measured: bool = False) -> dict[str, Any]:
+    """What the judges read from a run's bag: truth, reference (and measurement) arrays, every /diagnostics
+    status (log time, name, level, message, values), the last loop status and its epoch, truncation."""
+    from ..bag import BagReader
+
     undecodable: dict[str, int] = {}
 
     def decoded(r: BagReader, topic: str, type_name: str) -> list[tuple[int, Any]]:
@@ -370,6 +478,7 @@ def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
     with BagReader(bag) as r:
         truth = arrays(decoded(r, contract.TRUTH.name, contract.TRUTH.type))
         ref = arrays(decoded(r, contract.REFERENCE.name, contract.REFERENCE.type))
+        meas = arrays(decoded(r, contract.MEASUREMENT.name, contract.MEASUREMENT.type)) if measured else None
         loop: dict[str, str] = {}
         epoch = None
         diags = []
@@ -381,17 +490,32 @@ def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
                     if vals.get("epoch_ns", "").isdigit():
                         epoch = int(vals["epoch_ns"])
                 level = s.level[0] if isinstance(s.level, bytes) else int(s.level)
-                diags.append((log_ns, s.name, level, s.message))
+                diags.append((log_ns, s.name, level, s.message, vals))
         truncated = r.truncated
-    for topic, n in undecodable.items():
-        out["problems"].append(f"{n} recorded sample(s) of {topic} do not decode (the injected ones, recorded as sent)")
+    problems = [f"{n} recorded sample(s) of {topic} do not decode (the injected ones, recorded as sent)"
+                for topic, n in undecodable.items()]
+    return {"truth": truth, "ref": ref, "meas": meas, "loop": loop, "epoch": epoch, "diags": diags,
+            "truncated": truncated, "problems": problems}
+
+
+def _levels_after(diags: list[tuple], t_f: int) -> list[str]:
+    """'name LEVEL' of every status at WARN or ERROR from 1 s before the fault (the once-a-second reports
+    cover the second of the fault), the worst level per name."""
+    seen: dict[str, int] = {}
+    for log_ns, name, level, *_ in diags:
+        if log_ns >= t_f - 10**9 and level >= 1:
+            seen[name] = max(seen.get(name, 0), level)
+    return [f"{n} {'WARN' if lv == 1 else 'ERROR'}" for n, lv in sorted(seen.items())]
+
+
+def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
+    """Outcome, min gap, diagnostics and bag problems of a recorded run."""
+    b = _read_bag(bag)
+    out: dict[str, Any] = {"diagnostics": [], "problems": list(b["problems"])}
+    truth, ref, loop, epoch, truncated = b["truth"], b["ref"], b["loop"], b["epoch"], b["truncated"]
     t_f = (epoch or 0) + round(t_fault_s * 1e9)
     out["fault_ns"] = t_f
-    seen: dict[str, int] = {}
-    for log_ns, name, level, _msg in diags:
-        if log_ns >= t_f - 10**9 and level >= 1:  # the once-a-second reports cover the second of the fault
-            seen[name] = max(seen.get(name, 0), level)
-    out["diagnostics"] = [f"{n} {'WARN' if lv == 1 else 'ERROR'}" for n, lv in sorted(seen.items())]
+    out["diagnostics"] = _levels_after(b["diags"], t_f)
     pc = cfg["plant_sim"]
     if truth is None:
         out.update(outcome="failed", min_gap_mm=None, detail="no plant truth recorded")
@@ -424,6 +548,15 @@ def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
     else:
         out["outcome"] = "failed"
         out["detail"] = f"{end_err * 1e3:.2f} mm off the reference at the end"
+    _bag_problems(bag, cfg, truncated, out)
+    return out
+
+
+def _bag_problems(bag: Path, cfg: dict, truncated: Any, out: dict[str, Any]) -> None:
+    """What the bag says about itself (RunMetrics' problems, truncation) into ``out["problems"]``."""
+    from ..bag import BagError
+    from .runmetrics import load_run
+
     try:
         m, _ = load_run(bag)
         out["problems"] += list(m.problems)
@@ -432,6 +565,122 @@ def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:
         out["problems"].append(f"bag unreadable: {exc}")
     if truncated is not None and not any("truncated" in p for p in out["problems"]):
         out["problems"].append(f"bag truncated ({truncated.reason})")
+
+
+def _rig_log(path: Path) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
+    """The emulated board's ``RIG {json}`` status lines and its summary (None: it wrote none) from its log."""
+    statuses: list[dict[str, Any]] = []
+    summary = None
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except OSError:
+        return statuses, summary
+    for line in lines:
+        if not line.startswith("RIG "):
+            continue
+        try:
+            d = json.loads(line[4:])
+        except ValueError:
+            continue
+        if d.get("event") == "status":
+            statuses.append(d)
+        elif d.get("event") == "summary":
+            summary = d
+    return statuses, summary
+
+
+def _number(v: Any) -> float:
+    """A counter as a number: a /diagnostics value string, an int, or a text (non-empty: 1)."""
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        return float(v)
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return 1.0 if v not in (None, "", "False", "0") else 0.0
+
+
+def _counted(spec: FaultSpec, sources: dict[str, dict[str, Any]]) -> tuple[bool, str, dict[str, float]]:
+    """(every counter of ``spec.counts`` reached its minimum, 'driver sensor_holds 2, board ...', the values)."""
+    ok, said, got = True, [], {}
+    for where, key, least in spec.counts:
+        v = _number(sources.get(where, {}).get(key, 0))
+        ok = ok and v >= least
+        got[f"{where} {key}"] = v
+        said.append(f"{where} {key} {v:g}" + ("" if v >= least else f" (< {least})"))
+    return ok, ", ".join(said), got
+
+
+_AT_T = re.compile(r" at t = (-?[0-9.]+) s")
+
+
+def _judge_hw(bag: Path, t_fault_s: float, cfg: dict, spec: FaultSpec, rig: dict[str, Any] | None,
+              rig_statuses: list[dict[str, Any]]) -> dict[str, Any]:
+    """Outcome of a hardware row: the board's landing from the driver's loop status in the bag, the plate's
+    truth from the emulator (smallest gap since the release, fastest descent while the board landed it,
+    rail contact), the end error from the recorded measurement (a rig has no truth topic)."""
+    b = _read_bag(bag, measured=True)
+    out: dict[str, Any] = {"diagnostics": [], "problems": list(b["problems"])}
+    ref, meas, loop = b["ref"], b["meas"], b["loop"]
+    t_f = (b["epoch"] or 0) + round(t_fault_s * 1e9)
+    out["fault_ns"] = t_f
+    out["diagnostics"] = _levels_after(b["diags"], t_f)
+    out["messages"] = [(name, msg) for log_ns, name, level, msg, _ in b["diags"] if log_ns >= t_f and level >= 1]
+    last: dict[str, dict[str, str]] = {}  # each status's last values (the estimator's counters)
+    for _, name, _, _, vals in b["diags"]:
+        last[name] = vals
+    out["statuses"], out["loop"] = last, loop
+    pc = cfg["plant_sim"]
+    _bag_problems(bag, cfg, b["truncated"], out)
+    end_err = float("inf")
+    if ref is not None and meas is not None:
+        ts, i_m, i_r = np.intersect1d(meas["stamp_ns"], ref["stamp_ns"], return_indices=True)
+        if ts.size:
+            g = meas["position"]
+            end_err = float(np.max(np.abs(g[i_m[-1]] - ref["position"][i_r[-1], :2])))
+            win = ts >= t_f
+            if win.any():  # the largest measured error (gap - y_d) from the fault on
+                out["max_error_um"] = round(float(np.max(np.abs(g[i_m[win]] - ref["position"][i_r[win], :2]))) * 1e6, 1)
+    if rig is None:
+        out.update(outcome="failed", min_gap_mm=None, detail="the emulated board wrote no summary (rig.log)")
+        return out
+    gmin = rig.get("min_gap_mm")
+    out["min_gap_mm"] = gmin
+    descent = float(rig.get("land_speed_max_mm_s") or 0.0)
+    bound = pc["landing_speed"] * 1e3
+    truth = (f"true: fastest descent {descent:.1f} mm/s (landing_speed {bound:g}"
+             + ("" if spec.descent_bounded else ", not bounded for this fault") + ")")
+    reason = loop.get("landing_reason", "")
+    down = loop.get("landing", "False") == "True" and not reason.startswith("end of the run")
+    driver_failed = loop.get("failed", "False") == "True"
+    fault_modes = [st["t_s"] for st in rig_statuses if st.get("mode") == "FAULT"]
+    if gmin is None:
+        out["outcome"] = "failed"
+        out["detail"] = f"the board never released the plate (board {rig.get('mode')}: {rig.get('reason', '')})"
+    elif rig.get("failed") or gmin * 1e-3 <= pc["gap_min"]:
+        out["outcome"] = "failed"
+        out["detail"] = f"rail contact: {rig.get('failed') or f'true gap {gmin:.3f} mm'}"
+    elif rig.get("mode") == "FAULT" or fault_modes:
+        out["outcome"] = "failed"
+        out["detail"] = f"board FAULT (0 V: the plate dropped onto its support): {rig.get('reason', '')}"
+    elif down or driver_failed:
+        why = reason if down else f"driver fault at t = {loop.get('fail_time_s', '?')} s: {loop.get('fault', '')}"
+        m = _AT_T.search(why)
+        landed_at = float(m.group(1)) if m else None
+        out["landed_at_s"] = landed_at
+        unsafe = []
+        if gmin < pc["trip_gap_min"] * 1e3:
+            unsafe.append(f"within {gmin:.3f} mm of the rail first")
+        if spec.descent_bounded and descent > bound:
+            unsafe.append(f"descent {descent:.1f} mm/s > landing_speed {bound:g} mm/s")
+        out["outcome"] = "failed" if unsafe else "landed safely"
+        out["detail"] = "; ".join([why, truth, *unsafe])
+        if landed_at is not None and landed_at < t_fault_s - 0.005:
+            out["early"] = f"the board landed at t = {landed_at:.3f} s, before the fault: not this fault's landing"
+    elif end_err < 1e-3:
+        out["outcome"] = "levitating"
+    else:
+        out["outcome"] = "failed"
+        out["detail"] = f"{end_err * 1e3:.2f} mm off the reference at the end (measured)"
     return out
 
 
@@ -441,6 +690,9 @@ def run_row(spec: FaultSpec, *, compose: bool, scenario: str, duration: float, a
     how = "composed" if compose else "per process"
     os.environ["ROS_DOMAIN_ID"] = str(domain_id)
     workdir.mkdir(parents=True, exist_ok=True)
+    if spec.hardware:
+        return _run_hw_row(spec, how, compose=compose, scenario=scenario, duration=duration, at=at, workdir=workdir,
+                           domain_id=domain_id, sets=sets)
     disk = workdir / "disk" if spec.disk_kib else None
     if disk is not None:
         disk.mkdir(exist_ok=True)
@@ -556,12 +808,89 @@ def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duratio
                j["diagnostics"])
 
 
+HW_SETS = ("controller.command_delay=2",)  # the README's hardware runs: a loaded host keeps the loop in time
+
+
+def _run_hw_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duration: float, at: float,
+                workdir: Path, domain_id: int, sets: list[str]) -> Row:
+    """``dem-ros launch --hardware rig``: the rig fault (board time: ``at`` + the driver's pre-roll after the
+    release, i.e. t = ``at`` of the experiment within a sample), an injection or a kill at t = ``at``; judged
+    from the bag, the node logs and the emulator's own figures (rig.log)."""
+    from ..bag import BagError
+    from .launcher import GraphError, _config_from_args, launch
+
+    args = _launch_args(scenario, duration, compose, False, workdir, domain_id, [*HW_SETS, *sets], hardware="rig")
+    cfg, _, _ = _config_from_args(args)
+    if spec.rig_fault:
+        args.fault = [spec.rig_fault.format(t=f"{at + cfg['hw_driver']['preroll']:g}")]
+    inj = Injector(_n_times(spec.n, spec.act) if spec.act is not None else None, at, extra=(contract.HW_ESTOP,))
+    hook = _kill_hook(spec, inj) if spec.kill else None
+    info: dict[str, Any] = {}
+    try:
+        _metrics, info = launch(args, quiet=True, supervise=hook)
+    except GraphError as exc:
+        return Row(spec.name, how, "failed", None, None, "", "", False, f"run cut short: {exc}")
+    except BagError as exc:  # the run ended, but its summary could not read the bag: judge it here
+        info = {"recorder": None, "summary_error": str(exc)}
+    finally:
+        inj.close()
+    bags = sorted(p for p in workdir.iterdir() if p.is_dir() and not p.name.endswith("_logs"))
+    if not info.get("bag") and not bags:
+        return Row(spec.name, how, "failed", None, None, "", "", False, "no bag was recorded")
+    bag = Path(info["bag"]) if info.get("bag") else bags[-1]
+    logdir = bag.parent / (bag.name + "_logs")
+    statuses, rig = _rig_log(logdir / "rig.log")
+    rig = rig or info.get("rig")
+    j = _judge_hw(bag, at, cfg, spec, rig, statuses)
+    logs = {p.stem: str(p) for p in logdir.glob("*.log") if p.stem != "rig"}
+    lines = _log_lines(logs, j["fault_ns"])
+    levels: dict[str, int] = {}
+    for node, _ in lines:
+        levels[node] = levels.get(node, 0) + 1
+    said = [*j["messages"], *((f"{node} log", line) for node, line in lines)]
+    heard = [who for who, text in said if any(k.lower() in text.lower() for k in spec.reports)]
+    exits = info.get("exits") or []
+    reported = ", ".join(j["diagnostics"]) or "no diagnostics"
+    reported += "; log: " + (", ".join(f"{n} {c}" for n, c in sorted(levels.items())) or "nothing")
+    if exits:
+        reported += "; launch: " + ", ".join(f"{e['node']} exited ({e['code']})" for e in exits)
+    reported += f"; '{spec.reports[0]}' " + (f"in {', '.join(sorted(set(heard)))}" if heard else "NOT reported")
+    sources = {"driver": j.get("loop", {}), "board": {**(rig or {}), **((rig or {}).get("supervisor") or {})},
+               "estimator": j["statuses"].get("estimator", {})}
+    counted_ok, counted, counts = _counted(spec, sources)
+    hits = [f"{f['kind']} acted on {f['hits']} samples" for f in (rig or {}).get("faults", [])]
+    if hits:
+        counted += "; emulator: " + ", ".join(hits)
+    for f in (rig or {}).get("faults", []):
+        counts[f"emulator {f['kind']}"] = float(f["hits"])
+    rec = info.get("recorder") or {}
+    dropped = sum(v.get("dropped", 0) for v in rec.values()) if rec else None
+    lost = [f"{dropped} dropped"] if dropped else []
+    lost += j["problems"]
+    if info.get("summary_error"):
+        lost.append(f"dem-ros launch could not summarise the bag: {info['summary_error']}")
+    early = j.get("early", "")
+    ok = j["outcome"] in spec.allowed and bool(heard) and counted_ok and not early
+    sent = [f"{v} {k}" for k, v in inj.counts.items()]
+    if spec.act is not None:
+        sent.insert(0, f"{inj.injected} sent from t = {at:g} s")
+    detail = "; ".join(x for x in [early, *inj.events, *sent, j.get("detail", "")] if x)
+    return Row(spec.name, how, j["outcome"], j["min_gap_mm"], j.get("max_error_um"), reported,
+               "; ".join(lost) or "none", ok, detail, j["diagnostics"], counted, counts,
+               (rig or {}).get("land_speed_max_mm_s"))
+
+
 # -- the command -------------------------------------------------------------------------------------------
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--only", action="append", default=[], metavar="NAME",
-                   help="run only these rows (repeatable): " + ", ".join(f.name for f in CATALOGUE))
-    p.add_argument("--processes", choices=("per-process", "composed", "both"), default="both",
-                   help="the graph as a process per node, composed in one process, or both (default)")
+                   help="run only these rows (repeatable): " + ", ".join(f.name for f in CATALOGUE)
+                   + "; with --hardware rig: " + ", ".join(f.name for f in RIG_CATALOGUE))
+    p.add_argument("--hardware", choices=("rig",), default=None,
+                   help="'rig': the hardware rows instead, hw_driver and the emulated board (dem-ros launch --hardware "
+                        "rig, UDP on loopback, controller.command_delay=2; rig faults, an e-stop, a killed controller)")
+    p.add_argument("--processes", choices=("per-process", "composed", "both"), default=None,
+                   help="the graph as a process per node, composed in one process, or both (default: both; with "
+                        "--hardware rig each row once, composed, a killed controller in a process per node)")
     p.add_argument("--scenario", default="S1")
     p.add_argument("--duration", type=float, default=4.0, help="seconds of each run (default 4)")
     p.add_argument("--at", type=float, default=1.5, help="inject at this experiment time [s] (default 1.5)")
@@ -573,11 +902,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _table(rows: list[Row]) -> str:
-    head = ("fault", "processes", "outcome", "min gap [mm]", "max error [um]", "reported", "data lost", "pass")
+    hw = any(r.counted for r in rows)  # hardware rows: who counted the fault
+    head = ("fault", "processes", "outcome", "min gap [mm]", "max error [um]", "reported", *(("counted",) if hw else ()),
+            "data lost", "pass")
     body = [(r.fault, r.processes, r.outcome + (f" ({r.detail})" if r.detail else ""),
              "-" if r.min_gap_mm is None else f"{r.min_gap_mm:.3f}",
-             "-" if r.max_error_um is None else f"{r.max_error_um:.1f}", r.reported, r.data_lost,
-             "yes" if r.passed else "NO") for r in rows]
+             "-" if r.max_error_um is None else f"{r.max_error_um:.1f}", r.reported, *((r.counted,) if hw else ()),
+             r.data_lost, "yes" if r.passed else "NO") for r in rows]
     w = [max(len(h), *(len(b[i]) for b in body)) if body else len(h) for i, h in enumerate(head)]
     lines = ["| " + " | ".join(h.ljust(w[i]) for i, h in enumerate(head)) + " |",
              "|" + "|".join("-" * (x + 2) for x in w) + "|"]
@@ -587,34 +918,41 @@ def _table(rows: list[Row]) -> str:
 
 def _write(args: argparse.Namespace, rows: list[Row]) -> None:
     write_json(args.json, {"rows": [asdict(r) for r in rows], "scenario": args.scenario, "at_s": args.at,
-                           "duration_s": args.duration, "free_run": args.free_run})
+                           "duration_s": args.duration, "free_run": args.free_run, "hardware": args.hardware,
+                           "sets": ([*HW_SETS] if args.hardware else []) + list(args.set)})
+
+
+def _plan(specs: list[FaultSpec], processes: str | None, hardware: bool) -> list[tuple[FaultSpec, bool]]:
+    """(row, composed) in the order they run: every row per process, then composed (--processes both); the
+    rig's default runs each row once, composed unless it kills a node (its own process)."""
+    if hardware and processes is None:
+        return [(f, f.composed) for f in specs]
+    modes = {"per-process": (False,), "composed": (True,), "both": (False, True)}[processes or "both"]
+    return [(f, compose) for compose in modes for f in specs if f.composed or not compose]
 
 
 def cmd_faults(args: argparse.Namespace) -> int:
-    names = {f.name for f in CATALOGUE}
+    catalogue = RIG_CATALOGUE if args.hardware else CATALOGUE
+    names = {f.name for f in catalogue}
     bad = [n for n in args.only if n not in names]
     if bad:
-        raise UsageError(f"--only: unknown row(s) {', '.join(bad)}; rows: {', '.join(sorted(names))}")
-    specs = [f for f in CATALOGUE if not args.only or f.name in args.only]
-    modes = {"per-process": (False,), "composed": (True,), "both": (False, True)}[args.processes]
+        raise UsageError(f"--only: unknown row(s) {', '.join(bad)}; rows{' (--hardware rig)' if args.hardware else ''}: "
+                         f"{', '.join(sorted(names))}")
+    specs = [f for f in catalogue if not args.only or f.name in args.only]
     work = Path(args.bag_dir) if args.bag_dir else Path(tempfile.mkdtemp(prefix="dem_ros_faults_"))
     domain = args.domain_id if args.domain_id is not None else 1 + os.getpid() % 100
     rows: list[Row] = []
-    for compose in modes:
-        for spec in specs:
-            if compose and not spec.composed:
-                continue
-            print(f"dem-ros faults: {spec.name} ({'composed' if compose else 'per process'}): {spec.description}",
-                  file=sys.stderr, flush=True)
-            row = run_row(spec, compose=compose, scenario=args.scenario, duration=max(args.duration, spec.min_duration),
-                          at=args.at,
-                          free_run=args.free_run, workdir=work / spec.name / ("composed" if compose else "processes"),
-                          domain_id=domain, sets=args.set)
-            print(f"  -> {row.outcome}, min gap {row.min_gap_mm} mm, {'pass' if row.passed else 'FAIL'}",
-                  file=sys.stderr, flush=True)
-            rows.append(row)
-            if args.json:  # after every row: a long catalogue run keeps what it measured
-                _write(args, rows)
+    for spec, compose in _plan(specs, args.processes, bool(args.hardware)):
+        print(f"dem-ros faults: {spec.name} ({'composed' if compose else 'per process'}): {spec.description}",
+              file=sys.stderr, flush=True)
+        row = run_row(spec, compose=compose, scenario=args.scenario, duration=max(args.duration, spec.min_duration),
+                      at=args.at, free_run=args.free_run,
+                      workdir=work / spec.name / ("composed" if compose else "processes"), domain_id=domain, sets=args.set)
+        print(f"  -> {row.outcome}, min gap {row.min_gap_mm} mm, {'pass' if row.passed else 'FAIL'}",
+              file=sys.stderr, flush=True)
+        rows.append(row)
+        if args.json:  # after every row: a long catalogue run keeps what it measured
+            _write(args, rows)
     print(_table(rows))
     failed = [r.fault for r in rows if not r.passed]
     if failed:

@@ -88,18 +88,24 @@ re-initialised from the measurement, so the filter never raises; both end the co
 
 Convergence (:attr:`KalmanEstimator.converged`): a node publishes no estimate of a (re)started filter
 until it has converged (see docs/manual/topics.md). The filter starts at the measurement (:meth:`reset`),
-so what has to converge is what was not measured:
+which has passed only the range gate: an in-range spike would start it millimetres off, and the innovation
+gate would then reject the true samples after it. So the start must be *confirmed*: the sample after it
+must pass both gates on every gap (:attr:`KalmanEstimator.confirmed`). When it does not, the start is
+taken to be the outlier (or this sample is) and the filter starts again from this sample, to be confirmed
+by the next (counted ``unconfirmed_starts``): a spike as the first sample costs one sample more, never a
+filter stuck at the spike. What has to converge beyond that is what was not measured:
 
 * every published state measured (gaps, gap rates and currents, ``measure_velocity``): the start *is* the
-  measurement, as good as any later estimate, and counts as converged at once (its gaps passed the range
-  gate; every later sample passes the innovation gate or is held as usual). Measured on S1 with sensor
-  noise (sigma 10 um, 1 mm/s, 1 mA), filters restarted at t = 2, 5, 9 s: the first estimate's rate error
-  was 0.5-1.3 mm/s and its gap error 8-24 um, the errors of the running filter (0.1-1.2 mm/s, 1-9 um);
+  measurement, as good as any later estimate, and counts as converged once confirmed (two samples: the
+  start and the next, 1 ms later; 2 ms after a spike start; every later sample passes the innovation gate
+  or is held as usual). Measured on S1 with sensor noise (sigma 10 um, 1 mm/s, 1 mA), filters restarted
+  at t = 2, 5, 9 s: the first estimate's rate error was 0.5-1.3 mm/s and its gap error 8-24 um, the errors
+  of the running filter (0.1-1.2 mm/s, 1-9 um);
 * gap rates not measured (hardware): a rate starts at 0 (P = (1 mm/s)^2) and is built from the gaps; on
   the same runs its error rose to 2.6-4.7 mm/s at 5-10 samples and was back at the running filter's
   (about 1 mm/s) by 20. It counts as converged once ``converge_samples`` (default 30: 30 ms, inside the
   board's ``hold_timeout`` of 50 ms) consecutive samples passed both gates on every gap without a guard
-  event.
+  event (the start counts as the first: a confirmed start is two).
 """
 
 from __future__ import annotations
@@ -374,6 +380,8 @@ class KalmanEstimator:
         self.out = np.zeros(6)
         self.gate = np.zeros(GATE_SIZE)
         self.started = False
+        self.confirmed = False  # the sample after the (re)start passed both gates (module docstring)
+        self.unconfirmed_starts = 0  # starts the next sample did not confirm (the filter started again from it)
         self.configure(cfg)
 
     def configure(self, cfg: Mapping[str, Any]) -> None:
@@ -415,8 +423,9 @@ class KalmanEstimator:
         g[G_BRUN:G_BRUN + 2] = 0.0
         g[G_BFAULT:G_BFAULT + 2] = 0.0
         g[G_CONTACT:G_CONTACT + 2] = 0.0
-        g[G_GOOD] = 1.0  # the start sample itself passed the range gate
+        g[G_GOOD] = 1.0  # the start sample itself passed the range gate (the next one must confirm it)
         self.started = True
+        self.confirmed = False
 
     def _startable(self, z: np.ndarray) -> bool:
         g = self.gate
@@ -436,14 +445,23 @@ class KalmanEstimator:
             return self.out
         ekf_step(self.s, self.P, z, self.mask, np.asarray(u_prev, float), self.p, self.T, self.qc, self.rm,
                  self.out, self.gate)
+        if not self.confirmed:
+            if self.gate[G_GOOD] >= 2.0:  # the start, and this sample passing both gates on every gap
+                self.confirmed = True
+            elif self._startable(z):
+                # not confirmed: the start was an outlier (an in-range spike), or this sample is; start again
+                # from this one, to be confirmed by the next (never a filter stuck at a spike)
+                self.unconfirmed_starts += 1
+                self.reset(z)
         return self.out
 
     @property
     def converged(self) -> bool:
-        """Started on a measurement of every published state (converged at once), or ``converge_samples``
-        samples in a row passed both gates on every gap with no guard event (module docstring)."""
-        need = 1 if self.mask.all() else self.cfg["converge_samples"]
-        return self.started and self.gate[G_GOOD] >= need
+        """Started on a measurement of every published state and the start confirmed by the next sample (2
+        samples), or ``converge_samples`` samples in a row passed both gates on every gap with no guard event
+        (module docstring)."""
+        need = 2 if self.mask.all() else self.cfg["converge_samples"]
+        return self.started and self.confirmed and self.gate[G_GOOD] >= need
 
     @property
     def faulty(self) -> bool:
@@ -473,6 +491,7 @@ class KalmanEstimator:
             out[f"gap{j + 1}_support_reinit"] = int(g[G_SREINIT + j])
         out["updates_skipped"] = int(g[G_SKIPPED])
         out["reinitialised"] = int(g[G_REINIT])
+        out["unconfirmed_starts"] = self.unconfirmed_starts
         return out
 
     def kernel_args(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:

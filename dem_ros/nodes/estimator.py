@@ -18,9 +18,11 @@ and reported (WARN); ``fault_samples`` rejections in a row, or an acceleration b
 measurement with fewer than two gaps or currents is dropped and counted.
 
 Convergence: after a (re)start the node publishes no estimate until the filter has converged
-(``converge_samples`` samples in a row passing every gate, :attr:`KalmanEstimator.converged`);
-a start on a pre-roll sample (frame ``dem/preroll``) publishes at once: before t = 0 the plate
-hovers in equilibrium, where the filter's start (rates 0, no bias) is right. Parameter changes
+(:attr:`KalmanEstimator.converged`: the start confirmed by the next sample passing every gate, and
+without measured rates ``converge_samples`` samples in a row passing them); a start on a pre-roll
+sample (frame ``dem/preroll``) publishes as soon as the start is confirmed: before t = 0 the plate
+hovers in equilibrium, where the filter's start (rates 0, no bias) is right. A start the next sample
+does not confirm (an in-range spike) starts the filter again from that sample. Parameter changes
 retune the running filter (no restart); ``type`` cannot change during a run.
 """
 
@@ -61,6 +63,7 @@ class EstimatorNode:
         self.u_zero = np.zeros(2)
         self.pending: deque = deque()  # measurements waiting for their applied voltages, oldest first
         self.publishing = False  # the filter has converged since its (re)start (or started in the pre-roll)
+        self.preroll_start = False  # the filter started on a pre-roll sample: published once the start is confirmed
         # /diagnostics "estimator", once a second: WARN after rejected or dropped samples, ERROR on a sensor fault
         gates = [f"gap{j}_{why}" for j in (1, 2) for why in ("out_of_range", "innovation")]
         self.diag = Diagnostics(node, "estimator", values=self._values,
@@ -165,7 +168,9 @@ class EstimatorNode:
         started = isinstance(est, KalmanEstimator) and est.started
         x = est.step(z, u if u is not None else self.u_zero).tolist()
         if isinstance(est, KalmanEstimator):
-            if not started and est.started and msg.header.frame_id == contract.FRAME_PREROLL:
+            if not started and est.started:
+                self.preroll_start = msg.header.frame_id == contract.FRAME_PREROLL
+            if self.preroll_start and est.confirmed:
                 self.publishing = True  # started in the pre-roll: the plate hovers in equilibrium, as the filter starts
             self._check(est)
         if not self.publishing:

@@ -23,7 +23,7 @@ Conventions:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 #: the largest ROS domain id dem_ros accepts: 0..101 is the range ROS 2 documents as safe on every OS
 #: (Cyclone DDS maps higher ids to UDP ports that can collide with the ephemeral range on Linux/macOS)
@@ -58,11 +58,21 @@ class QoS:
     reliable: bool = True
     transient_local: bool = False
     depth: int = 10
+    #: the writers' keep-last history when deeper than ``depth`` (None: ``depth``). Depth is no part of
+    #: reader/writer compatibility: a reliable writer resends what a reader lost (a full socket while that
+    #: reader's process was stalled) only while it still holds it, whatever the reader's depth
+    writer_depth: int | None = None
+
+    def for_writer(self) -> QoS:
+        """This QoS with the writers' history as its depth."""
+        return self if self.writer_depth is None else replace(self, depth=max(self.depth, self.writer_depth))
 
 
-#: 1 kHz streams: reliable, 100 samples (100 ms) of history so a briefly stalled reader (the
-#: recorder writing a chunk) loses nothing.
-QOS_STREAM = QoS(reliable=True, transient_local=False, depth=100)
+#: 1 kHz streams: reliable; readers keep 100 samples (100 ms), so the loop's nodes never take a longer
+#: backlog; writers keep 1000 (1 s), so that a reader whose process was stalled (the recorder on a busy
+#: host: up to ~0.5 s runnable but not running) gets what its full socket dropped resent: a keep-last
+#: writer never blocks, it drops its oldest sample, unacknowledged or not (Cyclone's "aggressive keep last")
+QOS_STREAM = QoS(reliable=True, transient_local=False, depth=100, writer_depth=1000)
 QOS_LATCHED = QoS(reliable=True, transient_local=True, depth=1)
 QOS_PARAM_EVENTS = QoS(reliable=True, transient_local=False, depth=1000)
 
@@ -168,6 +178,8 @@ def markdown_table() -> str:
     for t in TOPICS:
         q = t.qos
         qos = f"{'reliable' if q.reliable else 'best effort'}, {'transient local' if q.transient_local else 'volatile'}, depth {q.depth}"
+        if q.writer_depth is not None:
+            qos += f" (writers {q.writer_depth})"
         rate = f"{t.rate_hz:g} Hz" if t.rate_hz else "on change"
         lines.append(" | ".join(["", f"`{t.name}`", f"`{t.type}`", cell(t.fields), rate, qos, cell(t.publisher),
                                  cell(", ".join(t.subscribers)), ""]).strip())

@@ -348,7 +348,8 @@ class DdsNode:
         cls = cls or msgs.message_class(ros_type)
         dds_name = dds_name or wire.topic_name(self.resolve(ros_name))
         ud = wire.user_data_for_endpoint(ros_type, self._p.settings.distro, extra_ud)
-        w = DataWriter(self._p.dp, self._p.topic(dds_name, cls), qos=_qos(qos, ud, intra))
+        # the writer's history: the contract's writer_depth (a stalled reader's losses resent), readers keep depth
+        w = DataWriter(self._p.dp, self._p.topic(dds_name, cls), qos=_qos(qos.for_writer(), ud, intra))
         gid = self._p.gid_of(w)
         self._writer_gids.append(gid)
         self._p.publish_graph()

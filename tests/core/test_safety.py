@@ -819,7 +819,7 @@ def test_a_flux_landing_that_loses_its_current_faults_instead_of_landing_blind(c
     and no current j any more, a landing would run end j open loop on the coil model (the unstable plant, e
     every 17-20 ms). The designed outcome is FAULT, 0 V, SENSOR_BLIND_SAMPLES after the current went: the
     plate drops onto its support, away from the rail. Measured: FAULT at the bound, the true plate never
-    closer to the rail than its 8 mm hover, support impact 0.30-0.33 m/s. Before the fix the board landed on
+    closer to the rail than its 8 mm hover, support impact 0.29-0.33 m/s. Before the fix the board landed on
     with end j blind: rail contact 105-176 ms after the current went, in 8 of 10 (end, plant) cases."""
     k_cur = K_DECIDE + 20
 

@@ -98,6 +98,12 @@ class Fault:
     def active(self, t: float) -> bool:
         return self.start <= t < self.end
 
+    def window(self, dt: float) -> tuple[int, float]:
+        """[first, end) sample numbers after the release it acts on: its times rounded to the board's grid
+        (a float sum such as 0.1 + 0.05 = 0.15000000000000002 must not add a sample); at least one sample."""
+        k0 = round(self.start / dt)
+        return k0, (max(k0 + 1, round(self.end / dt)) if math.isfinite(self.end) else math.inf)
+
 
 def parse_fault(text: str) -> Fault:
     """``KIND[:J]@T[+D][:VALUE]`` -> Fault; RigError with the accepted forms otherwise."""
@@ -212,10 +218,14 @@ class Board:
         return -1.0 if self.released_at is None else (self.n - self.released_at) * self.dt
 
     def _fault(self, kind: str, channel: int = 0) -> Fault | None:
-        t = self.t_fault()
+        if self.released_at is None:
+            return None
+        k = self.n - self.released_at  # on the sample grid: a D s fault acts on round(D / dt) samples
         for f in self.faults:
-            if f.kind == kind and f.channel == channel and f.active(t):
-                return f
+            if f.kind == kind and f.channel == channel:
+                k0, k1 = f.window(self.dt)
+                if k0 <= k < k1:
+                    return f
         return None
 
     # -- link in -------------------------------------------------------------------------------
@@ -297,7 +307,9 @@ class Board:
         self.c.ticks += 1
         if not self.streaming:
             return None
-        if self._fault("linkloss"):
+        lost = self._fault("linkloss")
+        if lost is not None:
+            lost.hits += 1  # a sample the link did not carry ("acted on N samples": the summary's count)
             self.c.link_lost_ticks += 1
             return None
         data = encode(frame)

@@ -138,7 +138,8 @@ def landed(b, d):
     # corrupted sensor frames: every one rejected by CRC and counted, the loop goes on
     ("corrupt@0.1+0.05:0.5", lambda b, d: d.corrupt_reasons.get("crc") == b.c.corrupted_tx > 5 and d.state.name == "ACTIVE"),
     # 50 ms without a link: lost frames counted; the board's watchdog lands the plate
-    ("linkloss@0.1+0.05", lambda b, d: d.counters["lost"] >= 49 and Mode(b.sup.mode) == Mode.LANDED),
+    ("linkloss@0.1+0.05", lambda b, d: d.counters["lost"] >= 49 and Mode(b.sup.mode) == Mode.LANDED
+     and b.faults[0].hits == b.c.link_lost_ticks == 50),
     # the bus sags below what holds the plate: the driver trips on the board's status, the board lands
     ("sag@0.1+0.05:60", lambda b, d: landed(b, d) and "BUS_UNDERVOLTAGE" in d.reason),
     # a coil driver fails: reported by the board, the driver trips, the board lands
@@ -149,10 +150,19 @@ def landed(b, d):
 def test_each_injected_fault_is_counted_and_reported_never_raised(spec, check):
     b, cfg, _ = make([spec])
     drv, frames = hover_loop(b, cfg, 1500)
-    assert b.faults[0].hits > 0 or spec.startswith("linkloss")
+    assert b.faults[0].hits > 0  # a link loss too: the samples it kept off the link
     assert check(b, drv), (b.summary(), drv.status())
     assert b.failed is None  # the plant never touched the rail, whatever the fault did
     assert min(f.gap.min() for f in frames) > cfg["plant_sim"]["trip_gap_min"]
+
+
+def test_a_fault_lasts_its_duration_in_samples_whatever_the_float_sums():
+    """0.1 + 0.05 is 0.15000000000000002 in floats: the window is on the board's sample grid, 50 samples."""
+    for spec, n in (("linkloss@0.1+0.05", 50), ("linkloss@2.5+0.05", 50), ("dropout:1@2.5+0.0015", 2),
+                    ("spike:1@0.3", 1), ("corrupt@1.7+0.5:0.1", 500)):
+        k0, k1 = parse_fault(spec).window(1e-3)
+        assert k1 - k0 == n, spec
+    assert parse_fault("sag@3:80").window(1e-3) == (3000, math.inf)
 
 
 def test_fault_specifications_are_checked_with_a_clear_message():

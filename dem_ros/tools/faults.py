@@ -391,11 +391,12 @@ def _kill_hook(spec: FaultSpec, inj: Injector) -> Callable[..., Collection[str]]
         if not killed:
             if inj.t is None or inj.t < inj.at or name not in procs:
                 return ()
+            t_kill = inj.t  # the experiment time of the SIGKILL (the reap below can take 0.1 s on a loaded host)
             os.killpg(procs[name].pid, signal.SIGKILL)
+            inj.killed_ns = time.time_ns()  # ROS time of the kill: the restarted node's 'ready' ends the outage
             procs[name].wait()
             killed.append(time.monotonic())
-            inj.killed_ns = time.time_ns()  # ROS time of the kill: the restarted node's 'ready' ends the outage
-            inj.events.append(f"{name} killed at t = {inj.t:.3f} s")
+            inj.events.append(f"{name} killed at t = {t_kill:.3f} s")
         if spec.restart_after is None:
             return (name,)  # stays down
         if not restarted and time.monotonic() - killed[0] >= spec.restart_after:

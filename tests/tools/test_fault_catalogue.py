@@ -89,9 +89,9 @@ def _rig(spec: str | None, t: float = 2.5):
 
 
 def _ticks(spec: str | None, t: float = 2.5, dt: float = 1e-3) -> int:
-    """Board samples a rig fault acts on (the emulator's rule: start <= (n - release) dt < end)."""
-    f = _rig(spec, t)
-    return sum(f.active(k * dt) for k in range(round(t / dt) - 5, round(min(f.end, t + 10) / dt) + 5))
+    """Board samples a rig fault acts on (the emulator's window on its sample grid; to the end: 10 s)."""
+    k0, k1 = _rig(spec, t).window(dt)
+    return int(min(k1, k0 + round(10 / dt)) - k0)
 
 
 def test_the_rig_catalogue_covers_issue_11():

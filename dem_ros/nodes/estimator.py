@@ -21,9 +21,13 @@ Convergence: after a (re)start the node publishes no estimate until the filter h
 (:attr:`KalmanEstimator.converged`: the start confirmed by the next sample passing every gate, and
 without measured rates ``converge_samples`` samples in a row passing them); a start on a pre-roll
 sample (frame ``dem/preroll``) publishes as soon as the start is confirmed: before t = 0 the plate
-hovers in equilibrium, where the filter's start (rates 0, no bias) is right. A start the next sample
-does not confirm (an in-range spike) starts the filter again from that sample. Parameter changes
-retune the running filter (no restart); ``type`` cannot change during a run.
+hovers in equilibrium, where the filter's start (rates 0, no bias) is right. When the confirming
+sample is the one that begins publishing (rates measured, or a pre-roll start), the start's own
+estimate (its measurement) goes out first, just before that sample's: no sample is left without an
+estimate, which a lockstep plant needs (it waits for the command of every sample: a withheld first
+sample would stall it until ``lockstep_timeout`` and land the plate). A start the next sample does not
+confirm (an in-range spike) is never published: the filter starts again from that sample. Parameter
+changes retune the running filter (no restart); ``type`` cannot change during a run.
 """
 
 from __future__ import annotations
@@ -64,6 +68,7 @@ class EstimatorNode:
         self.pending: deque = deque()  # measurements waiting for their applied voltages, oldest first
         self.publishing = False  # the filter has converged since its (re)start (or started in the pre-roll)
         self.preroll_start = False  # the filter started on a pre-roll sample: published once the start is confirmed
+        self.start: tuple[int, list[float]] | None = None  # (stamp, estimate) of the start awaiting its confirmation
         # /diagnostics "estimator", once a second: WARN after rejected or dropped samples, ERROR on a sensor fault
         gates = [f"gap{j}_{why}" for j in (1, 2) for why in ("out_of_range", "innovation")]
         self.diag = Diagnostics(node, "estimator", values=self._values,
@@ -165,18 +170,31 @@ class EstimatorNode:
         t = stamp_ns(msg)
         u = self.volts.get(t, self.u_prev)
         est = self.est
-        started = isinstance(est, KalmanEstimator) and est.started
+        kf = est if isinstance(est, KalmanEstimator) else None
+        started, confirmed = (kf.started, kf.confirmed) if kf is not None else (False, False)
+        restarts = kf.unconfirmed_starts if kf is not None else 0
         x = est.step(z, u if u is not None else self.u_zero).tolist()
-        if isinstance(est, KalmanEstimator):
-            if not started and est.started:
+        if kf is not None:
+            if not started and kf.started:
                 self.preroll_start = msg.header.frame_id == contract.FRAME_PREROLL
-            if self.preroll_start and est.confirmed:
+            if self.preroll_start and kf.confirmed:
                 self.publishing = True  # started in the pre-roll: the plate hovers in equilibrium, as the filter starts
-            self._check(est)
+            self._check(kf)
+            start, self.start = self.start, None
+            if not kf.confirmed and (not started or kf.unconfirmed_starts != restarts):
+                self.start = (t, x)  # this sample (re)started the filter: it goes out once the next one confirms it
+            elif kf.confirmed and not confirmed and start is not None and self.publishing:
+                # the start, confirmed by this sample, goes out first (its estimate is its measurement): every
+                # sample gets its estimate, which a lockstep plant needs (it waits for the command of each)
+                counts["withheld"] -= 1
+                self._publish(*start)
         if not self.publishing:
             counts["withheld"] += 1
             return
-        counts["published"] += 1
+        self._publish(t, x)
+
+    def _publish(self, t: int, x: list[float]) -> None:
+        self.counts["published"] += 1
         J = self.js
         self.pub.publish(J.make(J.header(t), self.names, [x[0], x[2]], [x[1], x[3]], [x[4], x[5]]))
 

@@ -54,11 +54,13 @@ def test_a_restart_without_measured_rates_publishes_only_once_converged():
 
 def test_a_restart_mid_run_with_measured_rates_publishes_once_the_next_sample_confirms_the_start():
     """Every published state measured: the start is the measurement (core/estimator.py), once the next sample
-    confirms it (the start passed only the range gate), so a restart after t = 0 costs the controller one
-    sample; the gates still test every later one."""
+    confirms it (the start passed only the range gate); then the start's estimate goes out too, first (a
+    lockstep plant waits for every sample's command); the gates still test every later one."""
     bus, node, est, _ = _graph()
-    stamps = [_feed(bus, k) for k in range(5)]
-    assert sorted(est) == stamps[1:] and node.counts["withheld"] == 1
+    t0 = _feed(bus, 0)
+    assert est == {} and node.counts["withheld"] == 1  # not before the next sample confirms it
+    stamps = [t0] + [_feed(bus, k) for k in range(1, 5)]
+    assert list(est) == stamps and node.counts["withheld"] == 0  # in stamp order, the start first
     t_spike = _feed(bus, 5, gaps=(X0[0] + 0.005, X0[2]))  # a 5 mm spike right after the start: held, not taken
     assert abs(est[t_spike][0] - X0[0]) < 1e-6
 
@@ -67,12 +69,13 @@ def test_an_in_range_spike_as_the_first_sample_of_a_restart_is_never_published()
     """Review defect: a restart with measured rates published its first sample after the range gate only: a
     2 mm spike as that sample went out as the estimate, and the innovation gate then rejected the true samples
     after it. Now the start is confirmed by the next sample first, and one it does not confirm is replaced:
-    the first estimate out is the third sample's, on the true gaps, and every one after it."""
+    the spike is never published, the filter starts again from the next sample (published once the one after
+    confirms it), on the true gaps, and so is every estimate after it."""
     bus, node, est, diags = _graph()
     stamps = [_feed(bus, 0, gaps=(X0[0] + 0.002, X0[2]))]  # in range (0..20 mm), 2 mm off
     stamps += [_feed(bus, k) for k in range(1, 50)]
-    assert sorted(est) == stamps[2:] and node.counts["withheld"] == 2
-    assert all(abs(p[0] - X0[0]) < 1e-6 and abs(p[1] - X0[2]) < 1e-6 for p in est.values()), est[stamps[2]]
+    assert list(est) == stamps[1:] and node.counts["withheld"] == 1
+    assert all(abs(p[0] - X0[0]) < 1e-6 and abs(p[1] - X0[2]) < 1e-6 for p in est.values()), est[stamps[1]]
     bus.advance(1.0)
     level, _message, values = diags[-1]
     assert level != ERROR and values["unconfirmed_starts"] == "1" and values["faults"] == "", diags[-1]
@@ -87,10 +90,13 @@ def test_convergence_fits_inside_the_boards_hold():
 
 def test_a_start_in_the_preroll_publishes_once_confirmed():
     """Without measured rates too: in the pre-roll the plate hovers in equilibrium, where the filter starts, so
-    the estimates go out as soon as the next sample confirms the start (not after converge_samples)."""
+    the estimates go out as soon as the next sample confirms the start (not after converge_samples), the
+    start's first: the plant's first sample gets its command (a lockstep plant waits for it)."""
     bus, node, est, _ = _graph()
-    stamps = [_feed(bus, k, frame=contract.FRAME_PREROLL, rates=()) for k in range(3)]
-    assert sorted(est) == stamps[1:] and node.counts["withheld"] == 1
+    t0 = _feed(bus, 0, frame=contract.FRAME_PREROLL, rates=())
+    assert est == {}
+    stamps = [t0] + [_feed(bus, k, frame=contract.FRAME_PREROLL, rates=()) for k in range(1, 3)]
+    assert list(est) == stamps and node.counts["withheld"] == 0
 
 
 def test_spikes_are_held_counted_and_warned_and_a_dead_sensor_is_an_error():
@@ -118,7 +124,7 @@ def test_spikes_are_held_counted_and_warned_and_a_dead_sensor_is_an_error():
     assert level == ERROR and message.startswith("gap sensor 2:"), diags[-1]  # published at once
     assert sum("fault: gap sensor 2" in line[2] for line in bus.log) == 1
     _feed(bus, k)  # estimates go on (from the other sensor, the currents and the model)
-    assert len(est) == 200 + 2 + EC["fault_samples"] + 1 - 1  # rates measured: published from the second sample
+    assert len(est) == 200 + 2 + EC["fault_samples"] + 1  # rates measured: every sample (the start once confirmed)
 
 
 def test_malformed_measurements_are_dropped_and_settings_retune_without_a_restart():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from dem_ros import contract
 from dem_ros.core.model import hover_state
@@ -165,3 +166,30 @@ def test_a_measurement_stamped_far_ahead_holds_nothing_back():
     bus.publish(contract.APPLIED, joint_state(JS, t, effort=U0))
     bus.spin_once()
     assert t in est and node.counts["unpaired"] == 0
+
+
+@pytest.mark.parametrize("preroll", [0.05, 0.0])
+def test_a_lockstep_plant_runs_from_its_first_sample_through_the_estimator(preroll):
+    """The confirmed start's own estimate goes out (on the confirming sample): a lockstep plant waits for the
+    command of every sample, and a withheld first estimate stalled the whole graph until lockstep_timeout,
+    then landed the plate at t = 0 (what the graph test's run did when the start was only withheld). The real
+    plant, estimator, reference and controller nodes on one memory bus, the plant paced by the wall clock."""
+    import time
+
+    from dem_ros.nodes.controller import ControllerNode
+    from dem_ros.nodes.plant_sim import PlantSimNode
+    from dem_ros.nodes.reference import ReferenceNode
+
+    bus = MemoryBus()
+    args = ["--ros-args", "-p", "start_delay:=0.0", "-p", "min_subscribers:=0", "-p", f"preroll:={preroll}",
+            "-p", "lockstep:=true", "-p", "lockstep_timeout:=0.5", "-p", "duration:=0.2"]
+    plant = PlantSimNode(bus.node("plant_sim", args))
+    node = EstimatorNode(bus.node("estimator", []))
+    ReferenceNode(bus.node("reference", []))
+    ControllerNode(bus.node("controller", []))
+    end = time.monotonic() + 30.0
+    while not plant.finished and time.monotonic() < end:
+        bus.advance(0.001)
+    assert plant.finished and plant.lockstep_landing == 0, plant.board.reason if hasattr(plant.board, "reason") else ""
+    assert plant.k_next > 200  # every sample of the 0.2 s run
+    assert node.counts["withheld"] == 0 and node.counts["published"] == node.counts["measurements"]

@@ -190,9 +190,39 @@ def physical_estimates(theta: np.ndarray, out: np.ndarray) -> None:
 
 
 @njit(cache=True)
+def _rls_gain2(P: np.ndarray, X: np.ndarray, n: int, G: np.ndarray) -> None:
+    """:func:`_rls_gain` for m = 2 (the e_c rows alone): the column loops have a constant length,
+    so they unroll; the same operations in the same order as the general code."""
+    PX = np.zeros((n, 2))
+    for i in range(n):
+        for j in range(2):
+            s = 0.0
+            for k in range(n):
+                s += P[i, k] * X[k, j]
+            PX[i, j] = s
+    s00 = 1.0
+    s01 = 0.0
+    s11 = 1.0
+    for k in range(n):
+        s00 += X[k, 0] * PX[k, 0]
+        s01 += X[k, 0] * PX[k, 1]
+        s11 += X[k, 1] * PX[k, 1]
+    det = s00 * s11 - s01 * s01
+    i00 = s11 / det
+    i01 = -s01 / det
+    i11 = s00 / det
+    for i in range(n):
+        G[i, 0] = PX[i, 0] * i00 + PX[i, 1] * i01
+        G[i, 1] = PX[i, 0] * i01 + PX[i, 1] * i11
+
+
+@njit(cache=True)
 def _rls_gain(P: np.ndarray, X: np.ndarray, n: int, G: np.ndarray) -> None:
-    """G = P X (I + X^T P X)^{-1}; X: (n, m), G: (n, m) (m = 2: closed form; else a solve)."""
+    """G = P X (I + X^T P X)^{-1}; X: (n, m), G: (n, m) (m = 2: closed form, :func:`_rls_gain2`; else a solve)."""
     m = X.shape[1]
+    if m == 2:
+        _rls_gain2(P, X, n, G)
+        return
     PX = np.zeros((n, m))
     for i in range(n):
         for j in range(m):
@@ -200,22 +230,6 @@ def _rls_gain(P: np.ndarray, X: np.ndarray, n: int, G: np.ndarray) -> None:
             for k in range(n):
                 s += P[i, k] * X[k, j]
             PX[i, j] = s
-    if m == 2:
-        s00 = 1.0
-        s01 = 0.0
-        s11 = 1.0
-        for k in range(n):
-            s00 += X[k, 0] * PX[k, 0]
-            s01 += X[k, 0] * PX[k, 1]
-            s11 += X[k, 1] * PX[k, 1]
-        det = s00 * s11 - s01 * s01
-        i00 = s11 / det
-        i01 = -s01 / det
-        i11 = s00 / det
-        for i in range(n):
-            G[i, 0] = PX[i, 0] * i00 + PX[i, 1] * i01
-            G[i, 1] = PX[i, 0] * i01 + PX[i, 1] * i11
-        return
     S = np.eye(m)
     for a in range(m):
         for b in range(m):
@@ -228,8 +242,19 @@ def _rls_gain(P: np.ndarray, X: np.ndarray, n: int, G: np.ndarray) -> None:
 
 @njit(cache=True)
 def _rls_cov_step(P: np.ndarray, G: np.ndarray, X: np.ndarray, n: int, dP: np.ndarray) -> None:
-    """dP = G X^T P (the LS decrease); P is not modified."""
+    """dP = G X^T P (the LS decrease); P is not modified. m = 2 has its own loop (constant length: unrolled)."""
     m = X.shape[1]
+    if m == 2:
+        for i in range(n):
+            for j in range(n):
+                s = 0.0
+                for c in range(2):
+                    t = 0.0
+                    for k in range(n):
+                        t += X[k, c] * P[k, j]
+                    s += G[i, c] * t
+                dP[i, j] = s
+        return
     for i in range(n):
         for j in range(n):
             s = 0.0
@@ -335,12 +360,16 @@ def _update_adaptive(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np
         elif dz_mode == DZ_ERROR:
             adapt = np.sqrt(ec[0] ** 2 + ec[1] ** 2) > cp[CP_E0]
     if adapt:
-        for i in range(NPHI):
-            v[i] -= G[i, 0] * ec[0]
-            v[i] -= G[i, 1] * ec[1]
-            if coil:
+        if coil:
+            for i in range(NPHI):
+                v[i] -= G[i, 0] * ec[0]
+                v[i] -= G[i, 1] * ec[1]
                 v[i] -= G[i, 2] * rc1
                 v[i] -= G[i, 3] * rc2
+        else:
+            for i in range(NPHI):
+                v[i] -= G[i, 0] * ec[0]
+                v[i] -= G[i, 1] * ec[1]
     if enhanced and cp[CP_W] > 0.0:
         # corrected Eq. 48b leakage towards v0: v' = -w |e_c| P (v - v0) / (1 + w^2 |P|)
         Pa = np.ascontiguousarray(P[:NPHI, :NPHI])
@@ -445,7 +474,6 @@ def _ce_law(theta: np.ndarray, ab: np.ndarray, ve1: float, ve2: float, u: np.nda
 @njit(cache=True)
 def _predict(mode: int, cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np.ndarray, uh: np.ndarray, delay: int, x: np.ndarray) -> bool:
     """Advance ``x`` by ``delay`` samples under uh[delay-1], ..., uh[0] with the estimated model."""
-    est = np.empty(3)
     if mode == MODE_PAPER or mode == MODE_PAPER_FIX:  # noqa: SIM109 (numba)
 
         # eight free thetas need not describe any physical (m, R, K): no model to predict with
@@ -456,6 +484,7 @@ def _predict(mode: int, cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale:
         Kc = scale[2] * v[2]
         rho = scale[3] * v[3]
     else:
+        est = np.empty(3)
         physical_estimates(theta, est)
         if not (est[0] > 0.0 and est[1] > 0.0 and est[2] > 0.0):
             return False
@@ -534,14 +563,13 @@ def ce_step(law: CELaw, st: CEState, meas: np.ndarray, ref: np.ndarray, u: np.nd
     for r in range(NTH):
         xi[r, 0] = Z[0, 2 * r]
         xi[r, 1] = Z[0, 2 * r + 1]
-    e = np.empty(2)
-    e[0] = meas[0] - ref[0]
-    e[1] = meas[2] - ref[1]
+    e1 = meas[0] - ref[0]
+    e2 = meas[2] - ref[1]
     ec = np.zeros(2)
     adapting = 0.0
     if mode != MODE_FIXED:
         for j in range(2):
-            s = -Z[0, 2 * NTH + j] - e[j]
+            s = -Z[0, 2 * NTH + j] - (e1 if j == 0 else e2)
             for r in range(NTH):
                 s += xi[r, j] * theta[r]
             ec[j] = s
@@ -561,8 +589,8 @@ def ce_step(law: CELaw, st: CEState, meas: np.ndarray, ref: np.ndarray, u: np.nd
                                         rows)
     # v_e at the measured state: enters the error filter whatever the law does
     ydd1, ydd2 = _ydd_hat(theta, ab, N1, N2, g)
-    ve1 = ref[6] - k1 * (ydd1 - ref[4]) - k2 * (meas[1] - ref[2]) - k3 * e[0]
-    ve2 = ref[7] - k1 * (ydd2 - ref[5]) - k2 * (meas[3] - ref[3]) - k3 * e[1]
+    ve1 = ref[6] - k1 * (ydd1 - ref[4]) - k2 * (meas[1] - ref[2]) - k3 * e1
+    ve2 = ref[7] - k1 * (ydd2 - ref[5]) - k2 * (meas[3] - ref[3]) - k3 * e2
     delay = int(cp[CP_DELAY])
     fault = 0.0
     sig1 = 0.0
@@ -598,7 +626,7 @@ def ce_step(law: CELaw, st: CEState, meas: np.ndarray, ref: np.ndarray, u: np.nd
         vp1 = rp[6] - k1 * (y1 - rp[4]) - k2 * (xp[1] - rp[2]) - k3 * (xp[0] - rp[0])
         vp2 = rp[7] - k1 * (y2 - rp[5]) - k2 * (xp[3] - rp[3]) - k3 * (xp[2] - rp[1])
         if ki > 0.0:  # E predicted over the delay with the error of now
-            sig1, sig2 = _integral_term(cp, y1, y2, rp, xp, st.ie[0] + tau * e[0], st.ie[1] + tau * e[1])
+            sig1, sig2 = _integral_term(cp, y1, y2, rp, xp, st.ie[0] + tau * e1, st.ie[1] + tau * e2)
         _ce_law(theta, abp, vp1 - ki * sig1, vp2 - ki * sig2, u)
     lim = cp[CP_ULIM]
     clipped = False
@@ -613,8 +641,8 @@ def ce_step(law: CELaw, st: CEState, meas: np.ndarray, ref: np.ndarray, u: np.nd
             u[j] = -lim
             clipped = True
     if ki > 0.0 and fault == 0.0 and not clipped:  # anti-windup: no integration while the command is clipped
-        st.ie[0] += cp[CP_TS] * e[0]
-        st.ie[1] += cp[CP_TS] * e[1]
+        st.ie[0] += cp[CP_TS] * e1
+        st.ie[1] += cp[CP_TS] * e2
     # the voltage applied over this sample: our command of `delay` samples ago
     ua = np.empty(2)
     if delay == 0:
@@ -646,20 +674,16 @@ def ce_step(law: CELaw, st: CEState, meas: np.ndarray, ref: np.ndarray, u: np.nd
         w[2 * NTH + j] += s
     filter_step(Z, law.Ad, law.Bd, w)
     # diagnostics
-    est = np.empty(3)
     if mode == MODE_ADAPTIVE or mode == MODE_ENHANCED:  # noqa: SIM109 (numba)
-        est[0] = 1.0 / (scale[0] * v[0])
-        est[1] = scale[1] * v[1]
-        est[2] = scale[2] * v[2]
+        diag[D_M] = 1.0 / (scale[0] * v[0])
+        diag[D_R] = scale[1] * v[1]
+        diag[D_K] = scale[2] * v[2]
     else:
-        physical_estimates(theta, est)
-    diag[D_M] = est[0]
-    diag[D_R] = est[1]
-    diag[D_K] = est[2]
+        physical_estimates(theta, diag)  # diag[D_M], diag[D_R], diag[D_K]
     diag[D_EC1] = ec[0]
     diag[D_EC2] = ec[1]
-    diag[D_E1] = e[0]
-    diag[D_E2] = e[1]
+    diag[D_E1] = e1
+    diag[D_E2] = e2
     diag[D_ADAPT] = adapting
     diag[D_FAULT] = fault
 
@@ -675,6 +699,7 @@ def ce_step_arrays(mode: int, cp: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, th
     pass the records.
     """
     ce_step(CELaw(mode, cp, Ad, Bd), CEState(theta, v, scale, v0, P, Z, uh, ie, coil), meas, ref, u, diag)
+
 
 
 # --------------------------------------------------------------------------

@@ -120,17 +120,21 @@ class CEController(Controller):
             raise ConfigError(f"controller.type: {self.name!r} is not a CE controller")
         self.mode = CONTROLLERS[self.name]
         self.cfg = SCHEMA.validate_group("controller", dict(cfg))
-        self.cp = _cp_vector(self.cfg)
+        # the law's arrays are views into one buffer and the state's into another (kernels.LB_*, SB_*): a step
+        # passes the compiled code two arrays, not sixteen (kernels.ce_step_buffers)
+        self._lb = np.zeros(kernels.NLB)
+        self.cp, self._Ad, self._Bd = kernels.law_views(self._lb)
+        self.cp[:] = _cp_vector(self.cfg)
+        self.law = kernels.CELaw(self.mode, self.cp, self._Ad, self._Bd)
         self._filter()
-        self.diag = np.full(kernels.NDIAG, np.nan)
-        self.u = np.zeros(2)
         self.hover_fit: HoverFit | None = None
         self.reset(None, None)
 
     def _filter(self) -> None:
         c = self.cfg
         self.F = AllPoleFilter([c["k3"], c["k2"], c["k1"]], 1.0, c["dt"])
-        self.law = kernels.CELaw(self.mode, self.cp, self.F.Ad, self.F.Bd)
+        self._Ad[:] = self.F.Ad
+        self._Bd[:] = self.F.Bd
 
     # -- state ------------------------------------------------------------
     def reset(self, meas0: np.ndarray | None, u0: np.ndarray | None) -> None:
@@ -142,21 +146,19 @@ class CEController(Controller):
             window = (np.atleast_2d(np.asarray(meas0, float)), np.atleast_2d(np.asarray(u0, float)))
             meas0, u0 = window_means(*window)
         self.hover_fit = None
-        self.Z = np.zeros((3, kernels.NZ))
-        self.uh = np.zeros((kernels.NUH, 2))
+        self._sb = np.zeros(kernels.NSB)  # all zero: Z, P, v, v0, ie
+        self.state, self.u, self.diag = kernels.state_views(self._sb)
+        self.theta, self.v, self.scale, self.v0, self.P, self.Z, self.uh, self.ie, self.coil = self.state
         if u0 is not None:
             self.uh[:] = np.asarray(u0, float)  # before t = 0 the coils held u0
-        self.P = np.zeros((kernels.NTH, kernels.NTH))
-        self.v = np.zeros(kernels.NTH)
-        self.v0 = np.zeros(kernels.NTH)
-        self.scale = np.ones(kernels.NTH)
+        self.scale[:] = 1.0
         if self.mode == kernels.MODE_FIXED:
-            self.theta = _theta(np.array([1 / c["m_nominal"], c["R_nominal"], c["K_nominal"]]), cp)
+            self.theta[:] = _theta(np.array([1 / c["m_nominal"], c["R_nominal"], c["K_nominal"]]), cp)
         else:
             phi0 = np.array([1 / c["m_init"], c["R_init"], c["K_init"]])
             th0 = _theta(phi0, cp)
             if self.mode == kernels.MODE_PAPER:
-                self.theta = th0.copy()
+                self.theta[:] = th0
                 self.v[:] = th0
                 self.P[:8, :8] = np.eye(8)
             elif self.mode == kernels.MODE_PAPER_FIX:
@@ -167,7 +169,7 @@ class CEController(Controller):
                 self.P[:8, :8] = 1e4 * np.eye(8)
                 if meas0 is not None and u0 is not None and c["hover_init"]:
                     self._hover_init_a1(meas0, u0)
-                self.theta = self.scale * self.v
+                self.theta[:] = self.scale * self.v
             else:
                 n = kernels.NPHI
                 self.scale[:n] = [phi0[0], phi0[1], phi0[2], phi0[1]]  # rho in units of R_init
@@ -175,13 +177,12 @@ class CEController(Controller):
                 self.P[:n, :n] = np.diag([c["P0_m"], c["P0_R"], c["P0_K"], c["P0_rho"]])
                 if window is not None and c["hover_init"]:
                     self._hover_init_a2(*window)
-                self.theta = _theta(self.scale[:n] * self.v[:n], cp)
+                self.theta[:] = _theta(self.scale[:n] * self.v[:n], cp)
             self.v0[:] = self.v
-        self.u = np.zeros(2) if u0 is None else np.asarray(u0, float).copy()
-        self.ie = np.zeros(2)
-        self.coil = np.full((5, 2), np.nan)  # coil-equation filters: start at the first sample
-        self.state = kernels.CEState(self.theta, self.v, self.scale, self.v0, self.P, self.Z, self.uh, self.ie, self.coil)
-        self.diag = np.full(kernels.NDIAG, np.nan)
+        if u0 is not None:
+            self.u[:] = np.asarray(u0, float)
+        self.coil[:] = np.nan  # coil-equation filters: start at the first sample
+        self.diag[:] = np.nan
         self._fill_estimates()
 
     def _fill_estimates(self) -> None:
@@ -220,7 +221,7 @@ class CEController(Controller):
 
     # -- loop -------------------------------------------------------------
     def step(self, meas: np.ndarray, ref: np.ndarray) -> np.ndarray:
-        kernels.ce_step_arrays(*self.law, *self.state, meas, ref, self.u, self.diag)  # records typed in Python cost ~1.4 us
+        kernels.ce_step_buffers(self.mode, self._lb, self._sb, meas, ref)  # into self.u, self.diag (views of _sb)
         return self.u
 
     def set_params(self, cfg: Mapping[str, Any]) -> None:

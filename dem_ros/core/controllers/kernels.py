@@ -142,6 +142,27 @@ NO_COIL_ROWS: CoilRows = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 (D_M, D_R, D_K, D_EC1, D_EC2, D_E1, D_E2, D_ADAPT, D_FAULT) = range(9)
 NDIAG = 9
 
+#: :class:`dem_ros.core.controllers.CEController` keeps a law's arrays in two buffers (the records' fields are
+#: views into them), so that a step called from Python passes two arrays, not sixteen (:func:`ce_step_buffers`).
+#: The law buffer: cp, Ad (3 x 3), Bd (3,)
+LB_CP = 0
+LB_AD = LB_CP + NCP
+LB_BD = LB_AD + 9
+NLB = LB_BD + 3
+#: The state buffer: the CEState fields in order, then the outputs u (2,) and diag (NDIAG,)
+SB_THETA = 0
+SB_V = SB_THETA + NTH
+SB_SCALE = SB_V + NTH
+SB_V0 = SB_SCALE + NTH
+SB_P = SB_V0 + NTH
+SB_Z = SB_P + NTH * NTH
+SB_UH = SB_Z + 3 * NZ
+SB_IE = SB_UH + NUH * 2
+SB_COIL = SB_IE + 2
+SB_U = SB_COIL + 5 * 2
+SB_DIAG = SB_U + 2
+NSB = SB_DIAG + NDIAG
+
 
 class CELaw(NamedTuple):
     """What a CE law is (fixed between ``set_params``): one argument of :func:`ce_step`.
@@ -696,10 +717,39 @@ def ce_step_arrays(mode: int, cp: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, th
 
     numba's dispatcher types array arguments in C but a NamedTuple in Python: a call with the
     records costs ~1.4 us more per 1 kHz step (p50 5.2 vs 3.8 us, #9 item 5). Compiled callers
-    pass the records.
+    pass the records; :class:`~dem_ros.core.controllers.CEController` calls :func:`ce_step_buffers`
+    (two arrays instead of sixteen).
     """
     ce_step(CELaw(mode, cp, Ad, Bd), CEState(theta, v, scale, v0, P, Z, uh, ie, coil), meas, ref, u, diag)
 
+
+def law_views(lb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(cp, Ad, Bd): the views of a law buffer (NLB,) (layout LB_*)."""
+    return lb[LB_CP:LB_AD], lb[LB_AD:LB_BD].reshape((3, 3)), lb[LB_BD:NLB]
+
+
+def state_views(sb: np.ndarray) -> tuple[CEState, np.ndarray, np.ndarray]:
+    """(CEState, u, diag): the views of a state buffer (NSB,) (layout SB_*)."""
+    st = CEState(sb[SB_THETA:SB_V], sb[SB_V:SB_SCALE], sb[SB_SCALE:SB_V0], sb[SB_V0:SB_P],
+                 sb[SB_P:SB_Z].reshape((NTH, NTH)), sb[SB_Z:SB_UH].reshape((3, NZ)), sb[SB_UH:SB_IE].reshape((NUH, 2)),
+                 sb[SB_IE:SB_COIL], sb[SB_COIL:SB_U].reshape((5, 2)))
+    return st, sb[SB_U:SB_DIAG], sb[SB_DIAG:NSB]
+
+
+@njit(cache=True)
+def ce_step_buffers(mode: int, lb: np.ndarray, sb: np.ndarray, meas: np.ndarray, ref: np.ndarray) -> None:
+    """:func:`ce_step` on a law buffer ``lb`` (NLB,) and a state buffer ``sb`` (NSB,) (layouts LB_*, SB_*):
+    the command goes to sb[SB_U:SB_DIAG], the diagnostics to sb[SB_DIAG:].
+
+    The step called from Python (nodes, ``bench sim``): numba's dispatcher types and unboxes every array
+    argument of a call (~0.1 us each), so four arrays cost less than the sixteen of :func:`ce_step_arrays`;
+    the views are taken here, in compiled code.
+    """
+    law = CELaw(mode, lb[LB_CP:LB_AD], lb[LB_AD:LB_BD].reshape((3, 3)), lb[LB_BD:NLB])
+    st = CEState(sb[SB_THETA:SB_V], sb[SB_V:SB_SCALE], sb[SB_SCALE:SB_V0], sb[SB_V0:SB_P],
+                 sb[SB_P:SB_Z].reshape((NTH, NTH)), sb[SB_Z:SB_UH].reshape((3, NZ)), sb[SB_UH:SB_IE].reshape((NUH, 2)),
+                 sb[SB_IE:SB_COIL], sb[SB_COIL:SB_U].reshape((5, 2)))
+    ce_step(law, st, meas, ref, sb[SB_U:SB_DIAG], sb[SB_DIAG:NSB])
 
 
 # --------------------------------------------------------------------------

@@ -69,10 +69,12 @@ class QoS:
 
 
 #: 1 kHz streams: reliable; readers keep 100 samples (100 ms), so the loop's nodes never take a longer
-#: backlog; writers keep 1000 (1 s), so that a reader whose process was stalled (the recorder on a busy
-#: host: up to ~0.5 s runnable but not running) gets what its full socket dropped resent: a keep-last
-#: writer never blocks, it drops its oldest sample, unacknowledged or not (Cyclone's "aggressive keep last")
-QOS_STREAM = QoS(reliable=True, transient_local=False, depth=100, writer_depth=1000)
+#: backlog; writers keep 3000 (3 s), so that a reader whose process was stalled gets what its full socket
+#: dropped resent (a keep-last writer never blocks: it drops its oldest sample, acknowledged or not). The
+#: recorder (SCHED_FIFO below the loop) was measured runnable-but-not-running for up to 0.49 s with two busy
+#: processes beside `make demo`, and 1.2-2.0 s with other real-time graphs on the same 2 cores; its socket
+#: holds ~0.35 s (rmem_max 4 MiB; ~0.08 s with a stock 208 KiB)
+QOS_STREAM = QoS(reliable=True, transient_local=False, depth=100, writer_depth=3000)
 QOS_LATCHED = QoS(reliable=True, transient_local=True, depth=1)
 QOS_PARAM_EVENTS = QoS(reliable=True, transient_local=False, depth=1000)
 

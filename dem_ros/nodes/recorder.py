@@ -29,8 +29,10 @@ from .common import Diagnostics
 
 __all__ = ["RecorderNode", "main", "parse_recorder_args"]
 
-#: reader history of the recorder's subscriptions (samples per topic; 1 s at 1 kHz)
-RECORDER_DEPTH = 1000
+#: reader history of the recorder's subscriptions (samples per topic; 3 s at 1 kHz): as deep as the 1 kHz
+#: streams' writers (contract.QOS_STREAM.writer_depth), so that what they resend after a stall of this
+#: process is not pushed out of the reader's history before this node's thread takes it
+RECORDER_DEPTH = 3000
 #: SCHED_FIFO priority of a recorder process (the loop's nodes: 50, dem_ros.realtime) unless DEM_ROS_RT_PRIORITY is set
 RECORDER_PRIORITY = 40
 

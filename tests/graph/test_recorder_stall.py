@@ -23,7 +23,7 @@ from dem_ros.tools import launcher
 
 DURATION = 4.0
 #: how long the recorder is stopped: longer than its socket holds on any host (above) plus the old writers'
-#: history (100 ms), 0.6x the new one (1 s); the recorder's longest stall in a failed loaded `make demo`: 0.49 s
+#: history (100 ms), 0.2x the new one (3 s); the recorder's longest stall in a failed loaded `make demo`: 0.49 s
 STALL_S = 0.6
 #: t (experiment clock, wall time since t = 0) at which the recorder is stopped
 STALL_AT_S = 1.5
@@ -72,8 +72,8 @@ def test_a_stalled_recorder_loses_no_plant_sample(tmp_path, domain_id):
 
 
 def test_the_writers_keep_a_second_and_the_readers_a_tenth(domain_id):
-    """The 1 kHz streams on the wire: writers KEEP_LAST 1000, the loop's readers KEEP_LAST 100 (they never take a
-    longer backlog), the recorder's 1000 (RECORDER_DEPTH)."""
+    """The 1 kHz streams on the wire: writers KEEP_LAST 3000, the loop's readers KEEP_LAST 100 (they never take a
+    longer backlog)."""
     from cyclonedds.qos import Policy
 
     from dem_ros.transport import make_node
@@ -85,7 +85,7 @@ def test_the_writers_keep_a_second_and_the_readers_a_tenth(domain_id):
         assert isinstance(pub, DdsPublisher)
         node.subscribe(contract.MEASUREMENT, lambda _m: None)
         writer_history = pub.writer.get_qos()[Policy.History]
-        assert writer_history == Policy.History.KeepLast(1000), writer_history
+        assert writer_history == Policy.History.KeepLast(3000), writer_history
         end = time.monotonic() + 10
         while time.monotonic() < end and not pub.writer.get_matched_subscriptions():
             time.sleep(0.05)

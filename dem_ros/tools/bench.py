@@ -8,8 +8,9 @@ JointState CDR encoder/decoder against cyclonedds' generic IDL codec and rosbags
 typestore, and our MCAP writer/reader against the ``mcap`` package's.
 
 ``bench sim``: the 100 s S1 scenario at 1 kHz control with 0.1 ms RK4 sub-steps:
-single-run wall time and x real time, the controller's per-call step time as
-the nodes call it (p50, p99), batch throughput, and the same closed loop run
+single-run wall time (and CPU time) and x real time, the controller's per-call step time as
+the nodes call it (p50, p99), both again for the law of 42edb28 (the adaptive law with the
+session-3 terms off, :data:`TERMS_OFF`: the figures to compare across #8 and #9), batch throughput, and the same closed loop run
 by scipy's ``solve_ivp`` (what a Python user would otherwise write: the plant
 as a numpy right-hand side, integrated sample by sample under the same ZOH
 controller) with the speed ratio and the largest trajectory difference.
@@ -175,6 +176,10 @@ def _peer(cfg, duration: float, ref_arrays):
     return X, time.perf_counter() - t0
 
 
+#: the session-3 terms of the adaptive law off: the law of 42edb28, the commit before #9 (bench sim's second row)
+TERMS_OFF = {"ki": 0.0, "coil_weight": 0.0, "q_R": 0.0, "q_rho": 0.0}
+
+
 def bench_sim(batch: int = 64, peer_duration: float = 5.0, bar: Any = None) -> dict:
     """The simulator's speed; ``bar``: a :class:`.progress.Progress` told each phase (minutes on a busy machine)."""
     say = bar.stage if bar is not None else (lambda _what: None)
@@ -184,31 +189,39 @@ def bench_sim(batch: int = 64, peer_duration: float = 5.0, bar: Any = None) -> d
     from ..core.simulate import prepare, simulate, simulate_batch
 
     cfg = get_scenario("S1").config()
-    simulate(cfg, controller="adaptive", estimator="none", duration=1.0)  # compile / load the cache
-    walls = []
-    say("S1, 100 s, 3 runs (the best counts)")
-    for _ in range(3):
-        res = simulate(cfg, controller="adaptive", estimator="none", duration=100.0)
-        walls.append(res.wall_time)
-    wall = min(walls)
-    out = {"machine": machine(), "scenario": "S1", "duration_s": 100.0, "control_rate_hz": 1000, "plant_substep_s": 1e-4}
-    out["single_run_wall_s"] = wall
-    out["realtime_factor"] = 100.0 / wall
+    # the law of 42edb28 (before #8's terms), for comparisons across that change (#9: the same law configuration)
+    old = {g: dict(v) for g, v in cfg.items()}
+    old["controller"].update(TERMS_OFF)
 
-    # controller step as the nodes call it (Python -> compiled kernel)
-    say("controller step from Python, 20 000 calls")
-    pc = cfg["plant_sim"]
-    x0, u0 = hover_state(pc, pc["gap0"])
-    _, ref = prepare(cfg, 20.0)[1:3]
-    ctrl = make_controller(cfg["controller"], "adaptive")
-    ctrl.reset(x0.copy(), u0)
-    xs = res.x[:20000]
-    times = np.empty(len(xs))
-    for k in range(len(xs)):
-        t = time.perf_counter_ns()
-        ctrl.step(xs[k], ref[k])
-        times[k] = time.perf_counter_ns() - t
-    out["controller_step_us"] = {"p50": float(np.percentile(times, 50) / 1e3), "p99": float(np.percentile(times, 99) / 1e3)}
+    def single_and_step(c: dict, label: str) -> dict:
+        walls, cpus = [], []
+        say(f"S1, 100 s, 3 runs (the best counts){label}")
+        for _ in range(3):
+            c0 = time.thread_time()
+            res = simulate(c, controller="adaptive", estimator="none", duration=100.0)
+            cpus.append(time.thread_time() - c0)
+            walls.append(res.wall_time)
+        r = {"single_run_wall_s": min(walls), "single_run_cpu_s": min(cpus), "realtime_factor": 100.0 / min(walls)}
+        # controller step as the nodes call it (Python -> compiled kernel)
+        say(f"controller step from Python, 20 000 calls{label}")
+        pc = c["plant_sim"]
+        x0, u0 = hover_state(pc, pc["gap0"])
+        _, ref = prepare(c, 20.0)[1:3]
+        ctrl = make_controller(c["controller"], "adaptive")
+        ctrl.reset(x0.copy(), u0)
+        xs = res.x[:20000]
+        times = np.empty(len(xs))
+        for k in range(len(xs)):
+            t = time.perf_counter_ns()
+            ctrl.step(xs[k], ref[k])
+            times[k] = time.perf_counter_ns() - t
+        r["controller_step_us"] = {"p50": float(np.percentile(times, 50) / 1e3), "p99": float(np.percentile(times, 99) / 1e3)}
+        return r
+
+    simulate(cfg, controller="adaptive", estimator="none", duration=1.0)  # compile / load the cache
+    out = {"machine": machine(), "scenario": "S1", "duration_s": 100.0, "control_rate_hz": 1000, "plant_substep_s": 1e-4}
+    out.update(single_and_step(cfg, ""))
+    out["terms_off"] = {"controller": TERMS_OFF, **single_and_step(old, ", the law of 42edb28")}
 
     offsets = np.linspace(0.0, 3.0, batch)
     say(f"batch of {batch} plants x 100 s")
@@ -237,9 +250,14 @@ def bench_sim(batch: int = 64, peer_duration: float = 5.0, bar: Any = None) -> d
 def _print_sim(r: dict) -> None:
     m = r["machine"]
     print(f"dem-ros bench sim on {m['cpu']} ({m['cores']} cores), Python {m['python']}")
-    print(f"  S1, 100 s, 1 kHz control, 0.1 ms RK4: {r['single_run_wall_s']:.3f} s wall = {r['realtime_factor']:.0f}x real time")
+    print(f"  S1, 100 s, 1 kHz control, 0.1 ms RK4: {r['single_run_wall_s']:.3f} s wall ({r['single_run_cpu_s']:.3f} s CPU)"
+          f" = {r['realtime_factor']:.0f}x real time")
     c = r["controller_step_us"]
-    print(f"  controller step (adaptive, per call from Python): p50 {c['p50']:.1f} us, p99 {c['p99']:.1f} us")
+    print(f"  controller step (adaptive, per call from Python): p50 {c['p50']:.2f} us, p99 {c['p99']:.1f} us")
+    o = r["terms_off"]
+    c = o["controller_step_us"]
+    print(f"  the law of 42edb28 ({', '.join(f'{k} = {v:g}' for k, v in o['controller'].items())}): {o['single_run_wall_s']:.3f} s"
+          f" wall ({o['single_run_cpu_s']:.3f} s CPU), step p50 {c['p50']:.2f} us, p99 {c['p99']:.1f} us")
     print(f"  batch: {r['batch']['plants']} plants x 100 s in {r['batch']['wall_s']:.1f} s = {r['batch_runs_per_s']:.2f} runs/s")
     p = r["peer"]
     print(f"  peer {p['name']}: {p['realtime_factor']:.2f}x real time over {p['simulated_s']:g} s;"

@@ -147,7 +147,7 @@ class RclpyNode:
         return dict(self._guard.errors)
 
     def publisher(self, topic: Topic) -> RclpyPublisher:
-        return RclpyPublisher(self._node.create_publisher(get_message(topic.type), topic.name, to_qos_profile(topic.qos)))
+        return RclpyPublisher(self._node.create_publisher(get_message(topic.type), topic.name, to_qos_profile(topic.qos.for_writer())))
 
     def subscribe(self, topic: Topic, callback: Callable[[Any], object]) -> None:
         self._node.create_subscription(get_message(topic.type), topic.name,

@@ -110,7 +110,7 @@ ESTIMATE = Topic(
     "/dem/state_estimate", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "estimator",
     ("controller", "recorder"),
     "position: estimated gaps [m]; velocity: estimated gap rates [m/s]; effort: estimated currents [A]; "
-    "none after a (re)start until the filter has converged (a start in the pre-roll publishes at once)",
+    "none after a (re)start until the filter has converged (a start confirmed by the next sample; in the pre-roll that is all)",
 )
 REFERENCE = Topic(
     "/dem/reference", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "reference",

@@ -408,7 +408,7 @@ SCHEMA = Schema(
             ParamSpec("bias_max", float, 5.0, "m/s^2", "an acceleration bias beyond this for fault_samples samples declares a gap sensor (stuck) or load fault (5: an unknown load of +50 % of the module's mass)", 0.1, 1e4),
             ParamSpec("fault_samples", int, 20, "samples", "this many rejected samples of one gap sensor in a row declare it faulty (latched; ERROR on /diagnostics)", 1, 100000),
             ParamSpec("support_gap", float, _SAFETY_DEFAULTS["landing_gap"], "m", "the plate rests on its support at or beyond this gap (default: the board's landing_gap; hovering references lie below it): a hard stop in the filter's prediction (core/estimator.py); 0: no support", 0.0, 1.0),
-            ParamSpec("converge_samples", int, 30, "samples", "gap rates not measured: after a (re)start the node publishes no estimate until this many samples in a row passed the gates (the rate from the gaps settles in ~20; inside the board's hold_timeout); rates measured: the start is the measurement, published at once (core/estimator.py)", 1, 100000),
+            ParamSpec("converge_samples", int, 30, "samples", "gap rates not measured: after a (re)start the node publishes no estimate until this many samples in a row passed the gates (the rate from the gaps settles in ~20; inside the board's hold_timeout); rates measured: the start is the measurement, published once the next sample confirms it (2 samples; core/estimator.py)", 1, 100000),
             ParamSpec("dt", float, 1e-3, "s", "sample period", 1e-5, 0.1, read_only=True),
             *_geometry("model "),
             ParamSpec("m", float, TABLE2["m"], "kg", "model mass used by the filter", 0.1, 1e4),

@@ -74,8 +74,10 @@ class Script:
         st = _rig_status(self.workdir)
         now = time.monotonic()
         flying = st.get("mode") == "RUN" and max(st.get("gaps_mm", [99, 99])) < self.support_mm - 1.0
-        if now - self.start > LIMIT_S and self.phase != "stop":
-            self.phase = "gave up in phase " + self.phase
+        if self.phase == "stop" or self.phase.startswith("gave up"):
+            pass  # the driver is stopping: the run ends when it has landed the plate
+        elif now - self.start > LIMIT_S:
+            self.phase = "gave up in phase " + self.phase  # once (it was prefixed again at every later call)
             procs["hw_driver"].send_signal(signal.SIGINT)
         elif self.phase == "levitate" and ((t is not None and t >= 1.0 and flying) or st.get("landings", 0) >= 1):
             procs["controller"].send_signal(signal.SIGKILL)  # (or the board has landed it already: a stall)

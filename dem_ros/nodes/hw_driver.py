@@ -66,6 +66,9 @@ WARN_ON = ("lost", "duplicated", "reordered", "late", "corrupt", "hold_samples",
 #: board modes that are reported as a standing WARN (the board is landing or has landed the plate)
 BOARD_DOWN = (Mode.LAND, Mode.LANDED, Mode.FAULT)
 STOP_LANDING_S = 1.0  # s: stopped from outside, the driver waits at most this for the board to take up LAND
+#: frames the link reader handles in a row before it lets go of the lock and sleeps (a backlog: see _read_loop)
+DRAIN_BATCH = 16
+DRAIN_PAUSE_S = 1e-4
 
 
 class HwDriverNode:
@@ -193,10 +196,17 @@ class HwDriverNode:
         # to every frame. So nothing of the node is used here but its publishers (guarded, _publish_sample):
         # the board-to-ROS clock map reads ROS time off the system clock, as every transport's now_ns() does
         # (the DDS node's is time.time_ns(); the rclpy node's clock is gone with its node after shutdown).
+        # A backlog (frames queued while the process started or stalled) is drained DRAIN_BATCH frames at a
+        # time, each batch followed by a real sleep: drained in one go it held the lock throughout, so the
+        # executor could forward no command (measured at load 17: 9 executor rounds in 5 min, the board never
+        # left OFF), and at SCHED_FIFO it never slept: the RT budget (200 ms) put the process back to normal
+        # scheduling, where it fell further behind.
         while not self.stop.is_set():
             ready = poller.poll(5)
+            batch = 0
             with self.lock:
-                while ready:
+                while ready and batch < DRAIN_BATCH:
+                    batch += 1
                     try:
                         data = self.ch.recv(0.0)
                     except ChannelError as exc:
@@ -213,6 +223,8 @@ class HwDriverNode:
                                                    " carrying on with the next")
                 if not ready:
                     self.drv.check(time.monotonic_ns())
+            if batch >= DRAIN_BATCH:
+                time.sleep(DRAIN_PAUSE_S)  # the executor's turn for the lock (on_command), and a sleep for the RT budget
 
     def _on_frame(self, data: bytes) -> None:
         """One received frame (the lock held): through the driver, its reply to the board, its sample out."""

@@ -22,6 +22,17 @@ What each setting is for (a Python loop on a stock, non-RT Linux kernel):
   late (the kernel's default slack, used to batch wake-ups); the loop sleeps to absolute
   deadlines and wants none of it. Needs no privilege.
 * **CPU pinning** (``cpus``, optional): keep the loop's threads on chosen cores.
+* **one BLAS thread** (always, with real time on): numpy's and scipy's OpenBLAS hand even a 4x4
+  product or ``expm`` to worker threads and *spin* (``sched_yield``) until they are done. Those
+  workers are not the loop's threads: they stay at normal priority, so behind the graph's
+  real-time threads on a 2-core machine they may not run for tens of ms while the loop's FIFO
+  thread spins for them without sleeping (priority inversion). Measured at SCHED_FIFO 50 beside
+  two busy ``yes``: ``make_controller`` (one ``expm``) took 11 ms median, 111 ms at worst with
+  OpenBLAS's threads, 0.17 / 0.51 ms with one; on the rig a controller's lift-off (a law built
+  and hover-fitted on the 1 kHz path) spun 90 ms and 306 ms, the board landed the plate (no
+  command for 50 ms) and the RT budget below put the controller back to normal scheduling.
+  Every OpenBLAS the process has loaded is set to one thread (``openblas_set_num_threads``),
+  and ``OPENBLAS_NUM_THREADS=1`` covers one loaded later (and the process's children).
 * **garbage collector**: everything allocated during set-up (numba, the middleware, the nodes)
   is collected once and frozen (:func:`gc.freeze`), then automatic collection is disabled: a
   full collection of a Python process this size takes ~100 ms, which a 1 kHz loop cannot
@@ -170,6 +181,7 @@ class Granted:
         cpus: cores the loop's threads are pinned to, or None.
         gc_frozen: objects moved to the permanent generation; automatic collection disabled.
         rt_budget_ms: the RT budget (``RLIMIT_RTTIME``) armed, or None.
+        blas_single_thread: the OpenBLAS libraries (file names) set to one thread.
         missing: what was asked for and refused, one short phrase each.
     """
 
@@ -181,6 +193,7 @@ class Granted:
     cpus: list[int] | None = None
     gc_frozen: bool = False
     rt_budget_ms: int | None = None
+    blas_single_thread: list[str] = field(default_factory=list)
     missing: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
@@ -311,6 +324,33 @@ def _lock_memory(libc: ctypes.CDLL, g: Granted) -> None:
     g.missing.append(f"mlockall ({why})")
 
 
+#: what OpenBLAS builds call their thread-count setter (plain, numpy's and scipy's wheels: 32 / 64-bit ints)
+_BLAS_SET_THREADS = ("openblas_set_num_threads", "openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
+                     "scipy_openblas_set_num_threads64_")
+
+
+def _single_thread_blas(g: Granted) -> None:
+    """Every OpenBLAS loaded in this process computes on the calling thread only (module docstring)."""
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"  # an OpenBLAS loaded from now on reads it when it loads
+    try:
+        with open("/proc/self/maps") as f:
+            paths = sorted({ln.split(None, 5)[5].strip() for ln in f
+                            if "openblas" in ln.lower() and len(ln.split(None, 5)) == 6})
+    except OSError:
+        return
+    for path in paths:
+        try:
+            lib = ctypes.CDLL(path)  # already loaded: the same handle, nothing runs
+        except OSError:
+            continue
+        setter = next((getattr(lib, n) for n in _BLAS_SET_THREADS if hasattr(lib, n)), None)
+        if setter is not None:
+            setter.argtypes = [ctypes.c_int]
+            setter.restype = None
+            setter(1)
+            g.blas_single_thread.append(os.path.basename(path))
+
+
 def _arm_rt_budget(ms: int) -> int | None:
     """``RLIMIT_RTTIME`` soft limit ``ms`` with a SIGXCPU handler that leaves real time (see the
     module docstring); None where it cannot be armed (not the main thread, no such limit)."""
@@ -365,6 +405,7 @@ def apply(cfg: RtConfig, *, warn=None) -> Granted:
         g.timer_slack_ns = cfg.timer_slack_ns
     else:
         g.missing.append(f"timer slack ({os.strerror(ctypes.get_errno())})")
+    _single_thread_blas(g)  # before any thread runs at real time: no FIFO thread may spin for a normal one
     threads = _loop_threads(cfg.priority)
     if cfg.cpus:
         try:

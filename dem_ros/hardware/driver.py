@@ -10,6 +10,8 @@ Lifecycle (published on ``/dem/hw/state`` and in ``/diagnostics``)::
         +---disarm()------+------------------------------------+  (a controlled landing, LAND)
     any --trip / e-stop / watchdog / link loss--> FAULT (latched: LAND is sent every sample)
     FAULT --clear() (disarm) --> INACTIVE;  arm() clears a latched fault as well
+    ACTIVE --arm()--> ARMED only while the board reports LANDED / FAULT: it landed the plate on its own
+        (its hold_timeout is shorter than the driver's) and ignores commands until it is armed again
 
 What the driver sends the board, per sensor frame (the board is the clock):
     ACTIVE   the controller's command for that sample, mode RUN (voltages clipped to ``u_max``)
@@ -186,8 +188,11 @@ class HwDriver:
 
     # -- lifecycle ---------------------------------------------------------------------------
     def arm(self) -> str:
-        """INACTIVE or FAULT -> ARMED (clears a latched fault); ACTIVE stays. Returns what happened."""
-        if self.state == DriverState.ACTIVE:
+        """INACTIVE or FAULT -> ARMED (clears a latched fault); ACTIVE stays, unless the board has landed on its
+        own (LANDED / FAULT: e.g. its 50 ms command watchdog in a host stall shorter than the driver's): the driver
+        would forward commands it ignores, so the operator's arm re-arms it too (OFF clears the board's latch,
+        then the controller proves itself again). Returns what happened."""
+        if self.state == DriverState.ACTIVE and self.board_mode not in (Mode.LANDED, Mode.FAULT):
             return "already active"
         was = self.state
         self.state = DriverState.ARMED

@@ -66,6 +66,9 @@ WARN_ON = ("lost", "duplicated", "reordered", "late", "corrupt", "hold_samples",
 #: board modes that are reported as a standing WARN (the board is landing or has landed the plate)
 BOARD_DOWN = (Mode.LAND, Mode.LANDED, Mode.FAULT)
 STOP_LANDING_S = 1.0  # s: stopped from outside, the driver waits at most this for the board to take up LAND
+#: frames the link reader handles in a row before it lets go of the lock and sleeps (a backlog: see _read_loop)
+DRAIN_BATCH = 16
+DRAIN_PAUSE_S = 1e-4
 
 
 class HwDriverNode:
@@ -106,6 +109,7 @@ class HwDriverNode:
         self.board_down: tuple[float, str] | None = None  # (t [s], why) the board landed during the experiment
         self.end_landed_s: float | None = None  # the end-of-run landing took this long [s] (None: not yet landed)
         self.closing = False  # the node is shut down: no more publishing, the link lands the plate (close())
+        self.stop_landed = False  # stopped from outside: LAND asked at the first frame after the node's shutdown
         self.publish_errors = 0  # samples the transport failed to publish while the node was up (not lost for good)
         self.reader_errors = 0  # frames whose handling raised in the reader thread (it carries on with the next)
         self.rx_ns = np.zeros(RING, dtype=np.int64)  # steady receive time of each sample, by seq
@@ -192,10 +196,17 @@ class HwDriverNode:
         # to every frame. So nothing of the node is used here but its publishers (guarded, _publish_sample):
         # the board-to-ROS clock map reads ROS time off the system clock, as every transport's now_ns() does
         # (the DDS node's is time.time_ns(); the rclpy node's clock is gone with its node after shutdown).
+        # A backlog (frames queued while the process started or stalled) is drained DRAIN_BATCH frames at a
+        # time, each batch followed by a real sleep: drained in one go it held the lock throughout, so the
+        # executor could forward no command (measured at load 17: 9 executor rounds in 5 min, the board never
+        # left OFF), and at SCHED_FIFO it never slept: the RT budget (200 ms) put the process back to normal
+        # scheduling, where it fell further behind.
         while not self.stop.is_set():
             ready = poller.poll(5)
+            batch = 0
             with self.lock:
-                while ready:
+                while ready and batch < DRAIN_BATCH:
+                    batch += 1
                     try:
                         data = self.ch.recv(0.0)
                     except ChannelError as exc:
@@ -212,10 +223,14 @@ class HwDriverNode:
                                                    " carrying on with the next")
                 if not ready:
                     self.drv.check(time.monotonic_ns())
+            if batch >= DRAIN_BATCH:
+                time.sleep(DRAIN_PAUSE_S)  # the executor's turn for the lock (on_command), and a sleep for the RT budget
 
     def _on_frame(self, data: bytes) -> None:
         """One received frame (the lock held): through the driver, its reply to the board, its sample out."""
         steady = time.monotonic_ns()
+        if not self.stop_landed and self.node.is_shutdown:  # stopped: LAND now, not after the process's teardown
+            self._land_on_stop()
         sample, reply = self.drv.on_bytes(data, time.time_ns(), steady)
         if reply is not None:
             self.ch.send(reply)
@@ -388,6 +403,17 @@ class HwDriverNode:
         self.publish_state(force=True)
         self.node.timer(0.3, self.node.shutdown)
 
+    def _land_on_stop(self) -> None:
+        """Stopped from outside (the lock held): a levitating board is told to LAND, once. The reader does this
+        at the first frame after the node's shutdown: the commands stopped with it, and the process's teardown
+        (DDS entities, the participant) before close() outlasted the board's hold_timeout (50 ms), so the
+        board landed the plate on its own watchdog ("no command") instead of the driver's LAND request."""
+        self.stop_landed = True
+        if Mode(self.drv.board_mode) in (Mode.RUN, Mode.HOLD):
+            self.drv.disarm()
+            with contextlib.suppress(Exception):  # the node's logger after its shutdown: best effort
+                self.node.logger.info("stopped: landing the plate before closing the link")
+
     def close(self) -> None:
         """After the node is shut down: land the plate before letting go of the link (disarm: LAND in reply to
         every sensor frame, until the board reports LAND / LANDED / OFF / FAULT or ``STOP_LANDING_S``), then close it."""
@@ -395,9 +421,8 @@ class HwDriverNode:
         end = time.monotonic() + STOP_LANDING_S
         if self.reader.is_alive():
             with self.lock:
-                if Mode(self.drv.board_mode) in (Mode.RUN, Mode.HOLD):
-                    self.drv.disarm()
-                    self.node.logger.info("stopped: landing the plate before closing the link")
+                if not self.stop_landed:
+                    self._land_on_stop()
             while time.monotonic() < end and Mode(self.drv.board_mode) in (Mode.RUN, Mode.HOLD):
                 time.sleep(0.005)
         self.stop.set()

@@ -255,3 +255,23 @@ def test_estop_latches_and_disarm_lands_a_levitating_board():
     assert feed(d, k + 3, mode=Mode.LANDED)[1] is None  # landed: nothing more to say
     d.arm()
     assert decode(feed(d, k + 4, mode=Mode.LANDED)[1]) == CommandFrame(k + 4, (0.0, 0.0), Mode.OFF)  # arming clears the board
+
+
+def test_arm_re_arms_an_active_driver_whose_board_landed_on_its_own():
+    """The board's hold_timeout (50 ms) is shorter than the driver's: in a host stall the board lands the plate while
+    the driver stays ACTIVE. The operator's arm must then re-arm (it said 'already active' and nothing changed: the
+    board stayed LANDED, ignoring every command, and the restarted controller never lifted off)."""
+    d, k = synced()
+    d.arm()
+    s, _ = feed(d, k)
+    d.command(s.stamp_ns, [50.0, 50.0], k * MS)
+    assert d.state == DriverState.ACTIVE
+    assert d.arm() == "already active"  # levitating: nothing to do
+    feed(d, k + 1, mode=Mode.LAND)
+    assert d.arm() == "already active" and d.state == DriverState.ACTIVE  # landing: not yet
+    feed(d, k + 2, mode=Mode.LANDED)
+    assert d.arm().startswith("armed (was active)") and d.state == DriverState.ARMED
+    assert decode(feed(d, k + 3, mode=Mode.LANDED)[1]) == CommandFrame(k + 3, (0.0, 0.0), Mode.OFF)  # clears the board
+    s, _ = feed(d, k + 4, mode=Mode.OFF)
+    assert decode(d.command(s.stamp_ns, [50.0, 50.0], (k + 4) * MS)).mode == Mode.RUN
+    assert d.state == DriverState.ACTIVE

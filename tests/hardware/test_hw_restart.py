@@ -6,8 +6,11 @@ runs them. The controller is killed (SIGKILL) while the plate levitates: the dri
 faults (reported on /diagnostics and in the bag) and the board lands the plate (its landing law: no
 faster than ``landing_speed``, never near the rail). The controller is started again and
 ``dem-ros hw arm`` (a process of its own) re-arms the driver: the board leaves its latched landing and
-the controller lifts the plate off its support. Then the driver is stopped (SIGINT): it lands the
-plate before it lets go of the link (the board's reason is the driver's LAND request, not its watchdog).
+the controller lifts the plate off its support. Once the lift-off is done (the controller tracks the
+reference stream, the plate off its support) the driver is stopped (SIGINT): it lands the plate before
+it lets go of the link (the board's reason is the driver's LAND request, not its watchdog). Not during
+the lift-off: a LAND while the plate rises at up to the lift-off's 5 mm/s is outside what the landing
+law bounds (measured once: 10.43 mm/s descent, landing_speed 10; core/safety documents 0.94-1.17x).
 
 What is asserted is what the design guarantees whatever the load: the board's true-plant figures
 (rail contact, smallest gap, fastest descent while landing) and the sequence of states, once the host
@@ -65,17 +68,26 @@ class Script:
         self.start = time.monotonic()
         self.rearms = 0
         self.landings_at_arm = 0
+        self.liftoffs_at_arm = 0  # the controller's 'lift-off done' lines when the driver was (re-)armed
 
     def arm(self) -> None:
         """``dem-ros hw arm`` (its function, in this process: a CLI process takes 10-100 s to start at load 15-25)."""
+        self.liftoffs_at_arm = self._log().count("lift-off done")
+        self.t.pop("lifted", None)  # a lift-off the board ended by landing the plate does not count
         self.arm_out = str(request("arm", domain_id=self.domain, timeout_s=30.0))
+        self.t["armed"] = time.monotonic()  # confirmed by the driver (discovery alone takes 20 s at load 15)
+
+    def _log(self) -> str:
+        return (self.workdir / "controller.log").read_text(errors="replace")
 
     def __call__(self, t: float | None, procs: dict, restart) -> set[str]:
         st = _rig_status(self.workdir)
         now = time.monotonic()
         flying = st.get("mode") == "RUN" and max(st.get("gaps_mm", [99, 99])) < self.support_mm - 1.0
-        if now - self.start > LIMIT_S and self.phase != "stop":
-            self.phase = "gave up in phase " + self.phase
+        if self.phase == "stop" or self.phase.startswith("gave up"):
+            pass  # the driver is stopping: the run ends when it has landed the plate
+        elif now - self.start > LIMIT_S:
+            self.phase = "gave up in phase " + self.phase  # once (it was prefixed again at every later call)
             procs["hw_driver"].send_signal(signal.SIGINT)
         elif self.phase == "levitate" and ((t is not None and t >= 1.0 and flying) or st.get("landings", 0) >= 1):
             procs["controller"].send_signal(signal.SIGKILL)  # (or the board has landed it already: a stall)
@@ -83,24 +95,31 @@ class Script:
         elif self.phase == "landing" and st.get("mode") == "LANDED" and st.get("landings", 0) >= 1:
             restart("controller")
             self.phase, self.t["restarted"] = "restarting", now
-        elif self.phase == "restarting" and (self.workdir / "controller.log").read_text(errors="replace").count("ready") >= 2:
+        elif self.phase == "restarting" and self._log().count("ready") >= 2:
             self.arm()
-            self.phase, self.t["armed"], self.landings_at_arm = "lift", now, st.get("landings", 0)
+            self.phase, self.landings_at_arm = "lift", st.get("landings", 0)
         elif self.phase == "lift" and st.get("landings", 0) > self.landings_at_arm and st.get("mode") == "LANDED" \
                 and self.rearms < REARMS:  # landed again by the board itself (a stall): arm again
             self.rearms += 1
             self.arm()
             self.landings_at_arm = st.get("landings", 0)
-        elif self.phase == "lift" and flying:
-            self.phase, self.t["lifted"] = "stop", now
+        elif self.phase == "lift" and flying and "lifted" not in self.t:
+            self.t["lifted"] = now  # off the support (1 mm): the lift-off is under way
+        elif self.phase == "lift" and flying and self._log().count("lift-off done") > self.liftoffs_at_arm:
+            self.phase, self.t["tracking"] = "stop", now
             procs["hw_driver"].send_signal(signal.SIGINT)  # the driver lands the plate, then exits: the run ends
         return {"controller"}
 
 
 @pytest.mark.skipif(os.environ.get("DEM_ROS_HIL") != "1", reason=(
     "free-running hardware in the loop: whether the 1 kHz loop holds the plate depends on the host keeping it in "
-    "time (README: hardware in the loop; at load 15-25 on the 2-core VM the restarted controller ran 84-87 ms behind "
-    "and the plate never lifted); a timing property, measured on demand: DEM_ROS_HIL=1"))
+    "time; a timing property, measured on demand: DEM_ROS_HIL=1. On the shared 2-core VM (2026-11-25, after one "
+    "OpenBLAS thread, the stop's LAND from the link reader, the re-arm of a driver whose board landed, the reader's "
+    "bounded drain) it passed 8 of 9 runs at load 9-17 (4 of 5 with two or three busy yes among that load), 30-80 s "
+    "each; at load 17-26 it failed 7 of 7 (6 of them before the bounded drain; the board lands at each lift-off after 50-90 ms "
+    "runnable stalls beside other graphs' FIFO processes; a DDS discovery of the arm request > 30 s). The 84-98 ms "
+    "'old' estimates a restarted controller reports are its reader's 100-deep history after its start-up or a "
+    "stall, not a lag."))
 def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path, domain_id):
     cfg = get_scenario("S1").config()
     cfg["plant_sim"]["measure_velocity"] = False  # a rig has no gap-rate sensors
@@ -128,6 +147,9 @@ def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path
     faults = [s.message for _, _, m in r.messages([contract.DIAGNOSTICS.name]) for s in m.status
               if s.name == contract.HW_LOOP_STATUS and "command watchdog" in s.message]
     assert faults, "the driver's watchdog fault is not on /diagnostics"
-    print(f"\nkilled -> board landed -> restarted -> armed -> lifted in {script.t['lifted'] - script.t['killed']:.1f} s; "
+    print(f"\nkilled -> board landed -> restarted -> armed -> lifted in {script.t['lifted'] - script.t['killed']:.1f} s"
+          f" (off the support {script.t['lifted'] - script.t['armed']:.1f} s after the driver confirmed the last arm,"
+          f" {script.rearms} re-arms;"
+          f" lift-off done, tracking the reference {script.t['tracking'] - script.t['lifted']:.1f} s later); "
           f"fastest descent while landing {rig['land_speed_max_mm_s']:.2f} mm/s (bound {pc['landing_speed'] * 1e3:g}), "
           f"smallest gap {rig['min_gap_mm']:.3f} mm (trip_gap_min {pc['trip_gap_min'] * 1e3:g})")

@@ -96,7 +96,6 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..lti import filter_step
 from ..model import (
     IA,
     IB,
@@ -526,11 +525,8 @@ def _predict(mode: int, cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale:
     p[IN1] = cp[CP_N1]
     p[IN2] = cp[CP_N2]
     p[IG] = cp[CP_G]
-    ua = np.empty(2)
     for j in range(delay - 1, -1, -1):
-        ua[0] = uh[j, 0]
-        ua[1] = uh[j, 1]
-        rk4(x, ua, p, cp[CP_TS], 2)
+        rk4(x, uh[j], p, cp[CP_TS], 2)
     return bool(np.all(np.isfinite(x)))
 
 
@@ -546,6 +542,39 @@ def _integral_term(cp: np.ndarray, ydd1: float, ydd2: float, rd: np.ndarray, xd:
     k3 = cp[CP_K3]
     return ((ydd1 - rd[4]) + k1 * (xd[1] - rd[2]) + k2 * (xd[0] - rd[0]) + k3 * E1,
             (ydd2 - rd[5]) + k1 * (xd[3] - rd[3]) + k2 * (xd[2] - rd[1]) + k3 * E2)
+
+
+@njit(cache=True)
+def _advance_error_filters(Z: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, W3: np.ndarray, W2: np.ndarray, theta: np.ndarray,
+                           k1: float, ve1: float, ve2: float) -> None:
+    """F(s) bank <- advance with W_p = W3 + k1 W2 (2 NTH channels) and v_e + k1 W2^T theta_hat (2 channels).
+
+    :func:`dem_ros.core.lti.filter_step` on those NZ inputs, the same operations in the same order, without
+    the input vector and the filter's scratch array (two allocations per sample).
+    """
+    for c in range(NZ):
+        if c < 2 * NTH:
+            r = c // 2
+            j = c - 2 * r
+            wc = W3[r, j] + k1 * W2[r, j]
+        else:
+            j = c - 2 * NTH
+            s = 0.0
+            for r in range(NTH):
+                s += k1 * W2[r, j] * theta[r]
+            wc = (ve1 if j == 0 else ve2) + s
+        t0 = Bd[0] * wc
+        for i in range(3):
+            t0 += Ad[0, i] * Z[i, c]
+        t1 = Bd[1] * wc
+        for i in range(3):
+            t1 += Ad[1, i] * Z[i, c]
+        t2 = Bd[2] * wc
+        for i in range(3):
+            t2 += Ad[2, i] * Z[i, c]
+        Z[0, c] = t0
+        Z[1, c] = t1
+        Z[2, c] = t2
 
 
 @njit(cache=True)
@@ -664,14 +693,7 @@ def ce_step(law: CELaw, st: CEState, meas: np.ndarray, ref: np.ndarray, u: np.nd
     if ki > 0.0 and fault == 0.0 and not clipped:  # anti-windup: no integration while the command is clipped
         st.ie[0] += cp[CP_TS] * e1
         st.ie[1] += cp[CP_TS] * e2
-    # the voltage applied over this sample: our command of `delay` samples ago
-    ua = np.empty(2)
-    if delay == 0:
-        ua[0] = u[0]
-        ua[1] = u[1]
-    else:
-        ua[0] = uh[delay - 1, 0]
-        ua[1] = uh[delay - 1, 1]
+    # the voltage applied over this sample: our command of `delay` samples ago, uh[delay] once shifted
     for i in range(uh.shape[0] - 1, 0, -1):
         uh[i, 0] = uh[i - 1, 0]
         uh[i, 1] = uh[i - 1, 1]
@@ -681,19 +703,8 @@ def ce_step(law: CELaw, st: CEState, meas: np.ndarray, ref: np.ndarray, u: np.nd
     # (v_e without the integral term: the e_c identity holds whatever the command was)
     W3 = np.empty((NTH, 2))
     W2 = np.empty((NTH, 2))
-    regressors(ab, ua, N1, N2, W3, W2)
-    w = np.empty(NZ)
-    for r in range(NTH):
-        w[2 * r] = W3[r, 0] + k1 * W2[r, 0]
-        w[2 * r + 1] = W3[r, 1] + k1 * W2[r, 1]
-    w[2 * NTH] = ve1
-    w[2 * NTH + 1] = ve2
-    for j in range(2):
-        s = 0.0
-        for r in range(NTH):
-            s += k1 * W2[r, j] * theta[r]
-        w[2 * NTH + j] += s
-    filter_step(Z, law.Ad, law.Bd, w)
+    regressors(ab, uh[delay], N1, N2, W3, W2)
+    _advance_error_filters(Z, law.Ad, law.Bd, W3, W2, theta, k1, ve1, ve2)
     # diagnostics
     if mode == MODE_ADAPTIVE or mode == MODE_ENHANCED:  # noqa: SIM109 (numba)
         diag[D_M] = 1.0 / (scale[0] * v[0])

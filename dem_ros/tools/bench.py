@@ -201,7 +201,8 @@ def bench_sim(batch: int = 64, peer_duration: float = 5.0, bar: Any = None) -> d
             res = simulate(c, controller="adaptive", estimator="none", duration=100.0)
             cpus.append(time.thread_time() - c0)
             walls.append(res.wall_time)
-        r = {"single_run_wall_s": min(walls), "single_run_cpu_s": min(cpus), "realtime_factor": 100.0 / min(walls)}
+        r: dict[str, Any] = {"single_run_wall_s": min(walls), "single_run_cpu_s": min(cpus),
+                             "realtime_factor": 100.0 / min(walls)}
         # controller step as the nodes call it (Python -> compiled kernel)
         say(f"controller step from Python, 20 000 calls{label}")
         pc = c["plant_sim"]

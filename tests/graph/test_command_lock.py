@@ -24,6 +24,7 @@ import numpy as np
 
 from dem_ros import contract
 from dem_ros.core.scenarios import get_scenario
+from dem_ros.realtime import REPORT_PREFIX
 from dem_ros.tools import launcher
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -159,8 +160,10 @@ def test_free_running_plant_waits_for_the_controllers_command_writer(tmp_path):
                                  stderr=subprocess.STDOUT, text=True)
     try:
         end = time.monotonic() + 120
-        while time.monotonic() < end and "ready" not in log.read_text() and plant.poll() is None:
+        # the plant node logs no 'ready': its loop has started when run_node prints its real-time report
+        while time.monotonic() < end and REPORT_PREFIX not in log.read_text() and plant.poll() is None:
             time.sleep(0.1)
+        assert REPORT_PREFIX in log.read_text(), log.read_text()[-2000:]
         time.sleep(3.0)  # start_delay 0, no subscriber needed: only the missing controller holds it back
         text = log.read_text()
         assert plant.poll() is None and "levitating at" not in text, text[-2000:]

@@ -742,24 +742,32 @@ def _outage_s(logs: dict[str, str], name: str, killed_ns: int | None) -> float |
     return None
 
 
-def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duration: float, at: float, free_run: bool,
-             workdir: Path, disk: Path | None, domain_id: int, sets: list[str]) -> Row:
+def _launch_injected(args: argparse.Namespace, spec: FaultSpec, inj: Injector,
+                     logs_dir: Path | None = None) -> dict[str, Any] | str:
+    """``dem-ros launch`` with the injector running and the row's kill hook: the launch facts, or why the run
+    was cut short (the injector is closed either way)."""
     from ..bag import BagError
     from .launcher import GraphError, launch
 
-    args = _launch_args(scenario, duration, compose, free_run, disk or workdir, domain_id, sets)
-    inj = Injector(_n_times(spec.n, spec.act) if spec.act is not None else None, at)
     hook = _kill_hook(spec, inj) if spec.kill else None
-    info: dict[str, Any] = {}
-    logdir = workdir / "logs" if disk is not None else None
     try:
-        _metrics, info = launch(args, quiet=True, supervise=hook, logs_dir=logdir)
+        return launch(args, quiet=True, supervise=hook, logs_dir=logs_dir)[1]
     except GraphError as exc:
-        return Row(spec.name, how, "failed", None, None, "", "", False, f"run cut short: {exc}")
+        return f"run cut short: {exc}"
     except BagError as exc:  # the run ended, but its summary could not read the bag: judge it here
-        info = {"recorder": None, "summary_error": str(exc)}
+        return {"recorder": None, "summary_error": str(exc)}
     finally:
         inj.close()
+
+
+def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duration: float, at: float, free_run: bool,
+             workdir: Path, disk: Path | None, domain_id: int, sets: list[str]) -> Row:
+    args = _launch_args(scenario, duration, compose, free_run, disk or workdir, domain_id, sets)
+    inj = Injector(_n_times(spec.n, spec.act) if spec.act is not None else None, at)
+    logdir = workdir / "logs" if disk is not None else None
+    info = _launch_injected(args, spec, inj, logdir)
+    if isinstance(info, str):
+        return Row(spec.name, how, "failed", None, None, "", "", False, info)
     root = disk or workdir
     bags = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.endswith("_logs"))
     bag = Path(info["bag"]) if info.get("bag") else bags[-1]
@@ -817,24 +825,16 @@ def _run_hw_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, dura
     """``dem-ros launch --hardware rig``: the rig fault (board time: ``at`` + the driver's pre-roll after the
     release, i.e. t = ``at`` of the experiment within a sample), an injection or a kill at t = ``at``; judged
     from the bag, the node logs and the emulator's own figures (rig.log)."""
-    from ..bag import BagError
-    from .launcher import GraphError, _config_from_args, launch
+    from .launcher import _config_from_args
 
     args = _launch_args(scenario, duration, compose, False, workdir, domain_id, [*HW_SETS, *sets], hardware="rig")
     cfg, _, _ = _config_from_args(args)
     if spec.rig_fault:
         args.fault = [spec.rig_fault.format(t=f"{at + cfg['hw_driver']['preroll']:g}")]
     inj = Injector(_n_times(spec.n, spec.act) if spec.act is not None else None, at, extra=(contract.HW_ESTOP,))
-    hook = _kill_hook(spec, inj) if spec.kill else None
-    info: dict[str, Any] = {}
-    try:
-        _metrics, info = launch(args, quiet=True, supervise=hook)
-    except GraphError as exc:
-        return Row(spec.name, how, "failed", None, None, "", "", False, f"run cut short: {exc}")
-    except BagError as exc:  # the run ended, but its summary could not read the bag: judge it here
-        info = {"recorder": None, "summary_error": str(exc)}
-    finally:
-        inj.close()
+    info = _launch_injected(args, spec, inj)
+    if isinstance(info, str):
+        return Row(spec.name, how, "failed", None, None, "", "", False, info)
     bags = sorted(p for p in workdir.iterdir() if p.is_dir() and not p.name.endswith("_logs"))
     if not info.get("bag") and not bags:
         return Row(spec.name, how, "failed", None, None, "", "", False, "no bag was recorded")

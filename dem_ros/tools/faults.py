@@ -742,6 +742,15 @@ def _outage_s(logs: dict[str, str], name: str, killed_ns: int | None) -> float |
     return None
 
 
+def _lost(info: dict[str, Any], problems: list[str]) -> list[str]:
+    """What a run lost: the recorder's drops, what the bag says about itself, a summary that could not be made."""
+    dropped = sum(v.get("dropped", 0) for v in (info.get("recorder") or {}).values())
+    lost = [f"{dropped} dropped", *problems] if dropped else list(problems)
+    if info.get("summary_error"):
+        lost.append(f"dem-ros launch could not summarise the bag: {info['summary_error']}")
+    return lost
+
+
 def _launch_injected(args: argparse.Namespace, spec: FaultSpec, inj: Injector,
                      logs_dir: Path | None = None) -> dict[str, Any] | str:
     """``dem-ros launch`` with the injector running and the row's kill hook: the launch facts, or why the run
@@ -790,11 +799,7 @@ def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duratio
     if exits:
         reported += "; launch: " + ", ".join(f"{e['node']} exited ({e['code']})" for e in exits)
     rec = info.get("recorder") or {}
-    dropped = sum(v.get("dropped", 0) for v in rec.values()) if rec else None
-    lost = [f"{dropped} dropped"] if dropped else []
-    lost += j["problems"]
-    if info.get("summary_error"):
-        lost.append(f"dem-ros launch could not summarise the bag: {info['summary_error']}")
+    lost = _lost(info, j["problems"])
     if spec.kill == "recorder" and not rec:
         lost.append("recorder counters lost with the process")
     for e in exits:  # the launcher saw a node die: the recorder's death costs the rest of the recording
@@ -864,12 +869,7 @@ def _run_hw_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, dura
         counted += "; emulator: " + ", ".join(hits)
     for f in (rig or {}).get("faults", []):
         counts[f"emulator {f['kind']}"] = float(f["hits"])
-    rec = info.get("recorder") or {}
-    dropped = sum(v.get("dropped", 0) for v in rec.values()) if rec else None
-    lost = [f"{dropped} dropped"] if dropped else []
-    lost += j["problems"]
-    if info.get("summary_error"):
-        lost.append(f"dem-ros launch could not summarise the bag: {info['summary_error']}")
+    lost = _lost(info, j["problems"])
     early = j.get("early", "")
     ok = j["outcome"] in spec.allowed and bool(heard) and counted_ok and not early
     sent = [f"{v} {k}" for k, v in inj.counts.items()]

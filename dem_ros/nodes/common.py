@@ -38,6 +38,12 @@ _isfinite = math.isfinite
 _EMPTY: list[float] = []  # shared by messages without that field; never modified
 
 
+def worth_logging(n: int) -> bool:
+    """Whether the n-th occurrence of a repeated problem is logged: the 1st, 10th, 100th, 1000th, then every
+    10 000th (a stream of bad samples at 1 kHz must not flood the log, nor go silent)."""
+    return n in (1, 10, 100, 1000) or n % 10000 == 0
+
+
 def all_finite(values) -> bool:
     """True when every element of a short vector (list, tuple or ndarray) is finite (~10x cheaper than
     np.all(np.isfinite()) on 6 values; an ndarray is converted with one ``tolist()`` call first, 3x

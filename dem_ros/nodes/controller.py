@@ -58,7 +58,7 @@ from ..core.controllers.hover import (
 )
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import OK, WARN, Diagnostics, JointStates, all_finite, clipped, meas_into, stamp_ns
+from .common import OK, WARN, Diagnostics, JointStates, all_finite, clipped, meas_into, stamp_ns, worth_logging
 
 __all__ = ["ControllerNode", "main"]
 
@@ -328,7 +328,7 @@ class ControllerNode:
 
     def _warn_every(self, key: str, text: str) -> None:
         n = self.counts[key]
-        if n in (1, 10, 100, 1000) or n % 10000 == 0:
+        if worth_logging(n):
             self.node.logger.warn(f"{text} ({n} so far)")
 
     def _diag_values(self) -> dict:

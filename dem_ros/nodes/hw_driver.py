@@ -55,7 +55,7 @@ from ..hardware.driver import DriverState, HwDriver, Sample
 from ..hardware.link import HELLO_REQUEST, Mode, Status, encode
 from ..realtime import config_from_env
 from ..transport import Node, run_node
-from .common import OK, WARN, CommandSource, Diagnostics, LatencyStats, diag_array, joint_state, stamp_ns
+from .common import OK, WARN, CommandSource, Diagnostics, LatencyStats, diag_array, joint_state, stamp_ns, worth_logging
 
 __all__ = ["HwDriverNode", "main"]
 
@@ -218,7 +218,7 @@ class HwDriverNode:
                         self._on_frame(data)
                     except Exception as exc:  # never the end of the thread that lands the plate: count, go on
                         self.reader_errors += 1
-                        if self.reader_errors in (1, 10, 100, 1000) or self.reader_errors % 10000 == 0:
+                        if worth_logging(self.reader_errors):
                             self.node.logger.error(f"link reader: a frame raised {exc!r} ({self.reader_errors} so far);"
                                                    " carrying on with the next")
                 if not ready:
@@ -252,7 +252,7 @@ class HwDriverNode:
                 return
             self.publish_errors += 1
             n = self.publish_errors
-            if n in (1, 10, 100, 1000) or n % 10000 == 0:
+            if worth_logging(n):
                 self.node.logger.warn(f"sample {s.seq} not published: {exc!r} ({n} so far); carrying on")
 
     def _publish(self, s: Sample) -> None:

@@ -271,6 +271,8 @@ BIAS_BANDWIDTH = 30.0  # rad/s, observer error pole of the missed acceleration (
 CURRENT_BANDWIDTH = 500.0  # 1/s, current loop gain kc (kc T = 0.5: fast against the plate, slow against the sample)
 SPEED_FRACTION = 0.4  # the reference descends at this fraction of landing_speed (margin for noise)
 REF_ACCEL = 0.2  # m/s^2, the reference's acceleration to v_ref
+CAPTURE_ACCEL = 5.0  # m/s^2, the reference's largest deceleration of a plate rising when the landing starts
+CAPTURE_TIME = 0.01  # s: it decelerates a rising plate's speed v at |v| / CAPTURE_TIME (at least REF_ACCEL)
 LANDING_OVERSHOOT = 3e-4  # m: the reference stops this far beyond landing_gap (the support)
 I_OFF = 0.02  # A: below this, LANDED applies 0 V
 BOUND_MARGIN = 0.25  # the braking bound's model margin e: K, 1/m, 1/I each within a factor 1 -+ e
@@ -279,6 +281,17 @@ R_LEARN_TIME = 0.05  # s: the coil model learns each coil's resistance with this
 SENSOR_BLIND_SAMPLES = 5  # samples a gap/current channel may give nothing finite before the board lands
 FLUX_GAP_MIN_CURRENT = 0.5  # A: below this a coil's flux tells too little of its gap (a lost gap sensor: FAULT)
 _SENSOR_NAMES = ("gap sensor 1", "gap sensor 2", "current sensor 1", "current sensor 2")
+# the gap sensors' plausibility against the coils' fluxes (module docstring, "A plausible but wrong gap reading")
+FLUX_CHECK_TIME = 0.05  # s: the flux estimate follows the measured flux 2K i/delta with this time constant
+FLUX_CHECK_R_TIME = 0.2  # s: its coil resistance follows the coil model's (R_LEARN_TIME) this slowly, and only
+#                            while the differences are small (the coil model's follows a wrong reading in 50 ms)
+FLUX_CHECK_ARM = 0.3  # s: valid samples before a coil's check counts (the flux estimate settles)
+FLUX_CHECK_FILTER = 0.003  # s: low-pass of the gap differences
+FLUX_CHECK_NOISE_TIME = 1.0  # s: the differences' noise level is learned over this time
+FLUX_CHECK_MIN = 3e-4  # m: the smallest difference that counts
+FLUX_CHECK_SIGMAS = 6.0  # the tolerance is at least this many times the learned noise level
+FLUX_CHECK_SETTLE = 50  # samples: the check arms after this many in a row with both differences small
+FLUX_CHECK_SAMPLES = 3  # samples in a row beyond the tolerance declare the sensor implausible
 
 
 class Mode(enum.IntEnum):
@@ -318,7 +331,9 @@ _P, _Q, _A, _B, _C, _D, _K, _R, _N1, _N2, _G, _T, _KP, _KD, _KC, _UMAX, _ILIM, _
 _KB, _AB, _BB, _NB1, _NB2 = range(22, 27)  # the braking bound's widened model (module docstring)
 _EMAX = 27  # observer innovation limit [m]
 _KBL = 28  # the braking bound's weakest magnet (1 - e) K
-_NP = 29
+_ACAP = 29  # the landing reference's largest deceleration of a rising plate [m/s^2]
+_TCAP = 30  # ... at |r'| / CAPTURE_TIME [s]
+_NP = 31
 
 
 @njit(cache=True)
@@ -399,13 +414,18 @@ def _land_law(p: np.ndarray, s: np.ndarray, ref: np.ndarray, ui: np.ndarray, i: 
         F2 = min(max(F2, 0.0), p[_K] * p[_ILIM] * p[_ILIM] / (de2 * de2))
         istar1 = de1 * math.sqrt(F1 / p[_K])
         istar2 = de2 * math.sqrt(F2 / p[_K])
-        # the reference descends (r'' = a_ref up to r' = v_ref) and stops at r_stop
+        # the reference stops a rising plate (r'' = a_cap while r' < 0), descends (r'' = a_ref up to
+        # r' = v_ref) and stops at r_stop
         for j in range(2):
             ref[0, j] += T * ref[1, j] + 0.5 * T * T * ref[2, j]
             ref[1, j] += T * ref[2, j]
-            if ref[1, j] >= p[_VREF]:
+            if ref[1, j] < 0.0:
+                ref[2, j] = min(max(-ref[1, j] / p[_TCAP], p[_AREF]), p[_ACAP])
+            elif ref[1, j] >= p[_VREF]:
                 ref[1, j] = p[_VREF]
                 ref[2, j] = 0.0
+            else:
+                ref[2, j] = p[_AREF]
             if ref[0, j] >= p[_RSTOP]:
                 ref[0, j] = p[_RSTOP]
                 ref[1, j] = 0.0
@@ -479,6 +499,120 @@ def _brake(p: np.ndarray, s: np.ndarray, i: np.ndarray, U: float, u: np.ndarray)
         u[j] = min(max(v, -U), U)
 
 
+
+class _GapCheck:
+    """The gap sensors' plausibility against the coils' fluxes (module docstring, "A plausible but wrong gap
+    reading"). Per coil j a flux estimate integrated from the voltage applied, lam_j += T (u_j - R_j i_j), pulled
+    toward the measured flux 2K i_j / delta_j (delta from the two gap readings) with FLUX_CHECK_TIME; per gap
+    sensor the difference between its reading and the gap the two flux estimates give, low-passed, against a
+    tolerance: FLUX_CHECK_MIN, plus what a magnet BOUND_MARGIN off its datasheet K explains of the recent flux
+    change, plus FLUX_CHECK_SIGMAS times the difference's own noise level (learned while within tolerance)."""
+
+    def __init__(self, p: np.ndarray, dt: float):
+        self.p, self.dt = p, dt
+        self.m_inv = np.linalg.inv(np.array([[p[_P], p[_Q]], [p[_Q], p[_P]]]))  # magnet gaps -> sensor gaps
+        self.k_margin = BOUND_MARGIN / (1.0 - BOUND_MARGIN)  # flux change a magnet off by BOUND_MARGIN hides
+        self.n_arm = round(FLUX_CHECK_ARM / dt)
+        self.reset()
+
+    def reset(self) -> None:
+        self.n = [0, 0]  # samples each coil's flux estimate has been corrected (0: not started)
+        self.lam = np.zeros(2)  # flux estimates [V s]
+        self.lam_lp = np.zeros(2)  # the measured flux, low-passed like the estimate's correction [V s]
+        self.r = np.zeros(2)  # the resistance the estimate integrates with [ohm]
+        self.i_prev = np.zeros(2)
+        self.dy = np.zeros(2)  # sensor reading - flux gap, low-passed [m]
+        self.var = np.zeros(2)  # its noise level [m^2]
+        self.tol = np.full(2, math.inf)  # the last tolerance [m]
+        self.over = [0, 0]  # samples in a row beyond it
+        self.armed = False  # settled: FLUX_CHECK_ARM of samples, then both differences within FLUX_CHECK_MIN / 3
+        self.settled = 0  # for this many samples in a row (arming takes FLUX_CHECK_SETTLE of them)
+        self.sum_sq = np.zeros(2)  # their squares meanwhile: the first noise level [m^2]
+        self.calm = True  # both differences within half their tolerance at the last sample
+        self.y_flux = np.full(2, math.nan)  # the gaps the flux estimates give [m]
+        self.v_flux = np.zeros(2)  # their rates, low-passed [m/s]
+
+    def step(self, y0: float, y1: float, i: tuple[float, float], i_ok: tuple[bool, bool], u: np.ndarray,
+             r_model: np.ndarray) -> int:
+        """One sample: gaps (NaN: none), currents i (2,) [A] (the coil model's where i_ok is False), the voltages
+        applied over the last period u (2,) [V], the coil model's resistances. Returns the gap sensor found
+        implausible (0, 1), 2 for both, -1 for none."""
+        p, T = self.p, self.dt
+        K2 = 2.0 * p[_K]
+        gaps = math.isfinite(y0) and math.isfinite(y1)
+        de = (p[_P] * y0 + p[_Q] * y1, p[_Q] * y0 + p[_P] * y1) if gaps else (math.nan, math.nan)
+        lam_m = [math.nan, math.nan]
+        for j in (0, 1):
+            measured = gaps and i_ok[j] and abs(i[j]) > FLUX_GAP_MIN_CURRENT and de[j] > 0.0
+            if measured:
+                lam_m[j] = K2 * i[j] / de[j]
+            if self.n[j] == 0:
+                if measured:
+                    self.lam[j] = self.lam_lp[j] = lam_m[j]
+                    self.r[j] = r_model[j]
+                    self.i_prev[j] = i[j]
+                    self.n[j] = 1
+                continue
+            self.lam[j] += T * (float(u[j]) - self.r[j] * 0.5 * (self.i_prev[j] + i[j]))
+            self.i_prev[j] = i[j]
+            if measured:
+                a = T / FLUX_CHECK_TIME
+                self.lam[j] += a * (lam_m[j] - self.lam[j])
+                self.lam_lp[j] += a * (lam_m[j] - self.lam_lp[j])
+                self.n[j] += 1
+            if not self.armed:
+                self.r[j] = r_model[j]  # settling: follow the coil model's resistance
+            elif self.calm:
+                self.r[j] += T / FLUX_CHECK_R_TIME * (r_model[j] - self.r[j])
+        if not (math.isfinite(lam_m[0]) and math.isfinite(lam_m[1])) or min(self.n) == 0:
+            self.over = [0, 0]
+            return -1
+        if min(self.lam[0], self.lam[1]) <= 0.0:
+            self.reset()
+            return -1
+        de_flux = np.array([K2 * i[0] / self.lam[0], K2 * i[1] / self.lam[1]])
+        y_flux = self.m_inv @ de_flux
+        b = T / FLUX_CHECK_FILTER
+        if np.all(np.isfinite(self.y_flux)):
+            self.v_flux += b * ((y_flux - self.y_flux) / T - self.v_flux)
+        self.y_flux = y_flux
+        allow = np.array([self.k_margin * abs(lam_m[j] - self.lam_lp[j]) / lam_m[j] * de[j] for j in (0, 1)])
+        armed = self.armed
+        v = T / FLUX_CHECK_NOISE_TIME
+        for s, ys in ((0, y0), (1, y1)):
+            self.dy[s] += b * ((ys - self.y_flux[s]) - self.dy[s])
+        if not armed:
+            if min(self.n) > self.n_arm and max(abs(self.dy[0]), abs(self.dy[1])) < FLUX_CHECK_MIN / 3.0:
+                self.settled += 1
+                self.sum_sq += self.dy**2
+                if self.settled >= FLUX_CHECK_SETTLE:
+                    self.armed = True
+                    self.var[:] = self.sum_sq / self.settled
+            else:
+                self.settled = 0
+                self.sum_sq[:] = 0.0
+            return -1
+        calm = True
+        for s in (0, 1):
+            self.tol[s] = FLUX_CHECK_MIN + float(np.abs(self.m_inv[s]) @ allow) + FLUX_CHECK_SIGMAS * math.sqrt(self.var[s])
+            if abs(self.dy[s]) > self.tol[s]:
+                self.over[s] += 1
+                calm = False
+                continue
+            self.over[s] = 0
+            if abs(self.dy[s]) < 0.5 * self.tol[s]:  # the noise level, not a growing difference
+                self.var[s] += v * (self.dy[s] ** 2 - self.var[s])
+            else:
+                calm = False
+        self.calm = calm
+        bad = [s for s in (0, 1) if self.over[s] >= FLUX_CHECK_SAMPLES]
+        if not bad:
+            return -1
+        if len(bad) == 2 or self.over[1 - bad[0]] > 0:
+            return 2
+        return bad[0]
+
+
 class Supervisor:
     """The board: hard limits, command watchdog, landing law (see the module docstring).
 
@@ -541,6 +675,8 @@ class Supervisor:
         p[_DMIN] = 1e-4
         p[_VREF] = SPEED_FRACTION * c["landing_speed"]
         p[_AREF] = REF_ACCEL
+        p[_ACAP] = CAPTURE_ACCEL
+        p[_TCAP] = CAPTURE_TIME
         p[_RSTOP] = c["landing_gap"] + LANDING_OVERSHOOT
         p[_KI] = CURRENT_BANDWIDTH**2 / 5.0
         e = BOUND_MARGIN
@@ -582,6 +718,8 @@ class Supervisor:
         self._lam_flux = np.zeros(2)  # that coil's flux linkage, integrated from its voltage and current [V s]
         self._i_flux = np.zeros(2)  # its current at the last sample [A]
         self._loss_counted = [False, False, False, False]  # channel given up (counted in sensor_losses)
+        self._check = _GapCheck(p, self.dt)  # the gap sensors against the coils' fluxes
+        self._distrust = [False, False]  # gap sensor j found implausible: its readings are ignored until clear()
         self.stop_gap = np.full(2, math.inf)
         self.min_stop_gap = math.inf
         self.mode = Mode(mode)
@@ -590,7 +728,7 @@ class Supervisor:
         self._load_kernels()
         self.counters = dict.fromkeys(
             ("holds", "hold_events", "longest_hold_us", "clipped", "rejected", "landings", "trips", "estops", "landed",
-             "brakes", "brake_events", "sensor_gaps", "sensor_gap_events", "sensor_losses"), 0)
+             "brakes", "brake_events", "sensor_gaps", "sensor_gap_events", "sensor_losses", "implausible"), 0)
 
     def _load_kernels(self) -> None:
         """Load (or compile: seconds) the numba kernels now, on scratch data, never in a sample."""
@@ -622,8 +760,8 @@ class Supervisor:
         """The landing reference starts at the estimate, with the plate's own downward speed (<= v_ref)."""
         s, r = self.estimate, self._ref
         r[0, :] = s[0, :]
-        r[1, :] = np.clip(s[1, :], 0.0, self._p[_VREF])
-        r[2, :] = REF_ACCEL
+        r[1, :] = np.minimum(s[1, :], self._p[_VREF])
+        r[2, :] = np.where(r[1, :] < 0.0, np.clip(-r[1, :] / CAPTURE_TIME, REF_ACCEL, CAPTURE_ACCEL), REF_ACCEL)
 
     def estop(self, reason: str) -> None:
         """Emergency stop: a latched fault that lands the plate (never a 0 V cut at hover)."""
@@ -639,6 +777,8 @@ class Supervisor:
         self._braking = False
         self._flux_gap = [False, False]
         self._loss_counted = [False, False, False, False]
+        self._distrust = [False, False]
+        self._check.reset()
 
     def _trip(self, reason: str) -> None:
         if not self.fault:
@@ -649,7 +789,8 @@ class Supervisor:
     # -- the sample ---------------------------------------------------------------------------
     def step(self, t_ns: int, y: Sequence[float] | np.ndarray | None, i: Sequence[float] | np.ndarray | None,
              u_cmd: Sequence[float] | np.ndarray | None,
-             requested: Mode = Mode.RUN, bus: float | None = None) -> np.ndarray:
+             requested: Mode = Mode.RUN, bus: float | None = None,
+             applied: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
         """Voltages (2,) [V] to apply over [t, t + T).
 
         Args:
@@ -661,9 +802,18 @@ class Supervisor:
             requested: the mode the commander asks for (RUN; LAND or OFF start a landing).
             bus: the coil drivers' measured bus voltage [V], when the board measures it: the brake
                 can apply at most min(u_max, bus) (None: u_max).
+            applied (2,): the voltages the coil drivers applied over the last period [V], when the board
+                measures them (a failed bridge, PWM steps, the current limit); None: the last voltages this
+                supervisor returned, clipped to the bus it was given.
         """
         y0, y1 = (math.nan, math.nan) if y is None else (float(y[0]), float(y[1]))
         i0, i1 = (math.nan, math.nan) if i is None else (float(i[0]), float(i[1]))
+        if applied is not None and math.isfinite(applied[0]) and math.isfinite(applied[1]):
+            self._u_prev[:] = (float(applied[0]), float(applied[1]))
+        if self._distrust[0]:  # found implausible: never read again until clear()
+            y0 = math.nan
+        if self._distrust[1]:
+            y1 = math.nan
         for n, v in enumerate((y0, y1, i0, i1)):  # a sensor that reads again may be given up again (counted)
             if math.isfinite(v):
                 self._loss_counted[n] = False
@@ -678,6 +828,14 @@ class Supervisor:
             i0 = i0 if ok[2] else float(self._i_est[0])
             i1 = i1 if ok[3] else float(self._i_est[1])
         self._i_last = (i0, i1)
+        if self.mode in (Mode.RUN, Mode.HOLD, Mode.LAND) and not (self._flux_gap[0] or self._flux_gap[1]):
+            bad = self._check.step(y0, y1, (i0, i1), (ok[2], ok[3]), self._u_prev, self._r_est)
+            if bad == 2:
+                return self._both_implausible(y0, y1)
+            if bad >= 0:
+                y0, y1 = self._implausible(bad, y0, y1, i0, i1)
+        else:
+            self._check.reset()
         self._blind_now[0] = 0.0 if ok[0] else 1.0
         self._blind_now[1] = 0.0 if ok[1] else 1.0
         if not self._obs_ready:
@@ -699,6 +857,9 @@ class Supervisor:
                 return self.u
         u = self._step_modes(t_ns, u_cmd, requested, bus, i0, i1)
         self._coil_model(u, ok[2], ok[3])
+        if bus is not None:  # what the bridges can apply of it (step's ``applied`` says what they did)
+            U = max(float(bus), 0.0)
+            np.clip(self._u_prev, -U, U, out=self._u_prev)
         return u
 
     def _lost_channels(self, ok: tuple[bool, ...]) -> str:
@@ -764,6 +925,49 @@ class Supervisor:
                     self._trip(f"{_SENSOR_NAMES[n]} lost: no finite sample for {blind[n]} samples "
                                f"(> {B}): landing on the board's coil model")
         return ""
+
+    def _implausible(self, n: int, y0: float, y1: float, i0: float, i1: float) -> tuple[float, float]:
+        """Gap sensor n reads what the coils' fluxes contradict (_GapCheck): ignored from now on, and the
+        plate lands with gap n from coil n's flux, which starts at the check's flux estimate (the measured
+        flux followed the wrong reading). Returns the gaps of this sample, gap n from that flux."""
+        c = self._check
+        y = [y0, y1]
+        read, flux, tol = y[n], float(c.y_flux[n]), float(c.tol[n])
+        i_n = i0 if n == 0 else i1
+        self._distrust[n] = True
+        self._flux_gap[n] = True
+        self._lam_flux[n] = c.lam[n]
+        self._i_flux[n] = i_n
+        self._r_est[n] = c.r[n]  # the check's slow resistance: the coil model's has begun to follow the wrong gap
+        self._count_loss(n)
+        self.counters["implausible"] += 1
+        y[n] = (2.0 * self._p[_K] * i_n / c.lam[n] - self._p[_Q] * y[1 - n]) / self._p[_P]
+        # the observer followed the wrong reading: end n restarts from the flux (the landing starts from it)
+        self.estimate[0, n] = y[n]
+        self.estimate[1, n] = c.v_flux[n]
+        self._gated[n] = 0.0
+        c.reset()
+        why = (f"{_SENSOR_NAMES[n]} implausible: reads {read * 1e3:.3f} mm, the coil fluxes say {flux * 1e3:.3f} mm "
+               f"(off by more than {tol * 1e3:.3f} mm for {FLUX_CHECK_SAMPLES} samples): landing on gap {n + 1} "
+               f"from coil {n + 1}'s flux")
+        if self.mode == Mode.LAND:
+            self.fault = self.fault or why
+        else:
+            self._trip(why)
+        return y[0], y[1]
+
+    def _both_implausible(self, y0: float, y1: float) -> np.ndarray:
+        """Both gap sensors contradict the coils' fluxes: nothing to land with (module docstring): FAULT, 0 V."""
+        c = self._check
+        why = (f"gap sensors 1 and 2 implausible: read {y0 * 1e3:.3f}, {y1 * 1e3:.3f} mm, the coil fluxes say "
+               f"{c.y_flux[0] * 1e3:.3f}, {c.y_flux[1] * 1e3:.3f} mm; no landing without a gap: 0 V, the plate "
+               f"drops onto its support")
+        self.counters["implausible"] += 1
+        self.counters["trips"] += 1
+        self.fault = self.reason = why
+        self.mode = Mode.FAULT
+        self.u = np.zeros(2)
+        return self.u
 
     def _count_loss(self, n: int) -> None:
         """``sensor_losses`` counts each channel given up once (until it gives a finite sample again)."""

@@ -37,7 +37,7 @@ enum dem_frame_type { DEM_HELLO = 1, DEM_SENSOR = 2, DEM_COMMAND = 3 };
 /* The board's safety-supervisor mode (the mode byte). Commands may request OFF, RUN, HOLD, LAND. */
 enum dem_mode { DEM_OFF = 0, DEM_RUN = 1, DEM_HOLD = 2, DEM_LAND = 3, DEM_LANDED = 4, DEM_FAULT = 5 };
 
-/* Status bits of a sensor frame (bits 16-31 reserved: send 0, ignore on receipt). */
+/* Status bits of a sensor frame (bits 18-31 reserved: send 0, ignore on receipt). */
 #define DEM_ST_GAP0_RANGE (1ul << 0)       /* gap sensor 1 out of range (ADC railed / sensor missing) */
 #define DEM_ST_GAP1_RANGE (1ul << 1)       /* gap sensor 2 out of range */
 #define DEM_ST_CURRENT0_LIMIT (1ul << 2)   /* coil 1 current above the hardware limit (tripped) */
@@ -54,6 +54,8 @@ enum dem_mode { DEM_OFF = 0, DEM_RUN = 1, DEM_HOLD = 2, DEM_LAND = 3, DEM_LANDED
 #define DEM_ST_OVERRUN (1ul << 13)         /* the board missed its own sample deadline */
 #define DEM_ST_GAP_LIMIT (1ul << 14)       /* a gap outside the safe band (tripped) */
 #define DEM_ST_ADC_FAULT (1ul << 15)       /* ADC conversion failed or timed out */
+#define DEM_ST_GAP0_IMPLAUSIBLE (1ul << 16) /* gap sensor 1 contradicts coil 1's flux: ignored, landing (latched) */
+#define DEM_ST_GAP1_IMPLAUSIBLE (1ul << 17) /* gap sensor 2 contradicts coil 2's flux (latched) */
 
 /* Results; the names (dem_link_reason) are the Python LinkError reasons. */
 enum dem_link_result {

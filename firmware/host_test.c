@@ -304,7 +304,7 @@ static size_t valid_frame(uint8_t *out)
         f.f.sensor.applied_v[0] = (float)(rnd() % 30000) / 100.0f - 150.0f;
         f.f.sensor.applied_v[1] = (float)(rnd() % 30000) / 100.0f - 150.0f;
         f.f.sensor.bus_v = (float)(rnd() % 20000) / 100.0f;
-        f.f.sensor.status = rnd() & 0xFFFFu;
+        f.f.sensor.status = rnd() & 0x3FFFFu;
         f.f.sensor.mode = (uint8_t)(rnd() % 6);
     } else if (k == 1) {
         f.type = DEM_COMMAND;

@@ -633,6 +633,8 @@ class Supervisor:
         estimate (3, 2): observer state [gap m, rate m/s, missed acceleration m/s^2] per load point.
         stop_gap (2,): the last predicted stopping gap per load point [m] (the braking bound).
         min_stop_gap: the smallest predicted stopping gap checked so far [m].
+        implausible (2,): gap sensor j found contradicting the coils' fluxes (latched until ``clear()``;
+            the board's status bits GAPj_IMPLAUSIBLE).
     """
 
     def __init__(self, cfg: Mapping[str, Any], dt: float, mode: Mode = Mode.OFF, u0: np.ndarray | None = None):
@@ -719,7 +721,7 @@ class Supervisor:
         self._i_flux = np.zeros(2)  # its current at the last sample [A]
         self._loss_counted = [False, False, False, False]  # channel given up (counted in sensor_losses)
         self._check = _GapCheck(p, self.dt)  # the gap sensors against the coils' fluxes
-        self._distrust = [False, False]  # gap sensor j found implausible: its readings are ignored until clear()
+        self.implausible = [False, False]  # gap sensor j contradicts the coil fluxes: ignored until clear()
         self.stop_gap = np.full(2, math.inf)
         self.min_stop_gap = math.inf
         self.mode = Mode(mode)
@@ -777,7 +779,7 @@ class Supervisor:
         self._braking = False
         self._flux_gap = [False, False]
         self._loss_counted = [False, False, False, False]
-        self._distrust = [False, False]
+        self.implausible = [False, False]
         self._check.reset()
 
     def _trip(self, reason: str) -> None:
@@ -810,9 +812,9 @@ class Supervisor:
         i0, i1 = (math.nan, math.nan) if i is None else (float(i[0]), float(i[1]))
         if applied is not None and math.isfinite(applied[0]) and math.isfinite(applied[1]):
             self._u_prev[:] = (float(applied[0]), float(applied[1]))
-        if self._distrust[0]:  # found implausible: never read again until clear()
+        if self.implausible[0]:  # found implausible: never read again until clear()
             y0 = math.nan
-        if self._distrust[1]:
+        if self.implausible[1]:
             y1 = math.nan
         for n, v in enumerate((y0, y1, i0, i1)):  # a sensor that reads again may be given up again (counted)
             if math.isfinite(v):
@@ -934,7 +936,7 @@ class Supervisor:
         y = [y0, y1]
         read, flux, tol = y[n], float(c.y_flux[n]), float(c.tol[n])
         i_n = i0 if n == 0 else i1
-        self._distrust[n] = True
+        self.implausible[n] = True
         self._flux_gap[n] = True
         self._lam_flux[n] = c.lam[n]
         self._i_flux[n] = i_n

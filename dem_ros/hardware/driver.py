@@ -54,9 +54,11 @@ SEQ_MOD = 1 << 32  # sequence numbers are uint32 on the wire
 SENT_RING = 64
 LEVITATING = (Mode.RUN, Mode.HOLD, Mode.LAND)
 #: status bits of hardware faults: trip_samples samples in a row trip the driver (the board lands the plate);
-#: the controller cannot make up for a failed coil driver or a bus that cannot hold the plate
+#: the controller cannot make up for a failed coil driver, a bus that cannot hold the plate or a gap sensor the
+#: board found contradicting its coil fluxes (GAPj_IMPLAUSIBLE: the board lands on the flux)
 HARDWARE_FAULTS = (Status.DRIVER0_FAULT | Status.DRIVER1_FAULT | Status.BUS_UNDERVOLTAGE | Status.CURRENT0_LIMIT
-                   | Status.CURRENT1_LIMIT | Status.ESTOP | Status.ADC_FAULT)
+                   | Status.CURRENT1_LIMIT | Status.ESTOP | Status.ADC_FAULT | Status.GAP0_IMPLAUSIBLE
+                   | Status.GAP1_IMPLAUSIBLE)
 
 
 class DriverError(ValueError):

@@ -83,8 +83,8 @@ class FrameType(enum.IntEnum):
 class Status(enum.IntFlag):
     """Status and fault bits of a sensor frame (u32); each bit reports this sample.
 
-    Bits 16-31 are reserved (sent as zero; a receiver ignores them so a later
-    board can add bits without breaking an older PC).
+    Bits 18-31 are reserved (sent as zero; a receiver ignores them so a later
+    board can add bits without breaking an older PC: 16 and 17 were added so).
     """
 
     GAP0_RANGE = 1 << 0  # gap sensor 1 out of its range (ADC at 0 or full scale, or sensor missing)
@@ -103,9 +103,11 @@ class Status(enum.IntFlag):
     OVERRUN = 1 << 13  # the board missed its own sample deadline
     GAP_LIMIT = 1 << 14  # a gap outside the board's safe band (tripped)
     ADC_FAULT = 1 << 15  # the ADC conversion failed or timed out
+    GAP0_IMPLAUSIBLE = 1 << 16  # gap sensor 1 contradicts coil 1's flux: ignored, landing on the flux (latched)
+    GAP1_IMPLAUSIBLE = 1 << 17  # gap sensor 2 contradicts coil 2's flux (latched)
 
 
-STATUS_DEFINED = 0xFFFF
+STATUS_DEFINED = 0x3FFFF
 """Mask of the status bits defined by this protocol version."""
 
 REASONS = (

@@ -329,6 +329,9 @@ class Board:
             s |= Status.LINK_TIMEOUT
         if u_cmd is not None and np.any(np.abs(u_cmd) > self.pc["u_max"]):
             s |= Status.VOLTAGE_CLIPPED
+        for j in (0, 1):
+            if self.sup.implausible[j]:
+                s |= Status.GAP0_IMPLAUSIBLE << j
         return s
 
     def _advance(self) -> None:

@@ -22,6 +22,7 @@ from dem_ros.hardware.link import (
     PROTOCOL_VERSION,
     REASONS,
     SENSOR_SIZE,
+    STATUS_DEFINED,
     CommandFrame,
     Hello,
     LinkError,
@@ -137,9 +138,10 @@ def test_mode_is_the_safety_supervisors() -> None:
     assert Mode is safety.Mode
 
 
-def test_status_bits_are_distinct_and_16() -> None:
+def test_status_bits_are_distinct_18_and_the_defined_mask() -> None:
     bits = [int(s) for s in Status]
-    assert len(bits) == 16 and sorted(bits) == [1 << k for k in range(16)]
+    assert len(bits) == 18 and sorted(bits) == [1 << k for k in range(18)]
+    assert sum(bits) == STATUS_DEFINED
 
 
 def test_round_trip_random_frames() -> None:

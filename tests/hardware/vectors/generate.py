@@ -120,11 +120,11 @@ def main() -> None:
     ok_sensor("sensor_hover", "hovering at ~5 mm: counts mid-range, 50 V applied, 150 V bus, no status bit, RUN",
               1000, 1_000_000, (2048, 2051), (1700, 1702), (50.0, 49.75), 150.0, 0, 1)
     ok_sensor("sensor_extremes", "last seq before wrap, 2^40+ us, counts 0 and 65535, negative volts, every defined bit",
-              0xFFFFFFFF, (1 << 40) + 123, (0, 65535), (65535, 0), (-120.5, 0.1), 148.25, 0xFFFF, 5)
+              0xFFFFFFFF, (1 << 40) + 123, (0, 65535), (65535, 0), (-120.5, 0.1), 148.25, 0x3FFFF, 5)
     ok_sensor("sensor_landing", "the board lost the PC: LINK_TIMEOUT | COMMAND_LATE, mode LAND",
               42, 42_000, (2400, 2390), (1500, 1490), (31.5, 30.0), 149.5, (1 << 8) | (1 << 9), 3)
-    ok_sensor("sensor_landed_reserved_bits", "reserved status bits 16-31 are ignored by receivers, not rejected",
-              7, 7000, (3900, 3910), (2, 3), (0.0, 0.0), 151.0, 0x00010000, 4)
+    ok_sensor("sensor_landed_reserved_bits", "reserved status bits 18-31 are ignored by receivers, not rejected",
+              7, 7000, (3900, 3910), (2, 3), (0.0, 0.0), 151.0, 0x00040000, 4)
     ok_sensor("sensor_zero", "an all-zero sample (OFF): the COBS encoding is mostly code bytes",
               0, 0, (0, 0), (0, 0), (0.0, 0.0), 0.0, 0, 0)
     ok_command("command_run", "answers sensor 1000 with 50 V and 49.75 V, RUN", 1000, (50.0, 49.75), 1)

@@ -11,6 +11,7 @@ Modes (:class:`Mode`, the values of the device link's mode byte)::
                            RUN <--fresh command----- HOLD
     RUN/HOLD --limit trip, predicted gap trip, estop(), land(), requested LAND/OFF--> LAND   (latched)
     RUN/HOLD --a current or gap sensor without a finite sample for > SENSOR_BLIND_SAMPLES--> LAND  (latched)
+    RUN/HOLD --a gap sensor that contradicts the coils' fluxes (implausible)--> LAND on its coil's flux  (latched)
     any --a gap sensor lost with no landing on its coil's flux possible (the other gap or this coil's current
           lost too, the other gap already from its flux, the current under FLUX_GAP_MIN_CURRENT, or no sample
           with both within 2 x SENSOR_BLIND_SAMPLES), a flux gap that yields nothing for > SENSOR_BLIND_SAMPLES
@@ -168,6 +169,47 @@ Beyond the bound:
   from the rail (measured: never above its 8 mm hover, support impact 0.29-0.33 m/s from the first 20 ms
   of a landing).
 
+A plausible but wrong gap reading (a stuck sensor)
+--------------------------------------------------
+A gap sensor frozen at a plausible value (in range, finite) passes every check above, and the controller and
+the observer both steer by it: the unstable plate runs off the frozen reading (e every 17-20 ms) and, before
+this check, reached the rail 183 ms after the freeze (the rig's stuck-sensor fault during S1's step). Only
+physics the board measures independently can contradict it: each coil's flux. With lambda_j = 2K i_j/delta_j
+and u_j = R_j i_j + d lambda_j/dt (Eq. 5), ``_GapCheck`` keeps per coil
+
+    lam_j += T (u_j - r_j (i_j,prev + i_j)/2) + (T / FLUX_CHECK_TIME) (2K i_j/delta_j - lam_j)
+
+(u: the voltage the bridges applied over the last period, ``step(applied=...)`` where the board measures it;
+r_j: the coil model's resistance, followed over FLUX_CHECK_R_TIME and only while the differences below are
+small: the coil model's own R follows a wrong reading within R_LEARN_TIME). At hover the flux is 2 sqrt(K F),
+the same at every gap, so a plate moving under its weight changes it little: the magnet gaps from the fluxes,
+2K i_j/lam_j, back to sensor gaps (the inverse of [[P, Q], [Q, P]]), follow the true plate for ~FLUX_CHECK_TIME
+while the readings follow the sensors. Per sensor the difference reading - flux gap, low-passed
+(FLUX_CHECK_FILTER), is checked against
+
+    tolerance = FLUX_CHECK_MIN + e/(1 - e) |flux change over FLUX_CHECK_TIME| (as a gap) + FLUX_CHECK_SIGMAS sigma
+
+(e = BOUND_MARGIN: a magnet that far off its datasheet K scales the measured flux change; sigma: the
+difference's own level, learned while it is under half the tolerance, so a slow drift such as a heating coil
+widens it, a growing difference does not). The check arms FLUX_CHECK_ARM after its start (RUN), once both
+differences stayed under FLUX_CHECK_MIN / 3 for FLUX_CHECK_SETTLE samples; it rests while a flux landing runs
+and restarts with every RUN. FLUX_CHECK_SAMPLES samples beyond the tolerance declare the sensor implausible:
+``implausible[j]`` latches (status bit GAPj_IMPLAUSIBLE on the device link), its readings are ignored until
+``clear()``, the observer restarts that end at the flux gap and its rate, and the board lands on coil j's flux
+as for a lost sensor (below), the flux starting at the check's estimate. Both sensors beyond: FAULT (0 V, no
+gap left). A coil driver that fails is not taken for a sensor where the board measures what its bridges
+applied (the rig board does; ``plant_sim``'s applies what it computes).
+
+Measured (tests/hardware/test_rig.py, the rig board in lockstep with the graph's estimator and controller,
+S1, gap j frozen 1.5 s after its step): found 0.55 mm off, the plate's closest approach 6.1 mm (gap 1) and
+its descent 8.6 mm/s; tests/core/test_safety.py: frozen at 8 mm, pushed toward or away from the rail at
+1 cm/s, m, R, K off by 25 % and 3 kg added: found, landed, never near the rail; healthy sensors never found
+implausible across that grid, the landing grid and S3c's noise. Limits: a sensor stuck while the plate holds
+still is not seen (nor harmful until it moves); an unmeasured voltage on the coils (scenario S4b's 20 V at
+50 Hz) keeps the differences above the arming level, the check never arms; the flux landing carries the
+magnet's K error (K 0.75 and 3 kg added, falling away: the flux read the plate on its support as 6.7 mm, the
+board FAULTed there once coil j's current fell under FLUX_GAP_MIN_CURRENT).
+
 The landing law (uses only what a board has: measured gaps y (2,) [m] and coil
 currents i (2,) [A], nominal parameters m, R, K, L, l, I, N1, N2, g)
 -----------------------------------------------------------------------------
@@ -196,7 +238,9 @@ Per load point j, the model acceleration at the measured currents (Eqs. 3-8)::
    it through Lo instead left the rate 290 mm/s wrong after a plate hit its support at speed,
    and the landing law then pulled that end back up toward the rail (measured: 0.67 mm, the
    light-plate/strong-magnet rogue command from 8 mm; 3.65 mm with the restart).
-2. *Reference*: from the estimate at LAND entry, r_j accelerates at ``REF_ACCEL`` to
+2. *Reference*: from the estimate at LAND entry (a rising plate's reference first decelerates at
+   |r'| / CAPTURE_TIME, at most CAPTURE_ACCEL, so the loop does not pull it back against its own momentum:
+   that made a plate caught rising at 50 mm/s descend at 15 mm/s), r_j accelerates at ``REF_ACCEL`` to
    ``v_ref = SPEED_FRACTION * landing_speed`` (down, away from the rail) and stops
    ``LANDING_OVERSHOOT`` beyond ``landing_gap`` (each load point: a tilted plate
    levels on the way); it starts with the plate's own downward speed (clipped to

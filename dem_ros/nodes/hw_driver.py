@@ -51,7 +51,7 @@ import numpy as np
 
 from .. import contract
 from ..hardware.channel import ChannelError, open_channel
-from ..hardware.driver import DriverState, HwDriver, Sample
+from ..hardware.driver import HARDWARE_FAULTS, DriverState, HwDriver, Sample
 from ..hardware.link import HELLO_REQUEST, Mode, Status, encode
 from ..realtime import config_from_env
 from ..transport import Node, run_node
@@ -287,7 +287,10 @@ class HwDriverNode:
         if d.state == DriverState.FAULT and not self.failed:
             self.failed, self.fail_t = d.reason or "fault", t
         if self.board_down is None and Mode(d.board_mode) in BOARD_DOWN:
-            why = d.reason or ("its link watchdog (no command)" if s.status & Status.LINK_TIMEOUT else "its own trip")
+            hw = s.status & HARDWARE_FAULTS
+            why = d.reason or ("its link watchdog (no command)" if s.status & Status.LINK_TIMEOUT
+                               else "it reports " + ", ".join(str(f.name) for f in Status if f & hw) if hw
+                               else "its own trip")
             self.board_down = (t, f"board {Mode(d.board_mode).name} at t = {t:.3f} s: {why}")
 
     def on_command(self, msg, gid: bytes) -> None:

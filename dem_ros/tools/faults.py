@@ -35,8 +35,8 @@ fastest descent while the board landed it, rail contact):
 * **reported**: one of the row's words (``reports``) in a WARN/ERROR ``/diagnostics`` status or a WARN/ERROR log
   line from the fault on (e.g. the driver's "e-stop: ..." ERROR, its "corrupt +48" WARN).
 * **counted**: the row's counters (``counts``) of the driver (its last loop status in the bag), the board (the
-  emulated board's Supervisor counters) or, for a stuck sensor that only the estimator can tell, the estimator,
-  each at least its minimum; the emulator's own hit count beside them.
+  emulated board's Supervisor counters) or the estimator, each at least its minimum; the emulator's own hit
+  count beside them.
 
 A hardware row passes when its outcome is allowed, the fault is reported and counted, and the board did not land
 the plate before the fault (a host stall on a loaded machine: that landing is not the fault's, the row says so).
@@ -312,11 +312,12 @@ RIG_CATALOGUE: tuple[FaultSpec, ...] = (
     FaultSpec("dropout-long", "gap sensor 1 reads 0 counts for 300 ms: the driver trips, the board lands on the flux gap",
               hardware=True, rig_fault="dropout:1@{t}+0.3", allowed=("landed safely",), reports=("gap sensor 1",),
               counts=(("driver", "sensor_holds", 3), _DRIVER_TRIP, ("board", "sensor_losses", 1))),
-    # a plausible frozen reading: neither board nor driver can tell (one channel); the estimator's bias check
-    # declares it once the plate moves (gap 1 is on its way to 5 mm); the plate flies on the model and gap 2
-    FaultSpec("stuck", "gap sensor 1 repeats its reading for 1 s while gap 1 moves: the estimator declares it",
-              hardware=True, rig_fault="stuck:1@{t}+1", allowed=("levitating", "landed safely"),
-              reports=("gap sensor 1",), counts=(("estimator", "faults", 1),)),
+    # a plausible frozen reading: the board's flux check finds it contradicting coil 1's flux once the plate moves
+    # (the unstable plate drifts from it within ~150 ms; before the check it reached the rail) and lands on
+    # that flux; GAP0_IMPLAUSIBLE trips the driver
+    FaultSpec("stuck", "gap sensor 1 repeats its reading for 1 s: the board's flux check lands on coil 1's flux",
+              hardware=True, rig_fault="stuck:1@{t}+1", allowed=("landed safely",),
+              reports=("GAP0_IMPLAUSIBLE",), counts=(_DRIVER_TRIP, ("board", "implausible", 1))),
     # one full-scale sample: flagged out of range, held one sample by driver and board
     FaultSpec("spike", "gap sensor 1 at full scale for one sample: held, ridden through", hardware=True,
               rig_fault="spike:1@{t}", reports=("sensor_holds",),

@@ -8,10 +8,10 @@ host's load: the fault counted and reported, no rail contact and a landing no fa
 property (README: hardware in the loop; a host stall over ``hold_timeout`` lands the plate by itself), so a
 landing there is accepted when the board's reason is its watchdog, and the e-stop row is skipped when such a
 landing came before the e-stop (the e-stop then lands nothing). The other rig rows stay out of the suite:
-dropout-short, spike, linkloss-20ms and stuck are "levitating" rows, which a stall makes land (a timing
-property: the catalogue run measures them); linkloss-50ms sits at the hold_timeout by design; dropout-long,
-sag, sag-sustained, coil and kill-controller land by design like the e-stop and add nothing to what it proves
-here but minutes (kill-controller also needs a process per node: four DDS hops per sample, the least robust
+dropout-short, spike and linkloss-20ms are "levitating" rows, which a stall makes land (a timing property:
+the catalogue run measures them); linkloss-50ms sits at the hold_timeout by design; dropout-long, stuck, sag,
+sag-sustained, coil and kill-controller land by design like the e-stop and add nothing to what it proves here
+but minutes (the stuck sensor's landing is tested in lockstep: tests/hardware/test_rig.py) (kill-controller also needs a process per node: four DDS hops per sample, the least robust
 timing).
 """
 

@@ -28,6 +28,8 @@ class DemPlant:
         u0 (2,): pre-start hover voltage (V): the plant starts in exact equilibrium at (d1_0, d2_0).
         k: sample index; t = k dt (s).
         mass: true mass now (kg).
+        coil_voltage (2,): the voltage the coils got over the last period, u + the scenario's input
+            perturbation (V): what a board that measures its coils' voltage reads (u0 before the first).
     """
 
     def __init__(self, pc: Mapping[str, Any], duration: float = 0.0):
@@ -35,6 +37,7 @@ class DemPlant:
         self.dt = pc["dt"]
         self.p = plant_vector(pc)
         self.x, self.u0 = initial_state(pc)
+        self.coil_voltage = self.u0.copy()
         self.G, self.b = sensor_model(pc)
         self.k = 0
         self.rng = np.random.default_rng(pc["seed"])
@@ -98,6 +101,7 @@ class DemPlant:
 
     def _step(self, u: np.ndarray, pert: np.ndarray, row: np.ndarray) -> None:
         pc = self.pc
+        self.coil_voltage = np.asarray(u, float) + pert
         code = _advance(self.x, np.asarray(u, float), pert, self.p, row, pc["L"], pc["l"], self.dt, pc["substeps"],
                         pc["gap_min"], pc["gap_max"])
         if code:

@@ -292,7 +292,8 @@ class Board:
         meas_y = self._board_gaps(self._gaps_from_counts(gc), st)  # the board sees what its ADC sees
         meas_i = self.i_gain * (np.asarray(cc, float) - self.i_offset)
         u_cmd = np.array(cmd.u, float) if fresh else None
-        u = self.sup.step(int(n * self.dt * 1e9), meas_y, meas_i, u_cmd, requested, bus=bus, applied=self.applied)
+        u = self.sup.step(int(n * self.dt * 1e9), meas_y, meas_i, u_cmd, requested, bus=bus,
+                          applied=self.plant.coil_voltage if self.released_at is not None else self.applied)
         mode = Mode(self.sup.mode)
         if mode == Mode.RUN and self.released_at is None:
             self.released_at = n

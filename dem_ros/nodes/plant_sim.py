@@ -231,7 +231,10 @@ class PlantSimNode:
                 else:
                     self.preroll_misses += 1
         z = self.z_board  # the board computes [t_k-1, t_k) from its sample of t_k-1
-        self.u_applied = board.step(self.epoch + (k - 1) * self.dt_ns, (z[0], z[2]), (z[4], z[5]), cmd)
+        # the board measures its coils' voltage over the last period (the scenario's input perturbation included:
+        # its flux check must not take that voltage for a sensor fault; /dem/applied_voltage stays what it applied)
+        self.u_applied = board.step(self.epoch + (k - 1) * self.dt_ns, (z[0], z[2]), (z[4], z[5]), cmd,
+                                    applied=self.plant.coil_voltage)
         if board.mode != prev:
             self._board_event(prev, k - 1)
             if self.finished:

@@ -978,5 +978,5 @@ def test_the_flux_check_stays_quiet_on_healthy_sensors(variant):
         if k == 1600:
             x[1] = -0.01
 
-    X, M, _, sup, _ = hover_with_losses(lambda k, y, i: None, variant, t_max=5.0, push=push)
+    _, M, _, sup, _ = hover_with_losses(lambda k, y, i: None, variant, t_max=5.0, push=push)
     assert M[-1] == Mode.LANDED and sup.counters["implausible"] == 0, sup.snapshot()

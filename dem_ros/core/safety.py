@@ -47,7 +47,8 @@ Modes (:class:`Mode`, the values of the device link's mode byte)::
 Faults latch with a reason (``fault``); ``reason`` explains the current mode;
 ``counters`` count samples and events (``holds``, ``hold_events``, ``clipped``,
 ``rejected``, ``landings``, ``trips``, ``estops``, ``landed``, ``brakes``: braked samples,
-``brake_events``, ``sensor_gaps``: samples with a non-finite or missing reading, ``sensor_gap_events``:
+``brake_events``, ``implausible``: gap sensors found contradicting the coils' fluxes,
+``sensor_gaps``: samples with a non-finite or missing reading, ``sensor_gap_events``:
 runs of them, ``sensor_losses``: channels given up after SENSOR_BLIND_SAMPLES, each once until it reads again) and keep ``longest_hold_us`` (the longest hold that ended without a
 landing, or is still going). ``stop_gap`` (2,) [m] is the last predicted stopping gap per
 end and ``min_stop_gap`` [m] the smallest one checked (both in ``snapshot()``, in mm).
@@ -190,25 +191,34 @@ while the readings follow the sensors. Per sensor the difference reading - flux 
     tolerance = FLUX_CHECK_MIN + e/(1 - e) |flux change over FLUX_CHECK_TIME| (as a gap) + FLUX_CHECK_SIGMAS sigma
 
 (e = BOUND_MARGIN: a magnet that far off its datasheet K scales the measured flux change; sigma: the
-difference's own level, learned while it is under half the tolerance, so a slow drift such as a heating coil
-widens it, a growing difference does not). The check arms FLUX_CHECK_ARM after its start (RUN), once both
-differences stayed under FLUX_CHECK_MIN / 3 for FLUX_CHECK_SETTLE samples; it rests while a flux landing runs
-and restarts with every RUN. FLUX_CHECK_SAMPLES samples beyond the tolerance declare the sensor implausible:
-``implausible[j]`` latches (status bit GAPj_IMPLAUSIBLE on the device link), its readings are ignored until
-``clear()``, the observer restarts that end at the flux gap and its rate, and the board lands on coil j's flux
-as for a lost sensor (below), the flux starting at the check's estimate. Both sensors beyond: FAULT (0 V, no
-gap left). A coil driver that fails is not taken for a sensor where the board measures what its bridges
-applied (the rig board does; ``plant_sim``'s applies what it computes).
+difference's own RMS, bias included, learned over FLUX_CHECK_NOISE_TIME while it is under half the
+tolerance: a slow drift such as a heating coil widens it, a difference growing within ~10 ms does not). The
+check arms FLUX_CHECK_ARM after its start (RUN), once both differences stayed under FLUX_CHECK_MIN / 3 for
+FLUX_CHECK_SETTLE samples, and restarts with every RUN and on a non-finite or non-positive flux estimate.
+FLUX_CHECK_SAMPLES samples beyond the tolerance (samples without a reading to compare do not reset the count)
+declare the sensor implausible: ``implausible[j]`` latches (status bit GAPj_IMPLAUSIBLE on the device link),
+its readings are ignored until ``clear()``, the observer restarts that end at the flux gap and its rate, and
+the board lands on coil j's flux as for a lost sensor (below), the flux starting at the check's estimate.
+During that landing (or one for a lost sensor) the other sensor stays checked, against the flux gap and its
+own coil's flux. Both sensors beyond the tolerance, at once or one after the other: FAULT (0 V, no gap left;
+the plate falls away from the rail whatever the sensors read: safe under both explanations, two frozen
+sensors, or a fault on the voltage side that offsets both). The board measures the voltage its coils get
+(``step(applied=...)``: the rig board its bridges' output after the scenario's input perturbation,
+``plant_sim``'s the same), so a failed coil driver is not taken for a sensor; a wrong voltage reading is:
+one 0 V sample on coil 1 at hover (review) offsets both differences at once, FAULT.
 
 Measured (tests/hardware/test_rig.py, the rig board in lockstep with the graph's estimator and controller,
 S1, gap j frozen 1.5 s after its step): found 0.55 mm off, the plate's closest approach 6.1 mm (gap 1) and
 its descent 8.6 mm/s; tests/core/test_safety.py: frozen at 8 mm, pushed toward or away from the rail at
 1 cm/s, m, R, K off by 25 % and 3 kg added: found, landed, never near the rail; healthy sensors never found
-implausible across that grid, the landing grid and S3c's noise. Limits: a sensor stuck while the plate holds
-still is not seen (nor harmful until it moves); an unmeasured voltage on the coils (scenario S4b's 20 V at
-50 Hz) keeps the differences above the arming level, the check never arms; the flux landing carries the
-magnet's K error (K 0.75 and 3 kg added, falling away: the flux read the plate on its support as 6.7 mm, the
-board FAULTed there once coil j's current fell under FLUX_GAP_MIN_CURRENT).
+implausible across that grid, the landing grid and S3c's noise; both frozen: FAULT with the plate 5.6 mm or
+more from the rail. Limits: a sensor stuck while the plate holds still is not seen (nor harmful until it
+moves); the complementary filter absorbs differences slower than ~FLUX_CHECK_TIME, so a sensor that drifts
+or offsets slowly is not seen either (the estimator's innovation and bias checks are what remain); a
+voltage on the coils the board does not measure (as S4b's 20 V at 50 Hz before the boards measured it) is
+taken for a sensor fault; the flux landing carries the magnet's K error (K 0.75 and 3 kg added, falling
+away: the flux read the plate on its support as 6.7 mm, the board FAULTed there once coil j's current fell
+under FLUX_GAP_MIN_CURRENT). Cost: Supervisor.step 9 -> 23.5 us per sample (pure Python; review's timing).
 
 The landing law (uses only what a board has: measured gaps y (2,) [m] and coil
 currents i (2,) [A], nominal parameters m, R, K, L, l, I, N1, N2, g)
@@ -576,11 +586,18 @@ class _GapCheck:
         self.y_flux = np.full(2, math.nan)  # the gaps the flux estimates give [m]
         self.v_flux = np.zeros(2)  # their rates, low-passed [m/s]
 
+    def restart_sensor(self, n: int) -> None:
+        """Sensor n was given up (its gap now comes from coil n's flux): its difference starts again at zero,
+        the other sensor stays checked against both coils' fluxes."""
+        self.dy[n] = 0.0
+        self.over = [0, 0]
+
     def step(self, y0: float, y1: float, i: tuple[float, float], i_ok: tuple[bool, bool], u: np.ndarray,
-             r_model: np.ndarray) -> int:
+             r_model: np.ndarray, given_up: tuple[bool, bool] = (False, False)) -> int:
         """One sample: gaps (NaN: none), currents i (2,) [A] (the coil model's where i_ok is False), the voltages
-        applied over the last period u (2,) [V], the coil model's resistances. Returns the gap sensor found
-        implausible (0, 1), 2 for both, -1 for none."""
+        applied over the last period u (2,) [V], the coil model's resistances; ``given_up``: sensors whose gap
+        is already their coil's flux gap (never declared again). Returns the gap sensor newly found implausible
+        (0, 1), 2 for both at once, -1 for none."""
         p, T = self.p, self.dt
         K2 = 2.0 * p[_K]
         gaps = math.isfinite(y0) and math.isfinite(y1)
@@ -608,19 +625,18 @@ class _GapCheck:
                 self.r[j] = r_model[j]  # settling: follow the coil model's resistance
             elif self.calm:
                 self.r[j] += T / FLUX_CHECK_R_TIME * (r_model[j] - self.r[j])
+        if not (math.isfinite(self.lam[0]) and math.isfinite(self.lam[1])) or min(self.lam[0], self.lam[1]) <= 0.0:
+            self.reset()  # a non-finite voltage or current, or a flux through zero: start again
+            return -1
         if not (math.isfinite(lam_m[0]) and math.isfinite(lam_m[1])) or min(self.n) == 0:
-            self.over = [0, 0]
-            return -1
-        if min(self.lam[0], self.lam[1]) <= 0.0:
-            self.reset()
-            return -1
+            return -1  # no sample to compare: the counts of samples beyond the tolerance wait for the next
         de_flux = np.array([K2 * i[0] / self.lam[0], K2 * i[1] / self.lam[1]])
         y_flux = self.m_inv @ de_flux
         b = T / FLUX_CHECK_FILTER
         if np.all(np.isfinite(self.y_flux)):
             self.v_flux += b * ((y_flux - self.y_flux) / T - self.v_flux)
         self.y_flux = y_flux
-        allow = np.array([self.k_margin * abs(lam_m[j] - self.lam_lp[j]) / lam_m[j] * de[j] for j in (0, 1)])
+        allow = np.array([self.k_margin * abs((lam_m[j] - self.lam_lp[j]) / lam_m[j]) * de[j] for j in (0, 1)])
         armed = self.armed
         v = T / FLUX_CHECK_NOISE_TIME
         for s, ys in ((0, y0), (1, y1)):
@@ -638,6 +654,9 @@ class _GapCheck:
             return -1
         calm = True
         for s in (0, 1):
+            if given_up[s]:
+                self.over[s] = 0
+                continue
             self.tol[s] = FLUX_CHECK_MIN + float(np.abs(self.m_inv[s]) @ allow) + FLUX_CHECK_SIGMAS * math.sqrt(self.var[s])
             if abs(self.dy[s]) > self.tol[s]:
                 self.over[s] += 1
@@ -679,6 +698,8 @@ class Supervisor:
         min_stop_gap: the smallest predicted stopping gap checked so far [m].
         implausible (2,): gap sensor j found contradicting the coils' fluxes (latched until ``clear()``;
             the board's status bits GAPj_IMPLAUSIBLE).
+        command_timeout: the landing was started by ``hold_timeout`` without a command (the board's link
+            watchdog: status bit LINK_TIMEOUT), until ``clear()``.
     """
 
     def __init__(self, cfg: Mapping[str, Any], dt: float, mode: Mode = Mode.OFF, u0: np.ndarray | None = None):
@@ -766,6 +787,7 @@ class Supervisor:
         self._loss_counted = [False, False, False, False]  # channel given up (counted in sensor_losses)
         self._check = _GapCheck(p, self.dt)  # the gap sensors against the coils' fluxes
         self.implausible = [False, False]  # gap sensor j contradicts the coil fluxes: ignored until clear()
+        self.command_timeout = False  # the landing was started by the command hold timeout (a link watchdog)
         self.stop_gap = np.full(2, math.inf)
         self.min_stop_gap = math.inf
         self.mode = Mode(mode)
@@ -824,6 +846,7 @@ class Supervisor:
         self._flux_gap = [False, False]
         self._loss_counted = [False, False, False, False]
         self.implausible = [False, False]
+        self.command_timeout = False
         self._check.reset()
 
     def _trip(self, reason: str) -> None:
@@ -874,10 +897,11 @@ class Supervisor:
             i0 = i0 if ok[2] else float(self._i_est[0])
             i1 = i1 if ok[3] else float(self._i_est[1])
         self._i_last = (i0, i1)
-        if self.mode in (Mode.RUN, Mode.HOLD, Mode.LAND) and not (self._flux_gap[0] or self._flux_gap[1]):
-            bad = self._check.step(y0, y1, (i0, i1), (ok[2], ok[3]), self._u_prev, self._r_est)
-            if bad == 2:
-                return self._both_implausible(y0, y1)
+        if self.mode in (Mode.RUN, Mode.HOLD, Mode.LAND):  # (with a gap from its coil's flux: the other one)
+            gone = (self._flux_gap[0], self._flux_gap[1])
+            bad = self._check.step(y0, y1, (i0, i1), (ok[2], ok[3]), self._u_prev, self._r_est, gone)
+            if bad == 2 or (bad >= 0 and gone[1 - bad]):
+                return self._both_implausible(bad, y0, y1)
             if bad >= 0:
                 y0, y1 = self._implausible(bad, y0, y1, i0, i1)
         else:
@@ -903,7 +927,7 @@ class Supervisor:
                 return self.u
         u = self._step_modes(t_ns, u_cmd, requested, bus, i0, i1)
         self._coil_model(u, ok[2], ok[3])
-        if bus is not None:  # what the bridges can apply of it (step's ``applied`` says what they did)
+        if bus is not None and math.isfinite(bus):  # what the bridges can apply of it (``applied``: what they did)
             U = max(float(bus), 0.0)
             np.clip(self._u_prev, -U, U, out=self._u_prev)
         return u
@@ -992,7 +1016,7 @@ class Supervisor:
         self.estimate[0, n] = y[n]
         self.estimate[1, n] = c.v_flux[n]
         self._gated[n] = 0.0
-        c.reset()
+        c.restart_sensor(n)
         why = (f"{_SENSOR_NAMES[n]} implausible: reads {read * 1e3:.3f} mm, the coil fluxes say {flux * 1e3:.3f} mm "
                f"(off by more than {tol * 1e3:.3f} mm for {FLUX_CHECK_SAMPLES} samples): landing on gap {n + 1} "
                f"from coil {n + 1}'s flux")
@@ -1002,13 +1026,20 @@ class Supervisor:
             self._trip(why)
         return y[0], y[1]
 
-    def _both_implausible(self, y0: float, y1: float) -> np.ndarray:
-        """Both gap sensors contradict the coils' fluxes: nothing to land with (module docstring): FAULT, 0 V."""
+    def _both_implausible(self, bad: int, y0: float, y1: float) -> np.ndarray:
+        """Both gap sensors contradict the coils' fluxes, at once (bad = 2) or one after the other (the first
+        already a flux gap): no gap left to land with (module docstring): FAULT, 0 V (the plate falls away from
+        the rail onto its support, whatever the sensors read)."""
         c = self._check
-        why = (f"gap sensors 1 and 2 implausible: read {y0 * 1e3:.3f}, {y1 * 1e3:.3f} mm, the coil fluxes say "
-               f"{c.y_flux[0] * 1e3:.3f}, {c.y_flux[1] * 1e3:.3f} mm; no landing without a gap: 0 V, the plate "
+        new = (0, 1) if bad == 2 else (bad,)
+        what = "at once" if bad == 2 else f"after gap sensor {2 - bad}"
+        why = (f"gap sensors 1 and 2 implausible ({what}): read {y0 * 1e3:.3f}, {y1 * 1e3:.3f} mm, the coil fluxes "
+               f"say {c.y_flux[0] * 1e3:.3f}, {c.y_flux[1] * 1e3:.3f} mm; no landing without a gap: 0 V, the plate "
                f"drops onto its support")
-        self.counters["implausible"] += 1
+        for n in new:
+            self.implausible[n] = True
+            self._count_loss(n)
+            self.counters["implausible"] += 1
         self.counters["trips"] += 1
         self.fault = self.reason = why
         self.mode = Mode.FAULT
@@ -1184,6 +1215,7 @@ class Supervisor:
             if held > self.counters["longest_hold_us"] * 1000:
                 self.counters["longest_hold_us"] = held // 1000
             return self._u_last
+        self.command_timeout = True
         self.land(f"no command for {held * 1e-6:.1f} ms (hold_timeout {self._hold_ns * 1e-6:g} ms)")
         return None
 

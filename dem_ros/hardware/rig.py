@@ -326,7 +326,7 @@ class Board:
 
     def _sup_status(self, u_cmd) -> int:
         s = 0
-        if self.sup.mode in (Mode.LAND, Mode.LANDED) and "watchdog" in getattr(self.sup, "reason", ""):
+        if self.sup.mode in (Mode.LAND, Mode.LANDED) and self.sup.command_timeout:
             s |= Status.LINK_TIMEOUT
         if u_cmd is not None and np.any(np.abs(u_cmd) > self.pc["u_max"]):
             s |= Status.VOLTAGE_CLIPPED

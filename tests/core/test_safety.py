@@ -980,3 +980,46 @@ def test_the_flux_check_stays_quiet_on_healthy_sensors(variant):
 
     _, M, _, sup, _ = hover_with_losses(lambda k, y, i: None, variant, t_max=5.0, push=push)
     assert M[-1] == Mode.LANDED and sup.counters["implausible"] == 0, sup.snapshot()
+
+
+@pytest.mark.parametrize("variant", STUCK_VARIANTS[:2], ids=["nominal", "m1.25-K0.75"])
+@pytest.mark.parametrize("chan", [0, 1])
+@pytest.mark.parametrize("v0", [-0.01, 0.01], ids=["toward-rail", "away"])
+def test_both_gap_sensors_stuck_fault_with_zero_volts_never_on_the_rail(chan, v0, variant):
+    """Both readings freeze at once (a stalled ADC), end ``chan`` is pushed: the pushed end is found first and
+    lands on its coil's flux while the other sensor stays checked (against that flux gap and its own coil's
+    flux); found too, no gap is left: FAULT, 0 V, the plate falls away from the rail. Before the other sensor
+    stayed checked, the board landed on the frozen one: 8 of 8 toward the rail hit it (review of the check)."""
+    frozen = {}
+
+    def stick(k, y, i):
+        if k >= 1500:
+            y[0] = frozen.setdefault(0, y[0])
+            y[1] = frozen.setdefault(1, y[1])
+
+    def push(k, x):
+        if k == 1600:
+            x[2 * chan + 1] = v0
+
+    X, M, U, sup, _ = hover_with_losses(stick, variant, t_max=3.0, push=push, t_after_fault=0.3)
+    assert M[-1] == Mode.FAULT and sup.implausible == [True, True] and sup.counters["implausible"] == 2, sup.snapshot()
+    assert "gap sensors 1 and 2 implausible" in sup.fault and np.all(U[M == Mode.FAULT] == 0.0)
+    assert min(X[:, 0].min(), X[:, 2].min()) > 5e-3  # found within ~2.5 mm of travel toward the rail
+
+
+def test_a_non_finite_bus_reading_does_not_poison_the_board():
+    """One NaN bus sample (no ``applied`` measurement): the last voltages stay finite, the flux check and the
+    coil model carry on (review: np.clip with a NaN bound made them NaN for good, the board still in RUN)."""
+    cfg, plant, sup = board_cfg(), None, None
+    pc = SCHEMA.defaults("plant_sim")
+    pc.update(noise_scale=0.03, seed=3, measure_velocity=False)
+    plant = DemPlant(pc)
+    x0, u0 = equilibrium(pc, 0.008, 0.008)
+    plant.x[:] = x0
+    sup = Supervisor(cfg, T)
+    for k in range(1600):
+        z = plant.measurement()
+        sup.step(k * T_NS, z[[0, 2]], z[[4, 5]], u0, bus=math.nan if k == 1000 else 200.0)
+        plant.advance(sup.u)
+    assert sup.mode == Mode.RUN and sup._check.armed
+    assert np.all(np.isfinite(sup._u_prev)) and np.all(np.isfinite(sup._check.lam)) and np.all(np.isfinite(sup._r_est))

@@ -42,7 +42,7 @@ from dem_ros.tools.launcher import run_graph
 DELAY = 4
 LIMIT_S = 300.0  # s: the whole sequence, start-up included, on a loaded machine; then the run is stopped
 REARMS = 3  # re-arms after a landing the board made by itself during the lift-off (a host stall)
-LOAD_PER_CPU_MAX = 4.0  # load average per CPU above which the run is skipped (see _overloaded)
+LOAD_PER_CPU_MAX = 2.5  # load average per CPU above which the run is skipped (see _overloaded)
 
 
 def _rig_status(workdir: Path) -> dict:

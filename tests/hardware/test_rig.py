@@ -158,6 +158,18 @@ def test_each_injected_fault_is_counted_and_reported_never_raised(spec, check):
     assert min(f.gap.min() for f in frames) > cfg["plant_sim"]["trip_gap_min"]
 
 
+def test_the_boards_own_watchdog_landing_is_flagged_link_timeout():
+    """The PC falls silent (no command, no LAND request): after hold_timeout the board lands on its own and
+    every landing frame says why (LINK_TIMEOUT), so the driver can report the board's watchdog, not "its own
+    trip" (the rig catalogue's kill-controller row, before)."""
+    b, cfg, _ = make()
+    hover_loop(b, cfg, 300)
+    frames = [decode(d) for d in (b.tick() for _ in range(200)) if d is not None]
+    assert b.sup.command_timeout and "no command for" in b.sup.reason
+    landing = [f for f in frames if f.mode == Mode.LAND]
+    assert landing and all(f.status & Status.LINK_TIMEOUT for f in landing)
+
+
 def test_a_fault_lasts_its_duration_in_samples_whatever_the_float_sums():
     """0.1 + 0.05 is 0.15000000000000002 in floats: the window is on the board's sample grid, 50 samples."""
     for spec, n in (("linkloss@0.1+0.05", 50), ("linkloss@2.5+0.05", 50), ("dropout:1@2.5+0.0015", 2),

@@ -218,7 +218,8 @@ or offsets slowly is not seen either (the estimator's innovation and bias checks
 voltage on the coils the board does not measure (as S4b's 20 V at 50 Hz before the boards measured it) is
 taken for a sensor fault; the flux landing carries the magnet's K error (K 0.75 and 3 kg added, falling
 away: the flux read the plate on its support as 6.7 mm, the board FAULTed there once coil j's current fell
-under FLUX_GAP_MIN_CURRENT). Cost: Supervisor.step 9 -> 23.5 us per sample (pure Python; review's timing).
+under FLUX_GAP_MIN_CURRENT). Cost: Supervisor.step 9 -> 24-25 us per sample at hover (pure Python; measured
+2026-11-25, load 1.0).
 
 The landing law (uses only what a board has: measured gaps y (2,) [m] and coil
 currents i (2,) [A], nominal parameters m, R, K, L, l, I, N1, N2, g)

@@ -8,8 +8,9 @@ fault at t = ``--at`` s of the experiment and reads the outcome back from the ru
   rail than ``trip_gap_min``), or ``failed`` (rail contact, a plant failure, or a run cut short by an
   unexpected exit). The plant's truth (``/dem/plant/truth``) gives the minimum gap and the largest
   tracking error (true gap - reference) from the fault on.
-* **reported**: the ``/diagnostics`` statuses at WARN or ERROR after the fault, and the node log lines
-  at WARN or ERROR (count per node).
+* **reported**: the ``/diagnostics`` statuses at WARN or ERROR after the fault (from the bag, and those heard
+  live by this process that the bag lacks, marked "(live)": a full disk stops the recording before the
+  recorder's own ERROR), and the node log lines at WARN or ERROR (count per node).
 * **data lost**: what the recorder dropped and what the bag reports about itself (truncated, recording
   stopped early, samples without a reference); "none" when the bag is complete.
 
@@ -48,6 +49,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import re
 import signal
@@ -101,6 +103,9 @@ class Injector:
         self.node.subscribe(contract.MEASUREMENT, self._on_meas)
         self.node.subscribe(contract.ESTIMATE, lambda m: setattr(self, "est", m))
         self.node.subscribe(contract.REFERENCE, lambda m: setattr(self, "ref", m))
+        # /diagnostics as it is published: what a bag cannot keep (a full disk stops the recording) is seen here
+        self.diags: list[tuple[float, str, int]] = []  # (experiment time, name, level) at WARN or ERROR
+        self.node.subscribe(contract.DIAGNOSTICS, self._on_diag)
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._spin, name="dem-ros-faults", daemon=True)
         self.thread.start()
@@ -121,6 +126,20 @@ class Injector:
             self.meas = m
             if self.act is not None and self.t >= self.at and not self.act(self):
                 self.act = None
+
+    def _on_diag(self, m: Any) -> None:
+        for st in m.status:
+            level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
+            if level >= 1:
+                self.diags.append((-math.inf if self.t is None else self.t, str(st.name), level))
+
+    def live_levels(self, t_from: float) -> list[str]:
+        """'name LEVEL' of the statuses heard at WARN or ERROR from experiment time ``t_from`` on (worst per name)."""
+        seen: dict[str, int] = {}
+        for t, name, level in list(self.diags):
+            if t >= t_from:
+                seen[name] = max(seen.get(name, 0), level)
+        return [f"{n} {'WARN' if lv == 1 else 'ERROR'}" for n, lv in sorted(seen.items())]
 
     def _spin(self) -> None:
         while not self.stop.is_set():
@@ -795,6 +814,9 @@ def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duratio
         j["detail"] = f"the plant: {end or 'no last word in its log'}"
     levels = _log_levels(logs, j["fault_ns"] - 10**9)
     exits = info.get("exits") or []  # node processes the launcher saw die (reported on its stderr at once)
+    # heard live but not in the bag (a full disk stops the recording before the recorder's own ERROR)
+    live = [d for d in inj.live_levels((0.0 if disk is not None else at) - 1.0) if d not in j["diagnostics"]]
+    j["diagnostics"] += [f"{d} (live)" for d in live]
     reported = ", ".join(j["diagnostics"]) or "no diagnostics"
     reported += "; log: " + (", ".join(f"{n} {c}" for n, c in sorted(levels.items())) or "nothing")
     if exits:
@@ -809,7 +831,7 @@ def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duratio
     data_lost = "; ".join(lost) or "none"
     # the plant's loop status is at WARN whenever it waited for a command or held (lockstep on a loaded
     # machine: most runs); it counts as a report of the fault only at ERROR (a landing, a failure)
-    told = [d for d in j["diagnostics"] if not (d.startswith(contract.LOOP_STATUS) and d.endswith("WARN"))]
+    told = [d for d in j["diagnostics"] if not (d.startswith(contract.LOOP_STATUS) and d.split(" (")[0].endswith("WARN"))]
     ok = j["outcome"] in spec.allowed and (bool(told) or bool(levels))
     sent = [f"{v} {k}" for k, v in inj.counts.items()]
     if spec.kill and spec.restart_after is not None:  # what the outage was, against the board's hold

@@ -14,7 +14,6 @@ import argparse
 import io
 import json
 import os
-import random
 import shutil
 import signal
 import subprocess
@@ -147,7 +146,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     params = write_params_file(cfg, workdir / "params.yaml")
     env = dict(os.environ)
     if domain_id is None:
-        domain_id = int(env.get("ROS_DOMAIN_ID", random.randint(1, 100)))
+        domain_id = env_domain_id() or 0  # the ROS 2 default (what `ros2 topic list` in another shell sees)
     env["ROS_DOMAIN_ID"] = str(domain_id)
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env["PYTHONUNBUFFERED"] = "1"
@@ -394,7 +393,8 @@ def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None
     """
     cfg, sc, duration = _config_from_args(args)
     # every check before anything starts or is written
-    domain_id = args.domain_id if args.domain_id is not None else env_domain_id()
+    # the ROS 2 default, as `ros2 topic echo` in another shell uses it: --domain-id, else ROS_DOMAIN_ID, else 0
+    domain_id = args.domain_id if args.domain_id is not None else (env_domain_id() or 0)
     hardware = getattr(args, "hardware", None)
     if hardware is not None and hardware not in ("rig", "rig-serial"):
         from urllib.parse import urlsplit
@@ -406,7 +406,8 @@ def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None
     transport = _resolve_transport(args.transport)
     if not quiet:
         print(f"dem-ros launch: {sc.name} ({sc.description}), controller {cfg['controller']['type']},"
-              f" estimator {cfg['estimator']['type']}, {duration:g} s, transport {transport}", file=sys.stderr, flush=True)
+              f" estimator {cfg['estimator']['type']}, {duration:g} s, transport {transport}, ROS_DOMAIN_ID {domain_id}",
+              file=sys.stderr, flush=True)
     # compile once, here, with progress; the nodes then load the cache instead of compiling in parallel
     # and the offline loop of the comparison run (the longest compile of all, else silent at the very end)
     warm_kernels("dem-ros launch", stream=io.StringIO() if quiet else None,

@@ -181,7 +181,7 @@ class ControllerNode:
             # the stamp first: a sample it refuses (a lone jump of the experiment clock: a corrupt or foreign
             # stamp) is not the plant's, so its effort is not either (u_applied feeds the hover fit and restarts)
             if not self.checks.plant_stamp(stamp_ns(msg)):
-                self.counts["plant_stamp_jump"] += 1
+                self.counts["plant_stamp_jump"] = self.checks.stamps_refused  # the checks count them; shown here
                 self._warn_every("plant_stamp_jump", "applied voltage stamped far from the plant's clock: not taken"
                                  " (neither as the clock nor as the applied voltage) until the next sample confirms it")
                 return

@@ -67,7 +67,8 @@ RESTING_S = 0.2  # s: resting this long under the running law -> the board lande
 ECHO_SAMPLES = 20  # premagnetised samples the board must echo before the law starts (5 coil time constants)
 #: counters that make the once-a-second diagnostics WARN when they grew
 _WARN_KEYS = ("stale", "future", "non_finite_input", "non_finite_output", "reference_range", "reference_rate",
-              "reference_future", "reference_invalid", "reference_held", "waiting_for_applied", "plant_stamp_jump")
+              "reference_future", "reference_invalid", "reference_held", "waiting_for_applied", "plant_stamp_jump",
+              "estimate_repeated")
 
 
 class ControllerNode:
@@ -96,7 +97,8 @@ class ControllerNode:
         self.counts = dict.fromkeys(("steps", "stale", "future", "non_finite_input", "non_finite_output",
                                      "reference_mismatch", "reference_range", "reference_rate", "reference_future",
                                      "reference_invalid", "reference_held", "waiting_for_applied", "starts",
-                                     "liftoffs", "landed_stops", "plant_stamp_jump"), 0)
+                                     "liftoffs", "landed_stops", "plant_stamp_jump", "estimate_repeated"), 0)
+        self.t_acted: int | None = None  # stamp of the newest estimate acted on (a command, or a hold, sent for it)
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
@@ -214,6 +216,14 @@ class ControllerNode:
             self.counts["waiting_for_applied"] += 1
             self._warn_every("waiting_for_applied", "no applied voltage seen yet: not started")
             return self._state(t, age, 1.0)
+        if self.t_acted is not None and t <= self.t_acted:
+            # the estimator sends each stamp once: a repeat (or an older one) is not its, and stepping the law
+            # twice for one sample would advance its filters and adaptation twice and send two commands
+            self.counts["estimate_repeated"] += 1
+            self._warn_every("estimate_repeated", "estimate with a stamp not newer than the last one acted on: not"
+                                                  " acted on")
+            return self._state(t, age, 1.0)
+        self.t_acted = t
         ref = self._reference(t)
         if not self.started and not self._start(t, msg, xh, ref, age):
             return

@@ -42,7 +42,7 @@ from .. import contract
 from ..core.estimator import Estimator, KalmanEstimator, make_estimator
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import OK, WARN, Diagnostics, JointStates, all_finite, meas_into, stamp_ns
+from .common import OK, WARN, Diagnostics, JointStates, all_finite, meas_into, stamp_ns, worth_logging
 
 __all__ = ["EstimatorNode", "main"]
 
@@ -66,15 +66,19 @@ class EstimatorNode:
         self.z = np.zeros(6)  # the measurement being processed [d1, d1', d2, d2', i1, i2]
         self.u_zero = np.zeros(2)
         self.pending: deque = deque()  # measurements waiting for their applied voltages, oldest first
+        # stamps of the newest KEEP measurements taken: the plant sends each stamp once, a repeat is not its
+        self.measured: dict[int, None] = {}
         self.publishing = False  # the filter has converged since its (re)start (or started in the pre-roll)
         self.preroll_start = False  # the filter started on a pre-roll sample: published once the start is confirmed
         self.start: tuple[int, list[float]] | None = None  # (stamp, estimate) of the start awaiting its confirmation
         # /diagnostics "estimator", once a second: WARN after rejected or dropped samples, ERROR on a sensor fault
         gates = [f"gap{j}_{why}" for j in (1, 2) for why in ("out_of_range", "innovation")]
         self.diag = Diagnostics(node, "estimator", values=self._values,
-                                warn_on=(*gates, "malformed", "non_finite", "unpaired", "updates_skipped", "reinitialised"))
+                                warn_on=(*gates, "malformed", "non_finite", "unpaired", "updates_skipped", "reinitialised",
+                                         "repeated"))
         self.counts = self.diag.counters
-        self.counts.update(measurements=0, published=0, withheld=0, malformed=0, non_finite=0, unpaired=0, restarts=0)
+        self.counts.update(measurements=0, published=0, withheld=0, malformed=0, non_finite=0, unpaired=0, restarts=0,
+                           repeated=0)
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
@@ -99,10 +103,20 @@ class EstimatorNode:
             out["faults"] = "; ".join(est.faults)
         return out
 
+    def _repeated(self, what: str) -> None:
+        """A second sample with a stamp already taken: the plant sends each once, so it is someone else's (a
+        foreign or corrupt writer); the first stays, this one is counted (one 4 V 'voltage' taken at hover put
+        the filter 5 mm off and the plate on its support: `dem-ros faults`, bad-cdr)."""
+        n = self.diag.count("repeated")
+        if worth_logging(n):
+            self.node.logger.warn(f"{what} with a stamp already taken: dropped, the first one stays ({n} so far)")
+
     def on_applied(self, msg) -> None:
         if len(msg.effort) >= 2:
             t = stamp_ns(msg)
             volts = self.volts
+            if t in volts:
+                return self._repeated("applied voltage")
             if len(volts) >= KEEP:
                 del volts[next(iter(volts))]  # the oldest (its row is reused KEEP + 1 samples later)
             u = self.u_ring[self.u_next]
@@ -136,6 +150,12 @@ class EstimatorNode:
             return
         pending = self.pending
         t = stamp_ns(msg)
+        measured = self.measured
+        if t in measured:
+            return self._repeated("measurement")
+        if len(measured) >= KEEP:
+            del measured[next(iter(measured))]
+        measured[t] = None
         # wait for its voltage, or behind an older one waiting (a later-stamped one waiting - a rogue stamp far
         # ahead - holds nothing back)
         if self.u_prev is not None and (t not in self.volts or (pending and any(stamp_ns(m) < t for m in pending))):

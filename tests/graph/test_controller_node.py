@@ -122,3 +122,23 @@ def test_an_applied_voltage_with_a_refused_stamp_is_not_taken_as_the_applied_vol
     assert ctl.ctrl.diag[1] == 20.0  # R_hat = u/i of the window: the refused sample's 4 V is not in it
     assert all(abs(v - 80.0) < 1e-6 for k in range(n, n + 3) for v in cmds[t0 + k * T])
     assert ctl.node.callback_errors == {}
+
+
+def test_an_estimate_with_a_stamp_already_acted_on_is_not_acted_on_again():
+    """The estimator sends each stamp once: a second estimate with that stamp (a foreign or corrupt writer, as
+    `dem-ros faults` bad-cdr sends) must not step the law a second time for the sample nor send a second
+    command for it (the plant takes the last command of a stamp)."""
+    bus, ctl, cmds, _, _ = _graph()
+    t0 = bus.now_ns
+    JS = bus.msg("sensor_msgs/msg/JointState")
+    for k in range(30):
+        bus.now_ns = t0 + k * T
+        _feed(bus, k, t0 + k * T, 0.008)
+        if k == 20:
+            sent = list(cmds[t0 + k * T])
+            bus.publish(contract.ESTIMATE, joint_state(JS, t0 + k * T, position=(0.0085, 0.008), velocity=(0.0, 0.0),
+                                                       effort=(4.0, 4.0)))
+            bus.spin_once()
+            assert cmds[t0 + k * T] == sent  # the first command of the stamp stands
+    assert ctl.counts["estimate_repeated"] == 1 and ctl.counts["steps"] == 30
+    assert sorted(cmds) == [t0 + k * T for k in range(30)]

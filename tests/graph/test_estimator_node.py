@@ -193,3 +193,28 @@ def test_a_lockstep_plant_runs_from_its_first_sample_through_the_estimator(prero
     assert plant.finished and plant.lockstep_landing == 0, plant.board.reason if hasattr(plant.board, "reason") else ""
     assert plant.k_next > 200  # every sample of the 0.2 s run
     assert node.counts["withheld"] == 0 and node.counts["published"] == node.counts["measurements"]
+
+
+def test_a_voltage_or_measurement_with_a_stamp_already_taken_is_dropped():
+    """The plant sends each stamp once: a second /dem/applied_voltage or /dem/measurement with a stamp already
+    taken is someone else's (`dem-ros faults` bad-cdr publishes the measurement, currents ~4 A, as a voltage of
+    the same stamp: taken, it put the filter off and the plate on its support). The first stays; the repeat is
+    counted ('repeated', WARN) and the estimates are those of the clean run."""
+    runs = []
+    for inject in (False, True):
+        bus, node, est, diags = _graph()
+        JS = bus.msg("sensor_msgs/msg/JointState")
+        for k in range(80):
+            t = _feed(bus, k)
+            if inject and k == 40:
+                bus.publish(contract.APPLIED, joint_state(JS, t, effort=(X0[4], X0[5])))  # 4 "volts"
+                bus.publish(contract.MEASUREMENT, joint_state(JS, t, position=(X0[0] + 1e-3, X0[2]), velocity=(0.0, 0.0),
+                                                              effort=(X0[4], X0[5])))
+                bus.spin_once()
+        runs.append((dict(est), node.counts["repeated"], node.counts["measurements"]))
+        if inject:
+            bus.advance(1.0)
+            assert diags and diags[-1][0] == WARN
+    (clean, n0, m0), (hit, n1, m1) = runs
+    assert n0 == 0 and n1 == 2 and m1 == m0 == 80
+    assert hit == clean

@@ -58,7 +58,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -135,11 +135,7 @@ class Injector:
 
     def live_levels(self, t_from: float) -> list[str]:
         """'name LEVEL' of the statuses heard at WARN or ERROR from experiment time ``t_from`` on (worst per name)."""
-        seen: dict[str, int] = {}
-        for t, name, level in list(self.diags):
-            if t >= t_from:
-                seen[name] = max(seen.get(name, 0), level)
-        return [f"{n} {'WARN' if lv == 1 else 'ERROR'}" for n, lv in sorted(seen.items())]
+        return _worst_levels((name, level) for t, name, level in list(self.diags) if t >= t_from)
 
     def _spin(self) -> None:
         while not self.stop.is_set():
@@ -519,14 +515,19 @@ def _read_bag(bag: Path, measured: bool = False) -> dict[str, Any]:
             "truncated": truncated, "problems": problems}
 
 
+def _worst_levels(statuses: Iterable[tuple[str, int]]) -> list[str]:
+    """'name WARN' / 'name ERROR' per status name at its worst level, for (name, level) pairs at WARN or above."""
+    seen: dict[str, int] = {}
+    for name, level in statuses:
+        if level >= 1:
+            seen[name] = max(seen.get(name, 0), level)
+    return [f"{n} {'WARN' if lv == 1 else 'ERROR'}" for n, lv in sorted(seen.items())]
+
+
 def _levels_after(diags: list[tuple], t_f: int) -> list[str]:
     """'name LEVEL' of every status at WARN or ERROR from 1 s before the fault (the once-a-second reports
     cover the second of the fault), the worst level per name."""
-    seen: dict[str, int] = {}
-    for log_ns, name, level, *_ in diags:
-        if log_ns >= t_f - 10**9 and level >= 1:
-            seen[name] = max(seen.get(name, 0), level)
-    return [f"{n} {'WARN' if lv == 1 else 'ERROR'}" for n, lv in sorted(seen.items())]
+    return _worst_levels((name, level) for log_ns, name, level, *_ in diags if log_ns >= t_f - 10**9)
 
 
 def _judge(bag: Path, t_fault_s: float, cfg: dict) -> dict[str, Any]:

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..lti import AllPoleFilter
-from ..model import lie_terms, regressors, theta_of
+from ..model import gap_weights, lie_terms, regressors, theta_of
 from ..params import SCHEMA, ConfigError
 from . import kernels
 from .hover import HoverFit, solve_hover, window_means
@@ -68,8 +68,7 @@ def _cp_vector(cfg: Mapping[str, Any]) -> np.ndarray:
     cp = np.zeros(kernels.NCP)
     L, l, I = cfg["L"], cfg["l"], cfg["I"]
     cp[kernels.CP_K1], cp[kernels.CP_K2], cp[kernels.CP_K3] = cfg["k1"], cfg["k2"], cfg["k3"]
-    cp[kernels.CP_P] = (L + l) / (2 * L)
-    cp[kernels.CP_Q] = (L - l) / (2 * L)
+    cp[kernels.CP_P], cp[kernels.CP_Q] = gap_weights(L, l)
     cp[kernels.CP_CA] = L * l / I
     cp[kernels.CP_CC] = L * L / I
     cp[kernels.CP_N1], cp[kernels.CP_N2], cp[kernels.CP_G] = cfg["N1"], cfg["N2"], cfg["g"]

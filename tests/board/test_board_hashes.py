@@ -25,9 +25,9 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))  # the grids and their drivers live in test_safety
 
-import test_safety as ts  # noqa: E402
+import test_safety as ts
 
-from dem_ros.core.safety import Mode, Supervisor  # noqa: E402
+from dem_ros.board import Mode, Supervisor
 
 T_NS = ts.T_NS
 

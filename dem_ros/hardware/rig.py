@@ -277,7 +277,7 @@ class Board:
             status |= Status.COMMAND_LATE
         meas_y = self._board_gaps(self.gap_sensors.gaps(gc), st)  # the board sees what its ADC sees
         meas_i = self.current_sensors.currents(cc)
-        u_cmd = np.array(cmd.u, float) if fresh else None
+        u_cmd = np.array(cmd.u, float) if fresh and cmd is not None else None
         u = self.sup.step(int(n * self.dt * 1e9), meas_y, meas_i, u_cmd, requested, bus=bus,
                           applied=self.plant.coil_voltage if self.released_at is not None else self.applied)
         mode = Mode(self.sup.mode)

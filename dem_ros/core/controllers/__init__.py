@@ -83,7 +83,7 @@ def _cp_vector(cfg: Mapping[str, Any]) -> np.ndarray:
     cp[kernels.CP_R_MIN], cp[kernels.CP_R_MAX] = cfg["R_min"], cfg["R_max"]
     cp[kernels.CP_K_MIN], cp[kernels.CP_K_MAX] = cfg["K_min"], cfg["K_max"]
     cp[kernels.CP_QM], cp[kernels.CP_QR], cp[kernels.CP_QK] = cfg["q_m"], cfg["q_R"], cfg["q_K"]
-    cp[kernels.CP_ULIM] = cfg["voltage_limit"]
+    cp[kernels.CP_ULIM] = min(cfg["voltage_limit"], cfg["u_max"])  # the board's limit too (kernels.py)
     cp[kernels.CP_DELAY] = cfg["command_delay"]
     cp[kernels.CP_QRHO] = cfg["q_rho"]
     cp[kernels.CP_RHO_MAX] = cfg["rho_max"]
@@ -256,7 +256,7 @@ class PIDController(Controller):
         c = self.cfg
         F0 = c["N1"] + c["m_nominal"] * c["g"] / 2
         self.cp[:] = [c["pid_kp"], c["pid_kd"], c["pid_ki"], c["pid_kc"], c["R_nominal"],
-                      np.sqrt(F0 / c["K_nominal"]), c["dt"], c["voltage_limit"]]
+                      np.sqrt(F0 / c["K_nominal"]), c["dt"], min(c["voltage_limit"], c["u_max"])]
 
     def reset(self, meas0: np.ndarray | None, u0: np.ndarray | None) -> None:
         self.integ[:] = 0.0

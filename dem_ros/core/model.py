@@ -49,6 +49,7 @@ __all__ = [
     "derived",
     "dynamics",
     "equilibrium",
+    "gap_weights",
     "hover_current",
     "hover_forces",
     "hover_state",
@@ -71,11 +72,16 @@ SM, SI, SN1, SN2, SR1, SR2 = range(6)
 NSCHED = 6
 
 
+def gap_weights(L: float, l: float) -> tuple[float, float]:
+    """(P, Q) of Eq. 4: the magnet gaps from the load-point gaps, delta_1 = P d1 + Q d2, delta_2 = Q d1 + P d2
+    (L: centre to load points, l: centre to magnets [m]); the one place they are computed."""
+    return (L + l) / (2 * L), (L - l) / (2 * L)
+
+
 def derived(L: float, l: float, m: float, I: float) -> tuple[float, float, float, float, float, float]:
     """(P, Q, A, B, C, D) of Eqs. 4 and 7."""
     return (
-        (L + l) / (2 * L),
-        (L - l) / (2 * L),
+        *gap_weights(L, l),
         1 / m + L * l / I,
         1 / m - L * l / I,
         1 / m + L * L / I,

@@ -1,8 +1,9 @@
-"""Where numba keeps its compiled kernels: one directory per version of the core's sources.
+"""Where numba keeps its compiled kernels: one directory per version of the kernels' sources.
 
 numba's on-disk cache does not notice when a kernel calls a function from
 another file that has changed, so the cache lives in a directory keyed by a
-hash of the core's sources: any edit (or upgrade) starts a fresh cache.
+hash of the sources of the core and the board (dem_ros/board): any edit (or upgrade) starts a
+fresh cache.
 
 The library does not touch the process environment on import. The
 applications do, once, before any kernel is compiled: the ``dem-ros`` CLI
@@ -23,12 +24,13 @@ __all__ = ["cache_dir", "configure"]
 
 
 def cache_dir() -> str:
-    """``$XDG_CACHE_HOME/dem_ros/numba-<hash of dem_ros/core/**.py>`` (default ``~/.cache``)."""
-    root = Path(__file__).resolve().parent
+    """``$XDG_CACHE_HOME/dem_ros/numba-<hash of dem_ros/{core,board}/**.py>`` (default ``~/.cache``)."""
+    pkg = Path(__file__).resolve().parents[1]
     h = hashlib.sha256()
-    for f in sorted(root.rglob("*.py")):
-        h.update(f.relative_to(root).as_posix().encode())
-        h.update(f.read_bytes())
+    for root in (pkg / "core", pkg / "board"):  # every source of a compiled kernel
+        for f in sorted(root.rglob("*.py")):
+            h.update(f.relative_to(pkg).as_posix().encode())
+            h.update(f.read_bytes())
     base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "dem_ros"
     return str(base / f"numba-{h.hexdigest()[:16]}")
 

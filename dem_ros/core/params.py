@@ -25,7 +25,7 @@ import functools
 import math
 import re
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,7 @@ __all__ = [
     "default_config",
     "load_params_file",
     "read_yaml",
+    "with_board_limit",
 ]
 
 
@@ -221,7 +222,7 @@ def _check_bounds(v: Mapping[str, Any]) -> str | None:
 def _check_controller_safety(v: Mapping[str, Any]) -> str | None:
     """Settings that would drop the plate however the rest is tuned.
 
-    ``voltage_limit``: holding the nominal module at a gap delta takes, on the
+    The law's limit, min(``voltage_limit``, ``u_max``): holding the nominal module at a gap delta takes, on the
     more loaded magnet, F_j = (W + (L/l)|N1 - N2|)/2 with W = m g + N1 + N2
     (force and moment balance about O), i_j = delta sqrt(F_j/K) (F = K i^2/delta^2)
     and u_j = R i_j. Below that voltage at ``gap_floor`` - the smallest gap the
@@ -235,8 +236,9 @@ def _check_controller_safety(v: Mapping[str, Any]) -> str | None:
     w = v["m_nominal"] * v["g"] + v["N1"] + v["N2"]
     f = 0.5 * (w + v["L"] / v["l"] * abs(v["N1"] - v["N2"]))
     u_min = v["R_nominal"] * v["gap_floor"] * math.sqrt(f / v["K_nominal"])
-    if v["voltage_limit"] < u_min:
-        return (f"voltage_limit = {v['voltage_limit']:g} V cannot hold the module at any gap: the hover voltage "
+    limit = "voltage_limit" if v["voltage_limit"] <= v["u_max"] else "u_max"  # the law clips at the smaller
+    if v[limit] < u_min:
+        return (f"{limit} = {v[limit]:g} V cannot hold the module at any gap: the hover voltage "
                 f"of the nominal model is {u_min:.3g} V already at gap_floor = {v['gap_floor']:g} m")
     on_time = max(1, v["command_delay"]) * v["dt"]  # the oldest an on-time estimate can be (checks.py)
     if 0.0 < v["max_age"] < on_time:
@@ -280,12 +282,12 @@ def _check_reference(v: Mapping[str, Any]) -> str | None:
 #: default gap-sensor calibration: 16-bit ADC over ~0..20 mm, mildly nonlinear (c0..c3; m, m/count, ...)
 _GAP_POLY = (0.0, 2.5e-7, 8.0e-13, 0.0)
 
-# The board's hard limits and watchdog (dem_ros.core.safety.Supervisor): one list, included in every
+# The board's hard limits and watchdog (dem_ros.board.Supervisor): one list, included in every
 # group whose node is (or simulates) the board that drives the coils: plant_sim, hw_driver.
 SAFETY_SPECS = (
     ParamSpec("u_max", float, 200.0, "V", "coil driver bus: applied voltages are clipped to +-this (hover 50-80 V, transients ~120 V, scenario S4b asks 155 V)", 1.0, 1e4),
     ParamSpec("i_max", float, 10.0, "A", "coil current trip: above this the board latches a fault and lands the plate", 0.1, 1e3),
-    ParamSpec("trip_gap_min", float, 0.0015, "m", "gap trip toward the rail: the board brakes, latches a fault and lands when the gap where the plate would stop if it braked now (core/safety.py braking bound) falls below this; the driver trips on measured gaps below it", 0.0, 0.1),
+    ParamSpec("trip_gap_min", float, 0.0015, "m", "gap trip toward the rail: the board brakes, latches a fault and lands when the gap where the plate would stop if it braked now (docs/manual/board.md, the braking bound) falls below this; the driver trips on measured gaps below it", 0.0, 0.1),
     ParamSpec("trip_gap_max", float, 0.013, "m", "gap trip away from the rail: an estimated gap above this latches a fault (the plate is on its support or falling)", 1e-4, 1.0),
     ParamSpec("hold_timeout", float, 0.05, "s", "a sample without a fresh command holds the last voltage at most this long, then the board lands the plate (unstable poles: e-folding 17-20 ms)", 1e-3, 1.0),
     ParamSpec("landing_gap", float, 0.011, "m", "landing position: the plate rests on its support at this load-point gap (larger gap = away from the rail)", 1e-4, 0.1),
@@ -294,6 +296,12 @@ SAFETY_SPECS = (
 
 
 _SAFETY_DEFAULTS = {p.name: p.default for p in SAFETY_SPECS}
+#: the board's u_max as the control law knows it: the same spec (default, unit, bounds), set from the board's group
+_LAW_U_MAX = replace(
+    next(p for p in SAFETY_SPECS if p.name == "u_max"),
+    description="the board's u_max (its plant_sim / hw_driver value; simulate and the launcher set it from there): "
+                "the law clips its command at +-min(voltage_limit, u_max), so its augmented error and integrator "
+                "see the voltage the board applies")
 
 
 # The command source lock of the nodes that drive the coils (plant_sim, hw_driver): they take /dem/command
@@ -463,7 +471,8 @@ SCHEMA = Schema(
             ParamSpec("reference_gap_min", float, _SAFETY_DEFAULTS["trip_gap_min"], "m", "a received reference gap below this is refused (the last good reference is held): the board's trip_gap_min", 0.0, 0.1),
             ParamSpec("reference_gap_max", float, _SAFETY_DEFAULTS["landing_gap"], "m", "a received reference gap above this is refused: the board's landing_gap, where the plate rests on its support (it cannot hover beyond it, and the estimator treats a gap there as resting: estimator.support_gap)", 1e-4, 1.0),
             ParamSpec("reference_max_speed", float, 1.55e-3, "m/s", "a received reference faster than this (|y_d'|, or its gaps moving faster since the last accepted one) is refused: (gap max - min)/2 ||h'||_1 of the reference model M(s), 1.54 mm/s for the defaults (dem_ros.core.controllers.checks.reference_speed_bound)", 1e-6, 10.0),
-            ParamSpec("voltage_limit", float, 1e4, "V", "commands are clipped to +-this before publishing", 0.0, 1e6),
+            ParamSpec("voltage_limit", float, 1e4, "V", "commands are clipped to +-min(this, u_max) before publishing", 0.0, 1e6),
+            _LAW_U_MAX,
         ),
         "hw_driver": (
             ParamSpec("url", str, "udp://127.0.0.1:9870", "", "device link: udp://HOST:PORT (the board's address) or serial:///dev/PATH[?baud=N]"),
@@ -521,6 +530,14 @@ SCHEMA = Schema(
         "hw_driver": (_check_safety, _check_command_source),
     },
 )
+
+
+def with_board_limit(cfg: Mapping[str, Mapping[str, Any]], board: str = "plant_sim") -> dict[str, dict[str, Any]]:
+    """A copy of ``cfg`` whose ``controller.u_max`` is the board's (``board``: the group of the node that drives the
+    coils, ``plant_sim`` or ``hw_driver``): the law clips where the board does (one limit, one place)."""
+    out = {g: dict(v) for g, v in cfg.items()}
+    out["controller"]["u_max"] = out[board]["u_max"]
+    return out
 
 
 def default_config() -> dict[str, dict[str, Any]]:

@@ -22,7 +22,9 @@ from numba import njit, prange
 from .controllers import CEController, Controller, PIDController, make_controller
 from .controllers import kernels as CK
 from .estimator import NS, KalmanEstimator, PassThrough, ekf_step, make_estimator
+from .hold import command_sample
 from .model import IP, IQ, NPP, SM, apply_schedule, initial_state, plant_vector, rk4
+from .params import with_board_limit
 from .reference import hover_start, reference_trajectory
 from .scenarios import NOISE_UNIT, disturbances, plant_schedule, sensor_model
 
@@ -88,7 +90,7 @@ def _closed_loop(law: LawArgs, est: EstimatorArgs, plant: PlantArgs, ref: np.nda
     ``ref`` (n, 8), ``logs`` :class:`Logs`); returns the index of the first failed sample or -1.
 
     The applied voltage is the command of ``delay`` samples ago clipped to +-u_max (the board's coil
-    driver, :class:`dem_ros.core.safety.Supervisor` in RUN), plus the input perturbation.
+    driver, :class:`dem_ros.board.Supervisor` in RUN), plus the input perturbation.
     """
     n = ref.shape[0]
     # the records' fields as locals, once: an array field read inside the loop costs numba a
@@ -123,11 +125,12 @@ def _closed_loop(law: LawArgs, est: EstimatorArgs, plant: PlantArgs, ref: np.nda
             CK.pid_step(pid_cp, pid_integ, xh, ref[k], u, diag)
         else:
             CK.ce_step(ce, ce_state, xh, ref[k], u, diag)
-        # delay line: slot k % (delay+1) holds u_k; apply u_{k-delay}, clipped by the coil driver
+        # delay line: slot k % (delay+1) holds u_k; apply the command of sample command_sample(k, delay)
+        # (u0 before the first), clipped by the coil driver
         slot = k % (delay + 1)
         ubuf[slot, 0] = u[0]
         ubuf[slot, 1] = u[1]
-        old = (k + 1) % (delay + 1) if delay > 0 else slot
+        old = command_sample(k, delay) % (delay + 1)
         for j in range(2):
             u_prev[j] = min(max(ubuf[old, j], -u_max), u_max)
             ua[j] = u_prev[j] + pert[k, j]
@@ -182,7 +185,8 @@ class SimResult:
     config: dict[str, dict[str, Any]]
     t: np.ndarray  # (N,) s
     x: np.ndarray  # (N, 6) true state [d1, d1', d2, d2', i1, i2] (m, m/s, A)
-    u: np.ndarray  # (N, 2) commanded voltage held over [t_k, t_k+1) (V)
+    u: np.ndarray  # (N, 2) applied voltage over [t_k, t_k+1): the command of sample k - delay clipped to +-u_max (V)
+    #                (the board's output; the coils get u + d)
     d: np.ndarray  # (N, 2) input perturbation (V)
     ref: np.ndarray  # (N, 8) reference [y, y', y'', y'''] per magnet
     r: np.ndarray  # (N, 2) command (m)
@@ -320,6 +324,7 @@ def simulate(
         if age > 0.0:
             copy["controller"]["max_age"] = max(age, (int(delay) + 1) * copy["controller"]["dt"])
         cfg = copy
+    cfg = with_board_limit(cfg)  # the law clips where the board does (its u_max)
     pc = cfg["plant_sim"]
     delay = pc["command_delay"]
     dt = pc["dt"]
@@ -394,6 +399,7 @@ def simulate_batch(cfg: Mapping[str, Mapping[str, Any]], mass_offsets: np.ndarra
     Returns (B, 7): rms e1, rms e2, max e1, max e2, rms e1 after 40 s, rms e2 after 40 s (m),
     fail index (-1 = none).
     """
+    cfg = with_board_limit(cfg)
     pc = cfg["plant_sim"]
     n = round(duration / pc["dt"])
     t = np.arange(n) * pc["dt"]

@@ -72,8 +72,11 @@ def _warm(say: Callable[[str], None]) -> None:
     plant = DemPlant(cfg["plant_sim"], 0.01)
     plant.measurement()
     plant.advance(plant.u0)
+    from .hold import command_sample
+
+    command_sample(1, 1)  # the simulated and the rig board's sample rule
     say("board supervisor")  # plant_sim's and the rig's board: its landing kernels load on construction
-    from .safety import Supervisor
+    from ..board import Supervisor
 
     Supervisor(cfg["plant_sim"], cfg["plant_sim"]["dt"])
 

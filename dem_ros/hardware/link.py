@@ -38,7 +38,7 @@ import struct
 import zlib
 from dataclasses import dataclass
 
-from ..core.safety import Mode  # the board's modes: one definition, shared with the Supervisor
+from ..board.modes import Mode  # the board's modes: one definition, shared with the Supervisor
 
 __all__ = [
     "COMMAND_MODES",

@@ -9,7 +9,7 @@ Every period n (t_n = n T on the board's clock)::
     1. read every command frame received since the last tick (non-blocking)
     2. sample: gaps and currents of the plant at t_n -> sensor models -> ADC counts
     3. send SensorFrame(seq=n, board_time, counts, applied voltage over [t_n-1, t_n], bus, status, mode)
-    4. the Supervisor (dem_ros.core.safety, the board's limits, braking check, hold and landing
+    4. the Supervisor (dem_ros.board, the board's limits, braking check, hold and landing
        law) turns the command answering sample n - d (d = ``hw_driver.command_delay``; none: it
        holds, then lands) into voltages, braking with at most the bus it measures -> actuator
        models -> the coils
@@ -20,15 +20,9 @@ A command frame's mode is a request: RUN, LAND (land now) or OFF (acknowledge a 
 the Supervisor's ``clear()`` once LANDED). The board answers a hello request with its :class:`Hello` and streams only
 after it (UDP: to the address of the newest hello).
 
-Sensor models (counts n from a gap d [m] or a current i [A]):
-    gap:     n = c^-1((1 + gain_error) d + offset_error + noise),  c: the driver's calibration
-             polynomial (``hw_driver.gap{j}_c{p}``: the sensor's data sheet), rounded, clipped
-             to [0, 2^adc_bits - 1] (clipped: GAPj_RANGE)
-    current: n = (i + noise) / gain + offset (``hw_driver.current{j}_*``), rounded and clipped
-Actuator models (per coil):
-    bus      V_bus = bus_voltage - bus_resistance (|i1| + |i2|)     (sag; a fault may lower it)
-    PWM      u = V_bus round(duty 2^(pwm_bits-1)) / 2^(pwm_bits-1),  duty = u_cmd / V_bus in [-1, 1]
-    limit    a coil above current_limit gets no positive voltage (the bridge's cycle-by-cycle limit)
+Sensor and actuator models: :mod:`dem_ros.board.rig_io` (ADC counts of the gaps and currents, with the
+``rig`` group's gain, offset and noise; a gap count at either end of the range: GAPj_RANGE; the bus with
+its sag, the PWM bridges and their current limit).
 Mechanics: the plate rests on a support at ``support_gap`` (gaps never exceed it).
 
 Start (``start``): ``hover`` clamps the plate at the scenario's hover (x0, u0: what a
@@ -49,7 +43,6 @@ Faults (``--fault``, times in seconds after the release; see :func:`parse_fault`
 from __future__ import annotations
 
 import argparse
-import bisect
 import json
 import math
 import signal
@@ -61,6 +54,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.hold import command_sample
 from .link import (
     PROTOCOL_VERSION,
     CommandFrame,
@@ -163,9 +157,10 @@ class Board:
 
     def __init__(self, pc: Mapping[str, Any], rig: Mapping[str, Any], hw: Mapping[str, Any],
                  faults: list[Fault] | None = None, preroll: float | None = None):
+        from ..board import SafetyError, Supervisor
+        from ..board.rig_io import CoilDrivers, CurrentSensors, GapSensors
         from ..core.model import IP, IQ
         from ..core.plant import DemPlant
-        from ..core.safety import Supervisor
 
         self.pc, self.rc = dict(pc), dict(rig)
         self.dt = pc["dt"]
@@ -174,11 +169,13 @@ class Board:
         self.sup = Supervisor(pc, self.dt)
         self.faults = list(faults or [])
         self.rng = np.random.default_rng(rig["seed"])
-        self.full = (1 << rig["adc_bits"]) - 1
-        self._gap_table(hw)
-        self.i_gain = np.array([hw["current1_gain"], hw["current2_gain"]])
-        self.i_offset = np.array([hw["current1_offset"], hw["current2_offset"]])
-        self.pwm = float(1 << (rig["pwm_bits"] - 1))
+        try:
+            self.gap_sensors = GapSensors(hw, rig["adc_bits"], rig["gap_gain_error"], rig["gap_offset_error"])
+        except SafetyError as exc:
+            raise RigError(str(exc)) from None
+        self.full = self.gap_sensors.full
+        self.current_sensors = CurrentSensors(hw, rig["adc_bits"])
+        self.drivers = CoilDrivers(rig["bus_voltage"], rig["bus_resistance"], rig["pwm_bits"], rig["current_limit"])
         self.n = 0
         self.released_at: int | None = None
         self.delay = hw["command_delay"]  # the command answering sample k is applied from tick k + delay
@@ -200,17 +197,6 @@ class Board:
         self.min_gap = math.inf  # the true plate's smallest load-point or magnet gap since the release [m]
         self.land_speed_max = 0.0  # the true plate's fastest descent (a load point, away from the rail) while the
         #                            board lands it, up to and including the touch-down on the support [m/s]
-
-    def _gap_table(self, hw: Mapping[str, Any]) -> None:
-        n = np.arange(self.full + 1, dtype=float)
-        self.gap_of_counts = []
-        for j in (1, 2):
-            c = [hw[f"gap{j}_c{p}"] for p in range(4)]
-            g = c[0] + n * (c[1] + n * (c[2] + n * c[3]))
-            if not np.all(np.diff(g) > 0):
-                raise RigError(f"hw_driver.gap{j}_c*: the calibration polynomial is not increasing over 0..{self.full} counts")
-            self.gap_of_counts.append(g)
-        self.gap_list = [g.tolist() for g in self.gap_of_counts]
 
     # -- time ----------------------------------------------------------------------------------
     def t_fault(self) -> float:
@@ -277,7 +263,7 @@ class Board:
         status |= self.driver_fault
         self.driver_fault = 0
         # the command answering sample n - delay (fresh) decides the next period
-        want = (n - self.delay) % (1 << 32)
+        want = command_sample(n, self.delay) % (1 << 32)  # the link numbers samples modulo 2^32
         cmd = self.cmds[want % CMD_RING]
         fresh = cmd is not None and cmd.seq == want and self.request == Mode.RUN
         if fresh:
@@ -289,9 +275,9 @@ class Board:
             requested = Mode.OFF
         if self.sup.mode == Mode.RUN and not fresh:
             status |= Status.COMMAND_LATE
-        meas_y = self._board_gaps(self._gaps_from_counts(gc), st)  # the board sees what its ADC sees
-        meas_i = self.i_gain * (np.asarray(cc, float) - self.i_offset)
-        u_cmd = np.array(cmd.u, float) if fresh else None
+        meas_y = self._board_gaps(self.gap_sensors.gaps(gc), st)  # the board sees what its ADC sees
+        meas_i = self.current_sensors.currents(cc)
+        u_cmd = np.array(cmd.u, float) if fresh and cmd is not None else None
         u = self.sup.step(int(n * self.dt * 1e9), meas_y, meas_i, u_cmd, requested, bus=bus,
                           applied=self.plant.coil_voltage if self.released_at is not None else self.applied)
         mode = Mode(self.sup.mode)
@@ -379,11 +365,11 @@ class Board:
                 out.append(self.full)
                 status |= Status.GAP0_RANGE << j
                 continue
-            d = (1 + self.rc["gap_gain_error"]) * gaps[j] + self.rc["gap_offset_error"]
+            d = self.gap_sensors.sensed(gaps[j])
             if self.rc["gap_noise"] > 0:
                 d += self.rng.normal(0.0, self.rc["gap_noise"])
-            c = self._nearest_count(j, d)
-            if c in (0, self.full):
+            c = self.gap_sensors.count(j, d)
+            if self.gap_sensors.out_of_range(c):
                 status |= Status.GAP0_RANGE << j
             out.append(c)
         self.last_counts = out
@@ -392,55 +378,34 @@ class Board:
     def _board_gaps(self, y: np.ndarray, status: int) -> np.ndarray:
         """What the board's firmware feeds its supervisor: a channel out of range (GAPj_RANGE: dead or
         saturated) is no sample (NaN): the supervisor rides its observer through a few, then lands with that
-        gap from its coil's flux (core/safety.py, "Lost sensor samples"); it never steers by a dead sensor,
+        gap from its coil's flux (docs/manual/board.md, "Lost sensor samples"); it never steers by a dead sensor,
         nor by the other channel in its place."""
         for j in (0, 1):
             if status & (Status.GAP0_RANGE << j):
                 y[j] = math.nan
         return y
 
-    def _nearest_count(self, j: int, d: float) -> int:
-        """The count whose calibrated gap is nearest to d (binary search of the monotonic table)."""
-        g = self.gap_list[j]
-        k = bisect.bisect_left(g, d)
-        if k <= 0:
-            return 0
-        if k > self.full:
-            return self.full
-        return k if g[k] - d < d - g[k - 1] else k - 1
-
-    def _gaps_from_counts(self, counts) -> np.ndarray:
-        return np.array([self.gap_of_counts[0][counts[0]], self.gap_of_counts[1][counts[1]]])
-
     def _current_counts(self, currents: np.ndarray) -> tuple[int, int]:
         i = currents + (self.rng.normal(0.0, self.rc["current_noise"], 2) if self.rc["current_noise"] > 0 else 0.0)
-        n = np.clip(np.round(i / self.i_gain + self.i_offset), 0, self.full)
-        return int(n[0]), int(n[1])
+        return self.current_sensors.counts(i)
 
     def _bus(self, x: np.ndarray) -> float:
-        v = self.rc["bus_voltage"]
         f = self._fault("sag")
+        supply = None
         if f is not None:
             f.hits += 1
-            v = 60.0 if math.isnan(f.value) else f.value
-        return max(v - self.rc["bus_resistance"] * (abs(x[4]) + abs(x[5])), 0.0)
+            supply = 60.0 if math.isnan(f.value) else f.value
+        return self.drivers.bus(x[4], x[5], supply)
 
     def _actuate(self, u: np.ndarray, bus: float, currents: np.ndarray) -> np.ndarray:
-        out = np.zeros(2)
+        failed = [False, False]
         for j in (0, 1):
             f = self._fault("coil", j + 1)
             if f is not None:
                 f.hits += 1
                 self.driver_fault |= Status.DRIVER0_FAULT << j  # reported with the next sample
-                continue  # an open bridge: no voltage
-            if bus <= 0:
-                continue
-            duty = min(max(u[j] / bus, -1.0), 1.0)
-            v = bus * round(duty * self.pwm) / self.pwm
-            if currents[j] > self.rc["current_limit"] and v > 0:
-                v = 0.0
-            out[j] = v
-        return out
+                failed[j] = True  # an open bridge: no voltage
+        return self.drivers.apply(u, bus, currents, (failed[0], failed[1]))
 
     def summary(self) -> dict[str, Any]:
         c = self.c

@@ -2,11 +2,11 @@
 
 Sample k is stamped t_k = epoch + k T on the plant's clock. To publish sample k
 the plant integrates [t_k-1, t_k] holding the command computed from sample
-k-1-d (``command_delay`` d; zero-order hold), then publishes
+k-1-d (``command_delay`` d; zero-order hold; :func:`dem_ros.core.hold.command_sample`), then publishes
 ``/dem/applied_voltage``, ``/dem/plant/truth`` and ``/dem/measurement`` for t_k.
 Every sample is published, in order.
 
-The coils are driven through the simulated board, :class:`dem_ros.core.safety.Supervisor`
+The coils are driven through the simulated board, :class:`dem_ros.board.Supervisor`
 (the same class as the rig emulator's board): every applied voltage is clipped to
 ``u_max``, current and gap trips latch a fault, and a missing command never cuts the
 coils at hover: the board holds the last voltage at most ``hold_timeout``, then lands
@@ -54,9 +54,10 @@ import time
 import numpy as np
 
 from .. import contract
+from ..board import SAFETY_KEYS, Mode, Supervisor
+from ..core.hold import command_sample
 from ..core.params import TABLE2
 from ..core.plant import DemPlant
-from ..core.safety import SAFETY_KEYS, Mode, Supervisor
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
 from .common import ERROR, OK, WARN, CommandSource, Diagnostics, JointStates, LatencyStats, all_finite, stamp_ns
@@ -195,7 +196,7 @@ class PlantSimNode:
         k = self.k_next
         if k == -self.n_pre:
             return True  # the first sample: nothing to integrate yet
-        src = k - 1 - self.cfg["command_delay"]  # the sample whose command is held over [t_k-1, t_k]
+        src = command_sample(k - 1, self.cfg["command_delay"])  # the sample whose command is held over [t_k-1, t_k]
         slot = src % RING
         board = self.board
         prev = board.mode

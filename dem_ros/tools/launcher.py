@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from ..core.params import SCHEMA
+from ..core.params import SCHEMA, with_board_limit
 from ..core.scenarios import Scenario
 from .common import (
     CONTROLLER_TYPES,
@@ -404,6 +404,7 @@ def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None
     if getattr(args, "fault", None) and hardware not in ("rig", "rig-serial"):
         raise UsageError("--fault needs --hardware rig or rig-serial (faults are injected by the emulated rig)")
     transport = _resolve_transport(args.transport)
+    cfg = with_board_limit(cfg, "plant_sim" if hardware is None else "hw_driver")  # the law clips where the board does
     if not quiet:
         print(f"dem-ros launch: {sc.name} ({sc.description}), controller {cfg['controller']['type']},"
               f" estimator {cfg['estimator']['type']}, {duration:g} s, transport {transport}, ROS_DOMAIN_ID {domain_id}",

@@ -53,7 +53,7 @@ class LoopStats:
     holds: int = 0  # samples the board held the last voltage for a missing command
     landing: bool = False  # the board landed the plate (or was landing it when the run ended)
     landing_reason: str = ""
-    board_mode: str = ""  # the board's last mode (dem_ros.core.safety.Mode name)
+    board_mode: str = ""  # the board's last mode (dem_ros.board.Mode name)
 
     @classmethod
     def from_status(cls, values: Mapping[str, str]) -> LoopStats:

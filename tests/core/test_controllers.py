@@ -17,7 +17,7 @@ from dem_ros.core.controllers import (
 )
 from dem_ros.core.controllers import kernels as K
 from dem_ros.core.model import dynamics, hover_state, plant_vector, rk4, theta_of
-from dem_ros.core.params import ConfigError, default_config
+from dem_ros.core.params import ConfigError, default_config, with_board_limit
 from dem_ros.core.reference import reference_trajectory
 
 CFG = default_config()
@@ -368,6 +368,19 @@ def test_voltage_limit_clips(name):
     ctrl = make_controller(cc, name)
     ctrl.reset(x0, u0)
     np.testing.assert_array_equal(ctrl.step(x, ref), [-50.0, -50.0])
+
+
+@pytest.mark.parametrize("name", list(CONTROLLERS))
+def test_the_law_clips_at_the_boards_u_max(name):
+    """The board clips at u_max: the law clips there too (min(voltage_limit, u_max)), so what it feeds its
+    augmented error and integrator is what the board applies; simulate gives it the board's u_max."""
+    x0, u0 = hover_state(PC, 0.008)  # holding 8 mm needs 80 V
+    ref = np.array([0.008, 0.008, 0, 0, 0, 0, 0, 0])
+    ctrl = make_controller({**CC, "voltage_limit": 1e4, "u_max": 60.0}, name)
+    ctrl.reset(x0, u0)
+    np.testing.assert_array_equal(ctrl.step(x0.copy(), ref), [60.0, 60.0])
+    cfg = with_board_limit({**CFG, "plant_sim": {**CFG["plant_sim"], "u_max": 150.0}})
+    assert cfg["controller"]["u_max"] == 150.0 and CFG["controller"]["u_max"] == CFG["plant_sim"]["u_max"]
 
 
 @pytest.mark.parametrize("name", list(CONTROLLERS))

@@ -74,7 +74,7 @@ def _controller_pid(params: Path, timeout: float = 120.0) -> int:
 def _run_with_stall(root: Path, stall_s: float, duration: float, offset: int, lockstep: bool = False) -> dict:
     # numba's on-disk cache filled once here: the four node processes load it instead of compiling each
     # (after a change to dem_ros.core that took them past the launcher's 120 s start-up limit under load)
-    from dem_ros.core.safety import Supervisor
+    from dem_ros.board import Supervisor
     from dem_ros.core.warmup import warm_up
 
     warm_up()

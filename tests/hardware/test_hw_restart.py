@@ -10,7 +10,7 @@ the controller lifts the plate off its support. Once the lift-off is done (the c
 reference stream, the plate off its support) the driver is stopped (SIGINT): it lands the plate before
 it lets go of the link (the board's reason is the driver's LAND request, not its watchdog). Not during
 the lift-off: a LAND while the plate rises at up to the lift-off's 5 mm/s is outside what the landing
-law bounds (measured once: 10.43 mm/s descent, landing_speed 10; core/safety documents 0.94-1.17x).
+law bounds (measured once: 10.43 mm/s descent, landing_speed 10; docs/manual/board.md documents 0.94-1.17x).
 
 What is asserted is what the design guarantees whatever the load: the board's true-plant figures
 (rail contact, smallest gap, fastest descent while landing) and the sequence of states, once the host

@@ -127,15 +127,15 @@ def test_sizes_and_layout() -> None:
 
 
 def test_mode_values_match_plan() -> None:
-    """The mode byte values of PLAN.md mechanism 1 (shared with dem_ros.core.safety.Mode)."""
+    """The mode byte values of PLAN.md mechanism 1 (shared with dem_ros.board.Mode)."""
     assert {m.name: int(m) for m in Mode} == {"OFF": 0, "RUN": 1, "HOLD": 2, "LAND": 3, "LANDED": 4, "FAULT": 5}
 
 
 def test_mode_is_the_safety_supervisors() -> None:
     """The link's mode byte is the board Supervisor's Mode: one definition."""
-    from dem_ros.core import safety
+    from dem_ros import board
 
-    assert Mode is safety.Mode
+    assert Mode is board.Mode
 
 
 def test_status_bits_are_distinct_18_and_the_defined_mask() -> None:

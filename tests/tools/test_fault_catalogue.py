@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pytest
 
-from dem_ros.core.safety import SENSOR_BLIND_SAMPLES
+from dem_ros.board import SENSOR_BLIND_SAMPLES
 from dem_ros.core.scenarios import get_scenario
 from dem_ros.hardware.rig import FAULT_KINDS, parse_fault
 from dem_ros.tools.faults import CATALOGUE, RIG_CATALOGUE, run_row

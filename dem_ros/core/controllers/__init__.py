@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..lti import AllPoleFilter
-from ..model import lie_terms, regressors, theta_of
+from ..model import gap_weights, lie_terms, regressors, theta_of
 from ..params import SCHEMA, ConfigError
 from . import kernels
 from .hover import HoverFit, solve_hover, window_means
@@ -68,8 +68,7 @@ def _cp_vector(cfg: Mapping[str, Any]) -> np.ndarray:
     cp = np.zeros(kernels.NCP)
     L, l, I = cfg["L"], cfg["l"], cfg["I"]
     cp[kernels.CP_K1], cp[kernels.CP_K2], cp[kernels.CP_K3] = cfg["k1"], cfg["k2"], cfg["k3"]
-    cp[kernels.CP_P] = (L + l) / (2 * L)
-    cp[kernels.CP_Q] = (L - l) / (2 * L)
+    cp[kernels.CP_P], cp[kernels.CP_Q] = gap_weights(L, l)
     cp[kernels.CP_CA] = L * l / I
     cp[kernels.CP_CC] = L * L / I
     cp[kernels.CP_N1], cp[kernels.CP_N2], cp[kernels.CP_G] = cfg["N1"], cfg["N2"], cfg["g"]
@@ -84,7 +83,7 @@ def _cp_vector(cfg: Mapping[str, Any]) -> np.ndarray:
     cp[kernels.CP_R_MIN], cp[kernels.CP_R_MAX] = cfg["R_min"], cfg["R_max"]
     cp[kernels.CP_K_MIN], cp[kernels.CP_K_MAX] = cfg["K_min"], cfg["K_max"]
     cp[kernels.CP_QM], cp[kernels.CP_QR], cp[kernels.CP_QK] = cfg["q_m"], cfg["q_R"], cfg["q_K"]
-    cp[kernels.CP_ULIM] = cfg["voltage_limit"]
+    cp[kernels.CP_ULIM] = min(cfg["voltage_limit"], cfg["u_max"])  # the board's limit too (kernels.py)
     cp[kernels.CP_DELAY] = cfg["command_delay"]
     cp[kernels.CP_QRHO] = cfg["q_rho"]
     cp[kernels.CP_RHO_MAX] = cfg["rho_max"]
@@ -257,7 +256,7 @@ class PIDController(Controller):
         c = self.cfg
         F0 = c["N1"] + c["m_nominal"] * c["g"] / 2
         self.cp[:] = [c["pid_kp"], c["pid_kd"], c["pid_ki"], c["pid_kc"], c["R_nominal"],
-                      np.sqrt(F0 / c["K_nominal"]), c["dt"], c["voltage_limit"]]
+                      np.sqrt(F0 / c["K_nominal"]), c["dt"], min(c["voltage_limit"], c["u_max"])]
 
     def reset(self, meas0: np.ndarray | None, u0: np.ndarray | None) -> None:
         self.integ[:] = 0.0

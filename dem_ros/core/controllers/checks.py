@@ -5,7 +5,7 @@ derivatives, :mod:`dem_ros.core.reference`) and ``/dem/state_estimate``. Before 
 them, :class:`InputChecks` refuses what no healthy graph can send. Pure Python, no middleware.
 
 **Range.** A reference gap must lie in [``reference_gap_min``, ``reference_gap_max``] (m), by
-default the board's trip band [trip_gap_min, trip_gap_max] (:mod:`dem_ros.core.safety`): a
+default the board's trip band [trip_gap_min, trip_gap_max] (:mod:`dem_ros.board`): a
 reference outside it asks for a gap at which the board lands the plate.
 
 **Rate.** The reference model M(s) = b0 / (s^3 + a2 s^2 + a1 s + a0) (Eq. 46) filters a command

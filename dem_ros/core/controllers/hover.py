@@ -56,6 +56,8 @@ from typing import Any
 
 import numpy as np
 
+from ..model import gap_weights
+
 __all__ = [
     "LIFTOFF_CLEARANCE",
     "LIFTOFF_MIN_S",
@@ -236,7 +238,7 @@ def _hover_forces(cfg: Mapping[str, Any]) -> np.ndarray:
 def _deltas(cfg: Mapping[str, Any], z: np.ndarray) -> np.ndarray:
     """Magnet gaps delta_j (2,) [m] (Eq. 6) of the load-point gaps z[0], z[2], floored at gap_floor."""
     L, l = cfg["L"], cfg["l"]
-    P, Q = (L + l) / (2 * L), (L - l) / (2 * L)
+    P, Q = gap_weights(L, l)
     d1, d2 = max(z[0], cfg["gap_floor"]), max(z[2], cfg["gap_floor"])
     return np.array([P * d1 + Q * d2, Q * d1 + P * d2])
 
@@ -251,7 +253,7 @@ def lift_fraction(z: np.ndarray, cfg: Mapping[str, Any]) -> float:
     # Python floats throughout (one tolist(), no numpy scalars): the controller evaluates this every sample
     d1, _, d2, _, i1, i2 = z.tolist()[:6] if isinstance(z, np.ndarray) else [float(v) for v in z[:6]]
     L, l, floor = cfg["L"], cfg["l"], cfg["gap_floor"]
-    P, Q = (L + l) / (2 * L), (L - l) / (2 * L)
+    P, Q = gap_weights(L, l)
     d1, d2 = max(d1, floor), max(d2, floor)
     de1, de2 = P * d1 + Q * d2, Q * d1 + P * d2  # Eq. (6), as _deltas
     f = cfg["K_nominal"] * (i1 * i1 / (de1 * de1) + i2 * i2 / (de2 * de2))

@@ -19,9 +19,14 @@ Per sample k (docs/manual/controllers.md, "common loop")::
     theta_hat <- update(e_c)
     v_e       = y_d''' - k1((L_f^2 h)_e - y_d'') - k2(y' - y_d') - k3 e     (Eq. 21, erratum 7)
     u         = M_hat^{-1} (v_e - (L_f^3 h)_e)                                (Eq. 22)
-    u_a       = the voltage applied over this sample: u_{k-delay} (and clipped)
+    u_a       = the voltage applied over this sample: u_{k-delay}, clipped to +-min(voltage_limit, u_max)
     W_p       = W3(x, u_a) + k1 W2(x)
     F(s) bank <- advance with W_p (2 NTH channels) and v_e + k1 W2^T theta_hat (2 channels)
+
+The law clips its command at +-min(``voltage_limit``, ``u_max``): ``u_max`` is the board's coil-driver limit
+(the ``SAFETY_SPECS`` value of ``plant_sim`` / ``hw_driver``, which ``simulate`` and the launcher give the
+controller group), so the u_a the law feeds its augmented error and its integrator is the voltage the board
+applies, also when the board clips (a measured bus below ``u_max`` is still unknown to the law).
 
 The last input equals W_p^T theta_hat when u_a is the law's own unclipped output
 (W3(u)^T theta_hat = v_e). In general the error equation is
@@ -50,6 +55,15 @@ drifts by 40 mOhm/s. Hence (A2, A2e):
    current is differentiated), the residual
 
        r_j = kappa_j (R_j_hat lp(i_j) + 2 K_hat lp(b_j') - lp(u_j)),  kappa_j = (mu_hat + c_A) |b_j| / k3
+
+   Per coil j, over the period [t_{k-1}, t_k) (:func:`_coil_rows`, ``coil`` state)::
+
+       lp(u_j)  += a (u_{a,j} - lp(u_j))                  u_a: the voltage applied over that period
+       lp(i_j)  += a (0.5 (i_{j,k-1} + i_{j,k}) - lp(i_j))   the trapezoid: the mean current of the period
+       lp(b_j') += a ((b_{j,k} - b_{j,k-1}) / T - lp(b_j'))  b_j = i_j / delta_j [A/m]
+
+   and they start (the first sample after a reset: no previous i, b) at lp(u_j) = u_{a,j}, lp(i_j) = i_{j,0},
+   lp(b_j') = 0, with no coil rows in that sample.
 
    joins e_c in the least squares with weight ``coil_weight`` x kappa_j, the
    tracking error (m) a coil misfit of 1 V would cause; its rows in (R, rho)

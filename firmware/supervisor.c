@@ -890,6 +890,11 @@ void sup_view(const sup_t *s, sup_view_t *v)
     v->min_stop_gap = s->min_stop_gap;
     v->u[0] = s->u[0];
     v->u[1] = s->u[1];
+    memcpy(v->ref, s->ref, sizeof v->ref);
+    v->ui[0] = s->ui[0];
+    v->ui[1] = s->ui[1];
+    v->r_est[0] = s->r_est[0];
+    v->r_est[1] = s->r_est[1];
 }
 
 int sup_mode(const sup_t *s) { return s->mode; }

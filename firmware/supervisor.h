@@ -122,6 +122,7 @@ typedef struct {
     sup_why_t reason, fault;
     sup_counters_t counters;
     float est[3][2], stop_gap[2], min_stop_gap, u[2];
+    float ref[3][2], ui[2], r_est[2]; /* the landing reference, the current loop's integral, the coil model's R */
 } sup_view_t;
 void sup_view(const sup_t *s, sup_view_t *v);
 int sup_mode(const sup_t *s);

@@ -85,7 +85,8 @@ class _Counters(ctypes.Structure):
 class _View(ctypes.Structure):
     _fields_ = [("mode", ctypes.c_int32), ("command_timeout", ctypes.c_int32), ("implausible", ctypes.c_int32 * 2),
                 ("reason", _Why), ("fault", _Why), ("counters", _Counters), ("est", (ctypes.c_float * 2) * 3),
-                ("stop_gap", ctypes.c_float * 2), ("min_stop_gap", ctypes.c_float), ("u", ctypes.c_float * 2)]
+                ("stop_gap", ctypes.c_float * 2), ("min_stop_gap", ctypes.c_float), ("u", ctypes.c_float * 2),
+                ("ref", (ctypes.c_float * 2) * 3), ("ui", ctypes.c_float * 2), ("r_est", ctypes.c_float * 2)]
 
 
 # sup_config_t: the schema's values in this order, then dt
@@ -290,6 +291,12 @@ class CSupervisor:
     @property
     def estimate(self) -> np.ndarray:
         return np.array([[float(x) for x in row] for row in self._v().est])
+
+    def internals(self) -> dict[str, np.ndarray]:
+        """The landing reference (3, 2), the current loop's integral (2,) [V] and the coil model's R (2,) [ohm]."""
+        v = self._v()
+        return {"ref": np.array([[float(x) for x in row] for row in v.ref]), "ui": np.array(list(v.ui), float),
+                "r_est": np.array(list(v.r_est), float)}
 
     @property
     def stop_gap(self) -> np.ndarray:

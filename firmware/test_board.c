@@ -294,6 +294,7 @@ int main(void)
     if (cost_ticks_per_unit() > 0)
         printf("COST worst sup_step %lu instructions, board_step %lu instructions (qemu -icount shift=0)\n",
                worst_sup * cost_ticks_per_unit(), worst_board * cost_ticks_per_unit());
+    printf("RAM board_t %u bytes (sup_t %u)\n", (unsigned)sizeof(board_t), (unsigned)sizeof(sup_t));
     printf("%s: %d failed\n", failures ? "FAILED" : "OK", failures);
     return failures ? 1 : 0;
 }

@@ -489,6 +489,10 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
     warm = Board(cfg["plant_sim"], cfg["rig"], cfg["hw_driver"], [])  # compile every kernel before the clock starts
     for _ in range(3):
         warm.tick()
+    # and the plant's kernel: a hover start holds the plate until the release, so the ticks above never ran it;
+    # loading it at the release stalled the clock 32 ms after the Python supervisor had loaded numba, 1.2-2 s
+    # with the C board (numba itself loaded then): the first commands arrived late, the board landed at once
+    warm.plant.hold(warm.applied)
     board = Board(cfg["plant_sim"], cfg["rig"], cfg["hw_driver"], faults)
     ch = open_channel(cfg["rig"]["url"], "board")
     peer = getattr(ch, "peer_url", cfg["rig"]["url"])

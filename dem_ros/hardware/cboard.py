@@ -158,7 +158,7 @@ def _why_text(w: _Why, external: str) -> str:
         why = "the plate is on its support" if sub == 0 else "no estimate possible"
         return f"non-finite sensor reading (gaps {a[0]!r}, {a[1]!r}; currents {a[2]!r}, {a[3]!r}): {why}"
     if c == 10:
-        cause = (f"{_NAMES[2 + ch]} lost too (no finite sample for {a[1]:.0f} samples)", 
+        cause = (f"{_NAMES[2 + ch]} lost too (no finite sample for {a[1]:.0f} samples)",
                  f"{_NAMES[1 - ch]} without a finite sample for {a[1]:.0f} samples",
                  f"coil {ch + 1}'s current {a[1]:.2f} A at or under FLUX_GAP_MIN_CURRENT")[min(sub, 2)]
         return (f"{_NAMES[ch]} lost, gap {ch + 1} from coil {ch + 1}'s flux: none for {a[0]:.0f} samples: {cause}; "

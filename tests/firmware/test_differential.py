@@ -171,7 +171,7 @@ def run_case(case: Case) -> Result:
         for j in (0, 2):
             if x[j] >= SUPPORT:
                 x[j], x[j + 1] = SUPPORT, min(x[j + 1], 0.0)
-        if plant.fault and "dropped" not in plant.fault or min(P * x[0] + Q * x[2], Q * x[0] + P * x[2]) <= 0:
+        if (plant.fault and "dropped" not in plant.fault) or min(P * x[0] + Q * x[2], Q * x[0] + P * x[2]) <= 0:
             break  # rail contact: the Python board's own tests say whether it may happen; here both must agree
     r = Result(case, k + 1, counters=dict(py.counters), modes=set(mp))
     rp, rc = _runs(mp), _runs(mc)

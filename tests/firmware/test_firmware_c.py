@@ -92,3 +92,56 @@ def test_the_rig_runs_the_c_board_and_names_it() -> None:
         seen[name] = (modes, s["commands_fresh"], s["landings"])
     assert seen["c"] == seen["python"]
     assert np.all(np.diff(seen["c"][0]) >= 0) and seen["c"][0][1] == Mode.RUN and seen["c"][0][-1] == Mode.LAND
+
+
+def _rig_tests():
+    """tests/hardware/test_rig.py's lockstep helpers (the board, the link codec, the driver and the graph's
+    estimator and controller, one tick at a time)."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "hardware" / "test_rig.py"
+    spec = importlib.util.spec_from_file_location("_rig_lockstep", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_s1_through_the_c_board_in_lockstep_tracks_as_offline() -> None:
+    """tests/hardware/test_rig.py's lockstep S1 (rig sensors and actuators, the link codec, the driver, the graph's
+    estimator and controller at command_delay 2) with the firmware's supervisor as the board: tracks within
+    max(2x offline, offline + 10 um) RMS, never leaves RUN."""
+    from dem_ros.core.simulate import simulate
+
+    try:
+        library_path()
+    except FirmwareError as exc:
+        pytest.skip(f"the firmware cannot be built here: {exc}")
+    rt = _rig_tests()
+    duration = 12.0
+    b, cfg, _ = rt.make(board="c")
+    assert isinstance(b.sup, CSupervisor)
+    e, drv = rt.s1_lockstep(b, cfg, duration)
+    assert b.failed is None and Mode(b.sup.mode) == Mode.RUN and drv.state.name == "ACTIVE"
+    rms = np.sqrt(np.mean(np.square(e), axis=0)) * 1e6
+    off = np.array(simulate(cfg, controller="adaptive", estimator="kf", duration=duration,
+                            scenario="S1").metrics()["rms_error_um"])
+    print(f"\nlockstep rig, C board: RMS {rms} um, offline {off} um")
+    assert np.all(rms <= np.maximum(2 * off, off + 10.0)), (rms, off)
+
+
+def test_a_stuck_gap_sensor_is_found_by_the_c_board_and_the_plate_landed() -> None:
+    """The rig's stuck-sensor fault (gap 1 frozen 1.5 s after its step in S1) through the C board in lockstep: found
+    implausible by the flux check, landed on coil 1's flux, never near the rail, descent within landing_speed."""
+    try:
+        library_path()
+    except FirmwareError as exc:
+        pytest.skip(f"the firmware cannot be built here: {exc}")
+    rt = _rig_tests()
+    b, cfg, _ = rt.make(["stuck:1@2.5+1"], board="c")
+    rt.s1_lockstep(b, cfg, 5.0)
+    s = b.summary()
+    assert s["failed"] == "" and s["mode"] == "LANDED" and s["board"].startswith("c"), s
+    assert s["supervisor"]["implausible"] == 1 and b.sup.implausible == [True, False]
+    assert "gap sensor 1 implausible" in s["supervisor"]["fault"]
+    assert s["min_gap_mm"] > 3.0 and s["land_speed_max_mm_s"] <= cfg["plant_sim"]["landing_speed"] * 1e3, s

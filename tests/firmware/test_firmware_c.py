@@ -145,3 +145,34 @@ def test_a_stuck_gap_sensor_is_found_by_the_c_board_and_the_plate_landed() -> No
     assert s["supervisor"]["implausible"] == 1 and b.sup.implausible == [True, False]
     assert "gap sensor 1 implausible" in s["supervisor"]["fault"]
     assert s["min_gap_mm"] > 3.0 and s["land_speed_max_mm_s"] <= cfg["plant_sim"]["landing_speed"] * 1e3, s
+
+
+def test_the_configuration_header_carries_the_launch_values_and_the_firmware_accepts_it(tmp_path: Path) -> None:
+    """python -m dem_ros.hardware.cboard writes the board's configuration from the schema's values (a --set reaches
+    it); it compiles against board.h and sup_init() accepts it, and refuses it when the values are inconsistent."""
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no C compiler on PATH: the header cannot be compiled here")
+    from dem_ros.hardware.cboard import config_header
+    from dem_ros.hardware.rig import rig_config
+
+    prog = tmp_path / "cfg.c"
+    prog.write_text('#include "board_config.h"\nint main(void) { static sup_t s; '
+                    "return sup_init(&s, &BOARD_CONFIG.sup, SUP_OFF, 0); }\n")
+    codes = []
+    for sets in (["plant_sim.u_max=150"], ["plant_sim.trip_gap_min=0.0105", "plant_sim.landing_gap=0.0104"]):
+        try:
+            text = config_header(rig_config("S1", None, sets))
+        except Exception as exc:  # the schema itself refuses inconsistent specs first: also a refusal
+            codes.append(("schema", type(exc).__name__))
+            continue
+        (tmp_path / "board_config.h").write_text(text)
+        if sets == ["plant_sim.u_max=150"]:
+            assert ".u_max = 150.0f" in text and ".command_delay = 1u" in text
+        r = subprocess.run([cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Wdouble-promotion",
+                            f"-I{FIRMWARE_DIR}", f"-I{tmp_path}", "-o", str(tmp_path / "cfg"), str(prog),
+                            str(FIRMWARE_DIR / "supervisor.c"), "-lm"], capture_output=True, text=True, timeout=120,
+                           check=False)
+        assert r.returncode == 0, r.stderr
+        codes.append(subprocess.run([str(tmp_path / "cfg")], timeout=30, check=False).returncode)
+    assert codes[0] == 0 and codes[1] != 0, codes

@@ -57,7 +57,7 @@ U_TOL_LAND = 2.0
 #: counters that record decisions (brakes, holds and sensor_gaps are per-sample counts of the same decisions)
 DECISIONS = ("trips", "landings", "landed", "implausible", "sensor_losses", "hold_events", "clipped", "rejected",
              "estops", "brake_events")
-N_CASES = {"landing": 60, "approach": 640, "lost": 200, "stuck": 48, "commands": 100}
+N_CASES = {"landing": 60, "approach": 640, "lost": 200, "stuck": 48, "commands": 100, "cycle": 12}
 
 
 @pytest.fixture(scope="module")
@@ -94,6 +94,7 @@ class Case:
     applied: Callable[[int, np.ndarray], np.ndarray | None] = lambda k, u: u
     call: Callable[[int], tuple[str, str] | None] = lambda k: None  # ("land"|"estop", reason) before sample k
     until_done: bool = True  # stop 20 samples after LANDED or FAULT
+    clear_after_done: bool = False  # instead, clear() both boards 20 samples after LANDED or FAULT and go on
     label: str = ""
 
 
@@ -166,6 +167,10 @@ def run_case(case: Case) -> Result:
             k_done = k
         if case.until_done and k_done is not None and k - k_done >= 20:
             break
+        if case.clear_after_done and k_done is not None and k - k_done >= 20:
+            py.clear()  # the operator's acknowledgement (the rig: an OFF request once landed)
+            c.clear()
+            k_done = None
         plant.advance(ua)
         x = plant.x
         for j in (0, 2):
@@ -357,8 +362,38 @@ def command_cases(rng: np.random.Generator, n: int) -> list[Case]:
     return out
 
 
+def cycle_cases(rng: np.random.Generator, n: int) -> list[Case]:
+    """Land (a LAND request, an e-stop, lost commands, a lost gap sensor), acknowledge (clear()), levitate again
+    from the support under the commands: several landings and restarts per case."""
+    out: list[Case] = []
+    for idx in range(n):
+        variant = VARIANTS[idx % len(VARIANTS)]
+        how = ("LAND", "estop", "watchdog", "gap")[idx % 4]
+        period = int(rng.integers(250, 400))
+
+        def cmd(k: int, u0: np.ndarray, r: np.random.Generator, how=how, period=period) -> np.ndarray | None:
+            if how == "watchdog" and k % period > 120:
+                return None
+            return u0 + r.uniform(-1.0, 1.0, 2)
+
+        def req(k: int, how=how, period=period) -> Mode:
+            return Mode.LAND if how == "LAND" and k % period == 150 else Mode.RUN
+
+        def call(k: int, how=how, period=period) -> tuple[str, str] | None:
+            return ("estop", "test") if how == "estop" and k % period == 150 else None
+
+        def sense(k: int, y: np.ndarray, i: np.ndarray, how=how, period=period) -> None:
+            if how == "gap" and 150 <= k % period < 170:
+                y[0] = np.nan
+
+        out.append(Case("cycle", int(rng.integers(1 << 30)), variant, (0.008, 0.008), n=3000, command=cmd,
+                        requested=req, call=call, sense=sense, until_done=False, clear_after_done=True,
+                        label=f"{how} every {period} samples"))
+    return out
+
+
 BUILDERS = {"landing": landing_cases, "approach": approach_cases, "lost": lost_cases, "stuck": stuck_cases,
-            "commands": command_cases}
+            "commands": command_cases, "cycle": cycle_cases}
 
 
 @pytest.fixture(scope="module")

@@ -61,8 +61,11 @@ def library_path() -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=out.parent) as tmp:  # build aside, then rename: concurrent builders agree
         tmp_lib = Path(tmp) / out.name
-        r = subprocess.run([cc, *CFLAGS, "-o", str(tmp_lib), "supervisor.c", "-lm"], cwd=FIRMWARE_DIR,
-                           capture_output=True, text=True, timeout=120, check=False)
+        try:
+            r = subprocess.run([cc, *CFLAGS, "-o", str(tmp_lib), "supervisor.c", "-lm"], cwd=FIRMWARE_DIR,
+                               capture_output=True, text=True, timeout=120, check=False)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            raise FirmwareError(f"the C compiler {cc} does not run: {exc}") from None
         if r.returncode != 0:
             raise FirmwareError(f"the firmware does not build with {cc}: {r.stderr.strip()[:2000]}")
         os.replace(tmp_lib, out)

@@ -520,6 +520,7 @@ SCHEMA = Schema(
             ParamSpec("support_gap", float, 0.0112, "m", "the plate's mechanical support: gaps never exceed it", 1e-3, 0.1),
             ParamSpec("start", str, "hover", "", "hover: clamped at the scenario's hover until the first RUN command; landed: on the support, no current", choices=("hover", "landed")),
             ParamSpec("seed", int, 7, "", "seed of the rig's sensor noise and frame corruption", 0, 2**31 - 1),
+            ParamSpec("board", str, "python", "", "the board's safety supervisor: python (dem_ros.board) or c (the firmware, firmware/supervisor.c, built on the host at first use)", choices=("python", "c")),
         ),
     },
     checks={

@@ -12,7 +12,8 @@ Every period n (t_n = n T on the board's clock)::
     4. the Supervisor (dem_ros.board, the board's limits, braking check, hold and landing
        law) turns the command answering sample n - d (d = ``hw_driver.command_delay``; none: it
        holds, then lands) into voltages, braking with at most the bus it measures -> actuator
-       models -> the coils
+       models -> the coils. ``rig.board=c``: the firmware's supervisor instead (firmware/supervisor.c,
+       C99 float32, through dem_ros.hardware.cboard), the code a rig builder flashes
     5. integrate the plant over [t_n, t_n+1] with those voltages held (zero-order hold)
 
 so a command computed from sample k acts over [t_k+d, t_k+d+1), as in ``plant_sim``.
@@ -161,12 +162,18 @@ class Board:
         from ..board.rig_io import CoilDrivers, CurrentSensors, GapSensors
         from ..core.model import IP, IQ
         from ..core.plant import DemPlant
+        from .cboard import CSupervisor
 
         self.pc, self.rc = dict(pc), dict(rig)
         self.dt = pc["dt"]
         self.plant = DemPlant(pc, 0.0)
         self._pq = (float(self.plant.p[IP]), float(self.plant.p[IQ]))  # magnet gap delta = P d_near + Q d_far
-        self.sup = Supervisor(pc, self.dt)
+        if rig.get("board", "python") == "c":  # the firmware's supervisor (C99, float32) through its binding
+            self.sup: Supervisor | CSupervisor = CSupervisor(pc, self.dt)
+            self.board_name = "c (firmware/supervisor.c)"
+        else:
+            self.sup = Supervisor(pc, self.dt)
+            self.board_name = "python (dem_ros.board)"
         self.faults = list(faults or [])
         self.rng = np.random.default_rng(rig["seed"])
         try:
@@ -410,7 +417,7 @@ class Board:
     def summary(self) -> dict[str, Any]:
         c = self.c
         x = self.plant.x
-        return {"ticks": c.ticks, "sent": c.sent, "rx_frames": c.rx_frames, "rx_rejected": c.rx_rejected,
+        return {"board": self.board_name, "ticks": c.ticks, "sent": c.sent, "rx_frames": c.rx_frames, "rx_rejected": c.rx_rejected,
                 "rx_reasons": dict(c.rx_reasons), "commands_fresh": c.commands_fresh, "hellos": c.hellos,
                 "overruns": c.overruns, "corrupted_tx": c.corrupted_tx, "link_lost_ticks": c.link_lost_ticks,
                 "mode": Mode(self.sup.mode).name, "reason": getattr(self.sup, "reason", ""),
@@ -447,6 +454,10 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
     warm = Board(cfg["plant_sim"], cfg["rig"], cfg["hw_driver"], [])  # compile every kernel before the clock starts
     for _ in range(3):
         warm.tick()
+    # and the plant's kernel: a hover start holds the plate until the release, so the ticks above never ran it;
+    # loading it at the release stalled the clock 32 ms after the Python supervisor had loaded numba, 1.2-2 s
+    # with the C board (numba itself loaded then): the first commands arrived late, the board landed at once
+    warm.plant.hold(warm.applied)
     board = Board(cfg["plant_sim"], cfg["rig"], cfg["hw_driver"], faults)
     ch = open_channel(cfg["rig"]["url"], "board")
     peer = getattr(ch, "peer_url", cfg["rig"]["url"])
@@ -456,7 +467,8 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
     gc.collect()  # the start-up garbage now, at normal priority: a collection under SCHED_FIFO would stall
     gc.freeze()  # the board's clock (and every process below it) for tens of ms
     rt = _realtime()
-    print("RIG " + json.dumps({"event": "listening", "url": peer, "scheduling": rt, "faults": len(faults)}), file=out, flush=True)
+    print("RIG " + json.dumps({"event": "listening", "url": peer, "scheduling": rt, "faults": len(faults),
+                               "board": board.board_name}), file=out, flush=True)
     dt_ns = round(board.dt * 1e9)
     t0 = time.monotonic_ns()
     next_status = t0
@@ -531,6 +543,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def cmd_rig(args: argparse.Namespace) -> int:
     from ..core.params import ConfigError
+    from ..board import SafetyError
+    from .cboard import FirmwareError
     from .channel import ChannelError
 
     if args.help_faults:
@@ -548,7 +562,7 @@ def cmd_rig(args: argparse.Namespace) -> int:
         for s in (signal.SIGINT, signal.SIGTERM):
             signal.signal(s, on_signal)
         summary = run_rig(cfg, faults, duration=args.duration, stop=stop)
-    except (RigError, ConfigError, ChannelError) as exc:
+    except (RigError, ConfigError, ChannelError, FirmwareError, SafetyError) as exc:
         print(f"dem-ros rig: error: {exc}", file=sys.stderr)
         return 2
     return 1 if summary["failed"] else 0

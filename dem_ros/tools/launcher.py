@@ -522,7 +522,7 @@ def cmd_launch(args: Any) -> int:
     if info.get("rig"):
         r = info["rig"]
         extra.append(("rig (emulated board)", f"{r['ticks']} samples, {r['late_over_1ms']} ticks > 1 ms late,"
-                                              f" {r['commands_fresh']} fresh commands, board {r['mode']}"
+                                              f" {r['commands_fresh']} fresh commands, board {r.get('board', 'python')}: {r['mode']}"
                                               + (f" ({r['reason']})" if r.get("reason") else "")
                                               + (f", FAILED: {r['failed']}" if r.get("failed") else "")))
         for f in r.get("faults", []):

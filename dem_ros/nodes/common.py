@@ -367,7 +367,8 @@ class Binding:
     * any other writer while one is bound, a second writer with the source's node name included, is refused:
       every sample counted (``refused``), logged once per writer (WARN) and reported (ERROR on /diagnostics,
       naming its GID);
-    * two writers of the source at once with nothing bound: none is bound (ERROR) until one is gone;
+    * two writers of the source at once with nothing bound (an impersonator there before the run): the first of
+      them to send is bound and the others refused (a warning at once; ERROR on /diagnostics while none is bound);
     * the bound writer gone from the graph (the node left, or its participant's lease ran out): unbound, and the
       next single writer of the source is bound (``rebinds``): the defined path of a restarted node.
     """
@@ -398,10 +399,10 @@ class Binding:
 
     @property
     def matched(self) -> bool:
-        """A writer is bound (looked up now when due)."""
+        """A writer is bound, or writers of the source are on the graph (looked up now when due)."""
         if not self.bound:
             self.resolve(self.node.now_ns())
-        return bool(self.bound)
+        return bool(self.bound or self.writers)
 
     def values(self) -> dict[str, Any]:
         """This input's keys on /diagnostics (``<key>_writer``, ``_refused``, ``_malformed``, ...)."""
@@ -479,6 +480,15 @@ class Binding:
                                   " counted)")
 
     # -- the graph --------------------------------------------------------------------------------------
+    def _bind(self, gid: bytes) -> None:
+        self.bound = gid
+        self.refused_writers.pop(gid, None)
+        self.node.logger.info(f"{self.topic.name}: bound to writer {gid.hex()} of {self.source_text}")
+        held = self.pending.pop(gid, None)
+        if held is not None:
+            self.released += 1
+            self._deliver(held[1])  # the latest sample it sent before the graph named it
+
     def resolve(self, now: int, force: bool = False) -> None:
         """Look the sources' writers up when due (or ``force``) and bind, re-bind or refuse accordingly."""
         if not force and now < self._next_ns:
@@ -497,19 +507,17 @@ class Binding:
             self._wait_ns = inp.retry_ns
         if not self.bound:
             if len(live) == 1:
-                (gid,) = live
-                self.bound = gid
-                self.ambiguous = False
-                self.refused_writers.pop(gid, None)
-                self.node.logger.info(f"{self.topic.name}: bound to writer {gid.hex()} of {self.source_text}")
-                held = self.pending.pop(gid, None)
-                if held is not None:
-                    self.released += 1
-                    self._deliver(held[1])  # the latest sample it sent before the graph named it
-            elif len(live) > 1 and not self.ambiguous:
-                self.ambiguous = True
-                self.node.logger.warn(f"{self.topic.name}: {len(live)} writers of {self.source_text} "
-                                      f"({', '.join(g.hex() for g in sorted(live))}): none bound until one is gone")
+                self._bind(next(iter(live)))
+            elif len(live) > 1:
+                # several writers with the source's name and none bound yet (an impersonator that was there before
+                # the run): the first of them to send is bound, the others refused; reported as ERROR meanwhile
+                if not self.ambiguous:
+                    self.ambiguous = True
+                    self.node.logger.warn(f"{self.topic.name}: {len(live)} writers of {self.source_text} "
+                                          f"({', '.join(g.hex() for g in sorted(live))}): the first to send is bound")
+                first = next((g for g in self.pending if g in live), None)
+                if first is not None:
+                    self._bind(first)
         for gid, (first, _msg, n) in list(self.pending.items()):
             if self.bound:
                 del self.pending[gid]
@@ -573,7 +581,7 @@ class Inputs:
     def report(self) -> None:
         """Publish the ``<node>: inputs`` status (once a second)."""
         seen, self.refused_now = self.refused_now, {}
-        ambiguous = [b for b in self.bindings if b.ambiguous and not b.bound]
+        ambiguous = [b for b in self.bindings if b.ambiguous and not b.bound and len(b.writers) > 1]
         if seen:
             self.diag.set_condition(ERROR, "; ".join(f"refused {t} writer {_writer(g)}: {why}"
                                                      for (t, g), why in list(seen.items())[:4]))

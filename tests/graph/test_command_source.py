@@ -99,34 +99,57 @@ def _count_lookups(node) -> list[int]:
 def test_a_restarted_controller_whose_graph_information_comes_late_loses_no_command():
     """Issue #19 item 4: a per-process hardware run logged "/dem/command from writer 0110..., not 'controller''s:
     dropped" and its board landed on the link watchdog: the controller's commands came before the graph attributed
-    its writer, and each was dropped. Now such a writer's latest command is held and applied the moment the graph
-    names it, without a further sample: a lockstep plant, waiting for exactly that command (the restarted
-    controller sends nothing else before it), carries on, and the hold is counted (commands_late)."""
-    bus, plant, u0, applied, _diags = _graph()
-    _run(bus, applied, 100)
-    assert plant.started and plant.source.matched
-    old = next(n for t, n, p in bus.writers if t == contract.COMMAND.name and n is not None and n.name == "controller")
-    old.shutdown()  # the controller is gone: the plant (lockstep) waits for the next command
+    its writer, and each was dropped. Now such a writer's latest command is held and delivered the moment the graph
+    names it, without a further sample (a lockstep plant waits for exactly that one), and the hold is counted."""
+    from dem_ros.nodes.common import CommandSource
+
+    bus = MemoryBus()
+    plant = bus.node("plant_sim")
+    got: list = []
+    cs = CommandSource(plant, "controller", got.append)
+    JS = bus.msg("sensor_msgs/msg/JointState")
+    old = bus.node("controller")
+    p_old = old.publisher(contract.COMMAND)
+    bus.advance(0.01)
+    assert cs.binding.bound == p_old.gid
+    p_old.publish(joint_state(JS, 1, effort=(1.0, 1.0)))
+    bus.spin_once()
+    old.shutdown()
     new = bus.node("controller")
     p_new = new.publisher(contract.COMMAND)
     entry = next(w for w in bus.writers if w[2] is p_new)
     bus.writers.remove(entry)  # its graph information has not arrived yet
+    p_new.publish(joint_state(JS, 2, effort=(2.0, 2.0)))
+    bus.advance(0.05)  # 50 ms: held, neither delivered nor dropped
+    assert [stamp_ns(m) for m in got] == [1] and cs.binding.pending and cs.foreign == 0
+    bus.writers.append(entry)  # the graph names it now: delivered within one look-up (<= 20 ms), no new sample
+    bus.advance(0.025)
+    assert [stamp_ns(m) for m in got] == [1, 2]
+    v = cs.values()
+    assert v["commands_late"] == 1 and v["commands_foreign"] == 0 and v["command_writer"] == p_new.gid.hex(), v
+    assert cs.binding.rebinds == 1
+    p_new.publish(joint_state(JS, 3, effort=(3.0, 3.0)))
+    bus.spin_once()
+    assert [stamp_ns(m) for m in got] == [1, 2, 3]
+
+
+def test_an_unattributed_writer_is_refused_after_attribute_s():
+    """Held at most attribute_s: a writer the graph never attributes to the source is then refused and counted
+    (its held samples included)."""
+    from dem_ros.nodes.common import CommandSource
+
+    bus = MemoryBus()
+    plant = bus.node("plant_sim")
+    got: list = []
+    cs = CommandSource(plant, "controller", got.append)
     JS = bus.msg("sensor_msgs/msg/JointState")
-    new.subscribe(contract.MEASUREMENT, lambda m: p_new.publish(joint_state(JS, stamp_ns(m), effort=u0)))
-    n0 = len(applied)
-    end = time.monotonic() + 60.0
-    while not plant.source.binding.pending and time.monotonic() < end:
-        bus.advance(0.001)  # the new controller answers the next sample: held, not applied, not dropped
-    bus.advance(0.05)
-    assert len(applied) <= n0 + 1 and plant.source.binding.pending
-    assert p_new.gid not in plant.source.binding.refused_writers  # (the graph's rogue node is refused as ever)
-    bus.writers.append(entry)  # the graph names it now
-    _run(bus, applied, n0 + 200)
-    assert len(applied) >= n0 + 200 and all(a == pytest.approx(u0, abs=1e-9) for a in applied)
-    v = plant.source.values()
-    assert v["commands_late"] == 1 and v["command_writer"] == p_new.gid.hex(), v
-    assert p_new.gid not in plant.source.binding.refused_writers
-    assert plant.source.binding.rebinds == 1 and plant.lockstep_landing == 0
+    stray = bus.node("stray").publisher(contract.COMMAND)
+    for k in range(10):
+        stray.publish(joint_state(JS, k, effort=(1.0, 1.0)))
+        bus.advance(0.001)
+    assert cs.binding.held == 10 and cs.foreign == 0
+    bus.advance(2.1)
+    assert got == [] and cs.foreign == 10 and stray.gid in cs.binding.refused_writers
 
 
 def test_a_second_writer_named_controller_is_refused_while_the_bound_one_lives():
@@ -194,3 +217,19 @@ def test_a_persistent_foreign_writer_costs_few_graph_lookups():
         bus.advance(0.001)
     assert cs.foreign == 1000 and got == []
     assert lookups[0] <= 1 + 7 + 1.0 / 0.5 + 2, lookups  # the new writer: 2, 4, ... ms, then every refresh_s
+
+
+def test_two_writers_named_controller_before_the_run_bind_the_first_to_send():
+    """An impersonator already on the graph at start-up, silent: the plant starts (writers of "controller" are
+    there), the first writer to send a command is bound, and the impersonator's later commands are refused."""
+    bus, plant, u0, applied, _diags = _graph()
+    JS = bus.msg("sensor_msgs/msg/JointState")
+    fake = bus.node("controller")
+    p_fake = fake.publisher(contract.COMMAND)
+    _run(bus, applied, 100)
+    b = plant.source.binding
+    assert plant.started and b.bound and b.bound != p_fake.gid
+    assert any("2 writers of 'controller'" in line[2] for line in bus.log)
+    p_fake.publish(joint_state(JS, bus.now_ns, effort=(1e6, 1e6)))
+    bus.spin_once()
+    assert p_fake.gid in b.refused_writers and all(a == pytest.approx(u0, abs=1e-9) for a in applied)

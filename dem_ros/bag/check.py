@@ -22,7 +22,7 @@ from dem_ros.contract import TOPICS
 from .errors import BagError
 from .reader import JOINT_STATE, BagReader
 
-__all__ = ["CheckReport", "TopicReport", "check", "main_check"]
+__all__ = ["CheckReport", "TopicReport", "check", "main_check", "verify_summary"]
 
 _CONTRACT = {t.name: t for t in TOPICS}
 #: A stamp step longer than this many nominal periods counts as a gap.
@@ -140,6 +140,9 @@ def check(path: Path | str) -> CheckReport:
             rep.warnings.append("a space-reserve file is left in the bag directory (the writer did not close); "
                                 "it holds no data and may be deleted")
         rep.problems.extend(r.verify_chunks())  # bad chunks named; the rest of the bag is still read
+        for f in r.files:
+            if f.suffix == ".mcap":
+                rep.problems.extend(verify_summary(f))
         topics = r.topics
         rep.chunks = len(r.chunks)
         rep.compression = sorted({c.compression or "none" for c in r.chunks})
@@ -201,6 +204,83 @@ def check(path: Path | str) -> CheckReport:
             except (ValueError, AttributeError):
                 rep.warnings.append("custom_data dem_ros.recorder_counters is not valid JSON")
     return rep
+
+
+_MAGIC = b"\x89MCAP0\r\n"
+_OP_CHUNK, _OP_MESSAGE_INDEX, _OP_CHUNK_INDEX, _OP_FOOTER = 0x06, 0x07, 0x08, 0x02
+
+
+def verify_summary(path: Path) -> list[str]:
+    """The problems of an MCAP file's summary section: its CRC (the footer's ``summary_crc``: CRC32 of the summary
+    section through the footer's ``summary_offset_start``, MCAP spec) and its chunk index (each ``ChunkIndex``
+    must point at a ``Chunk`` record of its length, times, compression and sizes, and at ``MessageIndex`` records
+    of its channels). A file without footer or summary has nothing to verify here (the truncation is reported
+    elsewhere)."""
+    import struct
+    import zlib
+
+    data = path.read_bytes()
+    name = path.name
+    footer_at = len(data) - len(_MAGIC) - 29  # opcode, u64 length, summary_start, summary_offset_start, crc
+    if footer_at < len(_MAGIC) or data[-len(_MAGIC):] != _MAGIC or data[footer_at] != _OP_FOOTER:
+        return []
+    summary_start, offset_start, crc = struct.unpack_from("<QQI", data, footer_at + 9)
+    if summary_start == 0:
+        return []
+    problems: list[str] = []
+    if not len(_MAGIC) <= summary_start <= footer_at:
+        return [f"{name}: the footer's summary_start {summary_start} is outside the file"]
+    if crc:
+        computed = zlib.crc32(data[summary_start:footer_at + 9 + 16])
+        if computed != crc:
+            problems.append(f"{name}: summary section damaged (summary CRC {crc}, computed {computed})")
+    end = offset_start if offset_start else footer_at
+    pos, n_index = summary_start, 0
+    while pos + 9 <= end:
+        op, length = data[pos], struct.unpack_from("<Q", data, pos + 1)[0]
+        body = data[pos + 9:pos + 9 + length]
+        if pos + 9 + length > end:
+            problems.append(f"{name}: summary record at {pos} runs past the summary section")
+            break
+        if op == _OP_CHUNK_INDEX:
+            n_index += 1
+            problems.extend(_verify_chunk_index(data, body, f"{name}: chunk index {n_index}"))
+        pos += 9 + length
+    return problems
+
+
+def _verify_chunk_index(data: bytes, body: bytes, what: str) -> list[str]:
+    import struct
+
+    try:
+        t0, t1, start, length = struct.unpack_from("<QQQQ", body, 0)
+        (map_len,) = struct.unpack_from("<I", body, 32)
+        entries = [struct.unpack_from("<HQ", body, 36 + i) for i in range(0, map_len, 10)]
+        off = 36 + map_len
+        _mi_len, comp_len = struct.unpack_from("<QI", body, off)
+        compression = body[off + 12:off + 12 + comp_len].decode()
+        csize, usize = struct.unpack_from("<QQ", body, off + 12 + comp_len)
+    except (struct.error, UnicodeDecodeError) as exc:
+        return [f"{what}: unreadable ({exc})"]
+    if start + 9 > len(data) or data[start] != _OP_CHUNK:
+        return [f"{what}: no chunk at offset {start}"]
+    (clen,) = struct.unpack_from("<Q", data, start + 1)
+    if clen + 9 != length:
+        return [f"{what}: chunk at {start} is {clen + 9} bytes, the index says {length}"]
+    ct0, ct1, cusize, _ucrc, ccomp_len = struct.unpack_from("<QQQII", data, start + 9)
+    ccomp = data[start + 41:start + 41 + ccomp_len].decode(errors="replace")
+    (crec,) = struct.unpack_from("<Q", data, start + 41 + ccomp_len)
+    problems = []
+    if (ct0, ct1) != (t0, t1):
+        problems.append(f"{what}: times {t0}..{t1} ns, the chunk at {start} says {ct0}..{ct1}")
+    if ccomp != compression or crec != csize or cusize != usize:
+        problems.append(f"{what}: compression/sizes {compression!r} {csize}/{usize}, the chunk at {start} says "
+                        f"{ccomp!r} {crec}/{cusize}")
+    for channel, mi in entries:
+        if mi + 11 > len(data) or data[mi] != _OP_MESSAGE_INDEX or struct.unpack_from("<H", data, mi + 9)[0] != channel:
+            problems.append(f"{what}: no message index of channel {channel} at offset {mi}")
+            break
+    return problems
 
 
 def _gaps(r: BagReader, tr: TopicReport, rep: CheckReport) -> None:

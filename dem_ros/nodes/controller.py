@@ -58,7 +58,19 @@ from ..core.controllers.hover import (
 )
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import OK, WARN, Diagnostics, JointStates, all_finite, clipped, meas_into, stamp_ns, worth_logging
+from .common import (
+    OK,
+    PLANT_SOURCES,
+    WARN,
+    Diagnostics,
+    Inputs,
+    JointStates,
+    all_finite,
+    clipped,
+    meas_into,
+    stamp_ns,
+    worth_logging,
+)
 
 __all__ = ["ControllerNode", "main"]
 
@@ -109,9 +121,11 @@ class ControllerNode:
         self.diag.set_condition(WARN, "waiting to start")
         # the plant's clock first: an executor that drains reader by reader then never sees a reference or
         # estimate ahead of the newest applied voltage it has (a queue behind is seen as behind)
-        node.subscribe(contract.APPLIED, self.on_applied)
-        node.subscribe(contract.REFERENCE, self.on_reference)
-        node.subscribe(contract.ESTIMATE, self.on_estimate)
+        # each input bound to its writer (docs/manual/trust.md)
+        self.inputs = Inputs(node)
+        self.inputs.bind(contract.APPLIED, PLANT_SOURCES, self.on_applied)
+        self.inputs.bind(contract.REFERENCE, "reference", self.on_reference)
+        self.inputs.bind(contract.ESTIMATE, "estimator", self.on_estimate)
         node.logger.info("ready")
 
     # -- parameters ----------------------------------------------------------

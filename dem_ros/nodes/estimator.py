@@ -42,7 +42,18 @@ from .. import contract
 from ..core.estimator import Estimator, KalmanEstimator, make_estimator
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import OK, WARN, Diagnostics, JointStates, all_finite, meas_into, stamp_ns, worth_logging
+from .common import (
+    OK,
+    PLANT_SOURCES,
+    WARN,
+    Diagnostics,
+    Inputs,
+    JointStates,
+    all_finite,
+    meas_into,
+    stamp_ns,
+    worth_logging,
+)
 
 __all__ = ["EstimatorNode", "main"]
 
@@ -83,8 +94,10 @@ class EstimatorNode:
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
         self.pub = node.publisher(contract.ESTIMATE)
-        node.subscribe(contract.APPLIED, self.on_applied)
-        node.subscribe(contract.MEASUREMENT, self.on_measurement)
+        # the plant's streams, each bound to the plant's (or the driver's) writer (docs/manual/trust.md)
+        self.inputs = Inputs(node)
+        self.inputs.bind(contract.APPLIED, PLANT_SOURCES, self.on_applied)
+        self.inputs.bind(contract.MEASUREMENT, PLANT_SOURCES, self.on_measurement)
         node.logger.info("ready")
 
     def on_change(self, values) -> str | None:

@@ -41,7 +41,7 @@ from .. import contract
 from ..core.reference import ReferenceModel, command, hover_start
 from ..core.warmup import warm_up
 from ..transport import Node, run_node
-from .common import OK, WARN, Diagnostics, JointStates, stamp_ns
+from .common import OK, PLANT_SOURCES, WARN, Diagnostics, Inputs, JointStates, stamp_ns
 
 __all__ = ["ReferenceNode", "main"]
 
@@ -80,7 +80,9 @@ class ReferenceNode:
         self.recorder_missed = 0  # consecutive checks with no report since the one before
         self.recording = Diagnostics(node, "recording", values=self._recording_values, timer=False)
         node.timer(RECORDER_CHECK_S, self._check_recorder)
-        node.subscribe(contract.MEASUREMENT, self.on_measurement)
+        # the plant's measurement, bound to the plant's (or the driver's) writer (docs/manual/trust.md)
+        self.inputs = Inputs(node)
+        self.inputs.bind(contract.MEASUREMENT, PLANT_SOURCES, self.on_measurement)
         node.subscribe(contract.DIAGNOSTICS, self.on_diagnostics)
         node.logger.info("ready")
 

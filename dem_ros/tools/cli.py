@@ -154,6 +154,12 @@ def cmd_param(args: argparse.Namespace) -> int:
     from ..transport import param_get, param_set
     from .common import UsageError
 
+    for what, text in (("node name", args.node), ("parameter name", args.name), ("value", args.value)):
+        try:
+            (text or "").encode("utf-8")
+        except UnicodeEncodeError:  # a byte that is not UTF-8 in the argument (the shell passed it as it was)
+            shown = (text or "").encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+            raise UsageError(f"{what} '{shown}' is not valid UTF-8 (ROS names and strings are UTF-8)") from None
     if args.action == "set" and args.value is not None:
         _check_param_value(args.node, args.name, args.value)
     if args.action == "get":

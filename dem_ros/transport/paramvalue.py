@@ -85,10 +85,16 @@ def to_value_msg(value_cls: type, value: Any, ptype: int | None = None) -> Any:
 
 
 def from_value_msg(msg: Any) -> Any:
-    """ParameterValue message -> Python value (None for NOT_SET)."""
+    """ParameterValue message -> Python value (None for NOT_SET).
+
+    Raises:
+        ValueError: a type that rcl_interfaces/msg/ParameterType does not define (the message says which).
+    """
     t = int(msg.type)
     if t == NOT_SET:
         return None
+    if t not in _FIELD:
+        raise ValueError(f"parameter value type {t} is not a ROS parameter type (0..9)")
     v = getattr(msg, _FIELD[t])
     if t >= BYTE_ARRAY:
         return list(v)

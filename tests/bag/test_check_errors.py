@@ -165,3 +165,53 @@ def test_write_bag_helper_roundtrip_small(tmp_path: Path) -> None:
     """The shared helper with a tiny stream (guards the fixtures themselves)."""
     b = write_bag(tmp_path / "s", [("/dem/measurement", 5, joint_state(0, 0), MEASUREMENT.type)])
     assert check(b).ok
+
+
+def _summary(mcap: Path) -> tuple[bytearray, int, int]:
+    """(file bytes, summary_start, footer offset) of an MCAP file."""
+    import struct
+
+    d = bytearray(mcap.read_bytes())
+    footer = len(d) - 8 - 29
+    return d, struct.unpack_from("<Q", d, footer + 9)[0], footer
+
+
+def test_check_finds_a_damaged_summary_section(bag: Path, tmp_path: Path) -> None:
+    """One flipped byte in the summary section: the footer's summary CRC no longer matches (issue #21: such a
+    bag passed with `result: OK`)."""
+    import struct
+
+    dst = tmp_path / "damaged"
+    shutil.copytree(bag, dst)
+    mcap = next(dst.glob("*.mcap"))
+    d, start, _footer = _summary(mcap)
+    pos = start
+    while d[pos] != 0x08:  # the first ChunkIndex record: a flipped bit in its start time still parses
+        pos += 9 + struct.unpack_from("<Q", d, pos + 1)[0]
+    d[pos + 9] ^= 0x01
+    mcap.write_bytes(bytes(d))
+    rep = check(dst)
+    assert not rep.ok and any("summary section damaged (summary CRC" in p for p in rep.problems), rep.problems
+    assert main_check([str(dst)]) == 1
+
+
+def test_check_finds_a_chunk_index_that_points_nowhere(bag: Path, tmp_path: Path) -> None:
+    """A chunk index whose chunk offset is wrong, with the summary CRC made to match again: the index is
+    checked against the chunk it names."""
+    import struct
+    import zlib
+
+    dst = tmp_path / "index"
+    shutil.copytree(bag, dst)
+    mcap = next(dst.glob("*.mcap"))
+    d, start, footer = _summary(mcap)
+    pos = start
+    while d[pos] != 0x08:  # the first ChunkIndex record
+        pos += 9 + struct.unpack_from("<Q", d, pos + 1)[0]
+    offset = struct.unpack_from("<Q", d, pos + 9 + 16)[0]
+    struct.pack_into("<Q", d, pos + 9 + 16, offset + 1)
+    struct.pack_into("<I", d, footer + 9 + 16, zlib.crc32(d[start:footer + 9 + 16]))
+    mcap.write_bytes(bytes(d))
+    rep = check(dst)
+    assert any(f"chunk index 1: no chunk at offset {offset + 1}" in p for p in rep.problems), rep.problems
+    assert not any("summary CRC" in p for p in rep.problems)

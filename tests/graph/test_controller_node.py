@@ -2,6 +2,8 @@
 
 import math
 
+from loop_writers import publish
+
 from dem_ros import contract
 from dem_ros.nodes.common import joint_state, named_vector, stamp_ns
 from dem_ros.nodes.controller import ControllerNode
@@ -21,15 +23,15 @@ def _graph(*ros_args: str):
     probe.subscribe(contract.COMMAND, lambda m: cmds.__setitem__(stamp_ns(m), list(m.effort)))
     probe.subscribe(contract.CONTROLLER_STATE,
                     lambda m: states.__setitem__(stamp_ns(m), dict(zip(m.name, m.position, strict=True))))
-    probe.subscribe(contract.DIAGNOSTICS, diags.append)
+    probe.subscribe(contract.DIAGNOSTICS, lambda m: diags.append(m) if m.status[0].name == "controller" else None)
     return bus, ctl, cmds, states, diags
 
 
 def _feed(bus, k: int, t: int, gap: float) -> None:
     JS = bus.msg("sensor_msgs/msg/JointState")
-    bus.publish(contract.APPLIED, joint_state(JS, t, effort=(80.0, 80.0)))
-    bus.publish(contract.REFERENCE, named_vector(JS, t, contract.REFERENCE_NAMES, REF))
-    bus.publish(contract.ESTIMATE, joint_state(JS, t, position=(gap, 0.008), velocity=(0.0, 0.0), effort=(4.0, 4.0)))
+    publish(bus, contract.APPLIED, joint_state(JS, t, effort=(80.0, 80.0)))
+    publish(bus, contract.REFERENCE, named_vector(JS, t, contract.REFERENCE_NAMES, REF))
+    publish(bus, contract.ESTIMATE, joint_state(JS, t, position=(gap, 0.008), velocity=(0.0, 0.0), effort=(4.0, 4.0)))
     bus.spin_once()
 
 
@@ -61,8 +63,8 @@ def test_a_sample_older_than_max_age_is_not_acted_on():
     _feed(bus, 1, t0 + T, 0.008)
     late = t0 + 2 * T + round(2 * max_age * 1e9)  # the plant has moved on twice max_age past the next sample
     for t in (late - T, late):  # two samples in a row: a lone jump does not move the clock (a corrupt stamp)
-        bus.publish(contract.APPLIED, joint_state(JS, t, effort=(80.0, 80.0)))
-    bus.publish(contract.ESTIMATE, joint_state(JS, t0 + 2 * T, position=(0.008, 0.008), velocity=(0.0, 0.0),
+        publish(bus, contract.APPLIED, joint_state(JS, t, effort=(80.0, 80.0)))
+    publish(bus, contract.ESTIMATE, joint_state(JS, t0 + 2 * T, position=(0.008, 0.008), velocity=(0.0, 0.0),
                                                effort=(4.0, 4.0)))
     bus.spin_once()
     assert list(cmds) == [t0, t0 + T] and ctl.counts["stale"] == 1
@@ -82,9 +84,9 @@ def test_hover_window_holds_the_applied_voltage_then_initialises_from_it():
     for k in range(n + 5):
         t = t0 + k * T
         bus.now_ns = t
-        bus.publish(contract.APPLIED, joint_state(JS, t, effort=(80.0, 80.0), frame=contract.FRAME_PREROLL))
-        bus.publish(contract.REFERENCE, named_vector(JS, t, contract.REFERENCE_NAMES, REF, frame=contract.FRAME_PREROLL))
-        bus.publish(contract.ESTIMATE, joint_state(JS, t, position=(0.008, 0.008), velocity=(0.0, 0.0),
+        publish(bus, contract.APPLIED, joint_state(JS, t, effort=(80.0, 80.0), frame=contract.FRAME_PREROLL))
+        publish(bus, contract.REFERENCE, named_vector(JS, t, contract.REFERENCE_NAMES, REF, frame=contract.FRAME_PREROLL))
+        publish(bus, contract.ESTIMATE, joint_state(JS, t, position=(0.008, 0.008), velocity=(0.0, 0.0),
                                                    effort=(4.0, 4.0), frame=contract.FRAME_PREROLL))
         bus.spin_once()
     assert [cmds[t0 + k * T] for k in range(n - 1)] == [[80.0, 80.0]] * (n - 1)  # held while collecting
@@ -106,12 +108,12 @@ def test_an_applied_voltage_with_a_refused_stamp_is_not_taken_as_the_applied_vol
     for k in range(n + 3):
         t = t0 + k * T
         bus.now_ns = t
-        bus.publish(contract.APPLIED, joint_state(JS, t, effort=(80.0, 80.0), frame=contract.FRAME_PREROLL))
+        publish(bus, contract.APPLIED, joint_state(JS, t, effort=(80.0, 80.0), frame=contract.FRAME_PREROLL))
         if k == bad:  # the injected fault: the measurement's copy, stamped an hour ahead
-            bus.publish(contract.APPLIED, joint_state(JS, t + 3600 * 10**9, position=(0.008, 0.008),
+            publish(bus, contract.APPLIED, joint_state(JS, t + 3600 * 10**9, position=(0.008, 0.008),
                                                       effort=(4.0, 4.0), frame=contract.FRAME_PREROLL))
-        bus.publish(contract.REFERENCE, named_vector(JS, t, contract.REFERENCE_NAMES, REF, frame=contract.FRAME_PREROLL))
-        bus.publish(contract.ESTIMATE, joint_state(JS, t, position=(0.008, 0.008), velocity=(0.0, 0.0),
+        publish(bus, contract.REFERENCE, named_vector(JS, t, contract.REFERENCE_NAMES, REF, frame=contract.FRAME_PREROLL))
+        publish(bus, contract.ESTIMATE, joint_state(JS, t, position=(0.008, 0.008), velocity=(0.0, 0.0),
                                                    effort=(4.0, 4.0), frame=contract.FRAME_PREROLL))
         bus.spin_once()
         if k == bad:
@@ -136,7 +138,7 @@ def test_an_estimate_with_a_stamp_already_acted_on_is_not_acted_on_again():
         _feed(bus, k, t0 + k * T, 0.008)
         if k == 20:
             sent = list(cmds[t0 + k * T])
-            bus.publish(contract.ESTIMATE, joint_state(JS, t0 + k * T, position=(0.0085, 0.008), velocity=(0.0, 0.0),
+            publish(bus, contract.ESTIMATE, joint_state(JS, t0 + k * T, position=(0.0085, 0.008), velocity=(0.0, 0.0),
                                                        effort=(4.0, 4.0)))
             bus.spin_once()
             assert cmds[t0 + k * T] == sent  # the first command of the stamp stands

@@ -3,6 +3,8 @@ the counters, WARN for the report after a counter grew, a latched ERROR publishe
 
 from __future__ import annotations
 
+from loop_writers import publish
+
 from dem_ros import contract
 from dem_ros.nodes.common import ERROR, OK, WARN, Diagnostics
 from dem_ros.transport.memory import MemoryBus
@@ -64,7 +66,7 @@ def test_callback_exceptions_count_and_warn():
         raise ValueError("bad")
 
     node.subscribe(contract.MEASUREMENT, boom)
-    bus.publish(contract.MEASUREMENT, bus.msg(contract.MEASUREMENT.type)())
+    publish(bus, contract.MEASUREMENT, bus.msg(contract.MEASUREMENT.type)())
     bus.advance(1.0)
     assert seen[-1][0] == WARN and "callback errors: subscription /dem/measurement +1" in seen[-1][2]
     assert seen[-1][3]["callback_errors"] == "1"
@@ -89,9 +91,9 @@ def test_the_reference_node_reports_refused_measurements():
     bus, _probe, seen = _setup()
     ReferenceNode(bus.node("reference"))
     JS = bus.msg("sensor_msgs/msg/JointState")
-    bus.publish(contract.MEASUREMENT, joint_state(JS, bus.now_ns, position=(0.008,)))  # one gap: refused
+    publish(bus, contract.MEASUREMENT, joint_state(JS, bus.now_ns, position=(0.008,)))  # one gap: rejected
     bus.advance(1.0)
-    ref = [s for s in seen if s[1] == "reference"]
-    assert ref and ref[-1][0] == WARN and "refused +1" in ref[-1][2] and ref[-1][3]["refused"] == "1", ref
+    ref = [s for s in seen if s[1] == "reference: inputs"]
+    assert ref and ref[-1][0] == WARN and "malformed +1" in ref[-1][2] and ref[-1][3]["measurement_malformed"] == "1", ref
     bus.advance(1.0)
-    assert [s for s in seen if s[1] == "reference"][-1][0] == OK
+    assert [s for s in seen if s[1] == "reference: inputs"][-1][0] == OK

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from loop_writers import publish
 
 from dem_ros import contract
 from dem_ros.core.model import hover_state
@@ -36,9 +37,9 @@ def _graph(*ros_args: str):
 def _feed(bus, k: int, gaps=(X0[0], X0[2]), frame=contract.FRAME, position=None, rates=(0.0, 0.0)) -> int:
     JS = bus.msg("sensor_msgs/msg/JointState")
     t = bus.now_ns + k * T
-    bus.publish(contract.APPLIED, joint_state(JS, t, effort=U0))
+    publish(bus, contract.APPLIED, joint_state(JS, t, effort=U0))
     pos = position if position is not None else gaps
-    bus.publish(contract.MEASUREMENT, joint_state(JS, t, position=pos, velocity=rates, effort=(X0[4], X0[5]),
+    publish(bus, contract.MEASUREMENT, joint_state(JS, t, position=pos, velocity=rates, effort=(X0[4], X0[5]),
                                                   frame=frame))
     bus.spin_once()
     return t
@@ -129,18 +130,18 @@ def test_spikes_are_held_counted_and_warned_and_a_dead_sensor_is_an_error():
 
 
 def test_malformed_measurements_are_dropped_and_settings_retune_without_a_restart():
-    bus, node, est, diags = _graph()
+    bus, node, est, _diags = _graph()
     for k in range(150):
         _feed(bus, k)
-    _feed(bus, 150, position=[0.008])  # one gap: dropped, counted
-    assert node.counts["malformed"] == 1 and node.node.callback_errors == {}
+    _feed(bus, 150, position=[0.008])  # one gap: rejected by the input's binding, counted
+    assert node.inputs.values()["measurement_malformed"] == 1 and node.node.callback_errors == {}
     assert node.node.set_parameters({"sigma_gap": 2e-5}) is None
     n = len(est)
     _feed(bus, 151)
     assert len(est) == n + 1 and node.counts["restarts"] == 1  # still publishing: no re-convergence
     assert "cannot change" in (node.node.set_parameters({"type": "none"}) or "")
     bus.advance(1.0)
-    assert diags[-1][0] == WARN and "malformed +1" in diags[-1][1]
+    assert node.inputs.diag.reports and any("malformed" in line[2] for line in bus.log)
     assert np.isclose(node.est.rm[0], 4e-10)
 
 
@@ -153,17 +154,17 @@ def test_a_measurement_stamped_far_ahead_holds_nothing_back():
         _feed(bus, k)
     JS = bus.msg("sensor_msgs/msg/JointState")
     far = bus.now_ns + 3_600_000 * T
-    bus.publish(contract.MEASUREMENT, joint_state(JS, far, position=(X0[0], X0[2]), velocity=(0.0, 0.0),
+    publish(bus, contract.MEASUREMENT, joint_state(JS, far, position=(X0[0], X0[2]), velocity=(0.0, 0.0),
                                                   effort=(X0[4], X0[5])))
     bus.spin_once()
     stamps = [_feed(bus, k) for k in range(5, 10)]
     assert all(t in est for t in stamps) and far not in est
     # measurement before voltage (either order is allowed): still its own voltage, one sample late at most
     t = bus.now_ns + 10 * T
-    bus.publish(contract.MEASUREMENT, joint_state(JS, t, position=(X0[0], X0[2]), velocity=(0.0, 0.0),
+    publish(bus, contract.MEASUREMENT, joint_state(JS, t, position=(X0[0], X0[2]), velocity=(0.0, 0.0),
                                                   effort=(X0[4], X0[5])))
     bus.spin_once()
-    bus.publish(contract.APPLIED, joint_state(JS, t, effort=U0))
+    publish(bus, contract.APPLIED, joint_state(JS, t, effort=U0))
     bus.spin_once()
     assert t in est and node.counts["unpaired"] == 0
 
@@ -207,8 +208,8 @@ def test_a_voltage_or_measurement_with_a_stamp_already_taken_is_dropped():
         for k in range(80):
             t = _feed(bus, k)
             if inject and k == 40:
-                bus.publish(contract.APPLIED, joint_state(JS, t, effort=(X0[4], X0[5])))  # 4 "volts"
-                bus.publish(contract.MEASUREMENT, joint_state(JS, t, position=(X0[0] + 1e-3, X0[2]), velocity=(0.0, 0.0),
+                publish(bus, contract.APPLIED, joint_state(JS, t, effort=(X0[4], X0[5])))  # 4 "volts"
+                publish(bus, contract.MEASUREMENT, joint_state(JS, t, position=(X0[0] + 1e-3, X0[2]), velocity=(0.0, 0.0),
                                                               effort=(X0[4], X0[5])))
                 bus.spin_once()
         runs.append((dict(est), node.counts["repeated"], node.counts["measurements"]))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from loop_writers import publish
 
 from dem_ros import contract
 from dem_ros.core.controllers.hover import LIFTOFF_SPEED
@@ -81,8 +82,8 @@ class RigLoop:
             if drv.state == DriverState.ACTIVE and self.epoch_seq is None:
                 self.epoch_seq = s.seq + self.n_pre
             frame = contract.FRAME if self.epoch_seq is not None and s.seq >= self.epoch_seq else contract.FRAME_PREROLL
-            bus.publish(contract.APPLIED, joint_state(self.JS, s.stamp_ns, effort=s.applied, frame=frame))
-            bus.publish(contract.MEASUREMENT, joint_state(self.JS, s.stamp_ns, position=s.gap, effort=s.current, frame=frame))
+            publish(bus, contract.APPLIED, joint_state(self.JS, s.stamp_ns, effort=s.applied, frame=frame))
+            publish(bus, contract.MEASUREMENT, joint_state(self.JS, s.stamp_ns, position=s.gap, effort=s.current, frame=frame))
             bus.spin_once()
             u = self.cmds.get(s.stamp_ns)
             if u is not None:

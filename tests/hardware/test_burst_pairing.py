@@ -11,6 +11,7 @@ stamp order, for their voltages.
 from __future__ import annotations
 
 import numpy as np
+from loop_writers import publish
 
 from dem_ros import contract
 from dem_ros.core.estimator import make_estimator
@@ -48,11 +49,11 @@ def test_measurements_of_a_burst_wait_for_their_own_voltages():
     n = 60
     for k in range(0, n, 4):  # bursts of 4 frames: the voltage of the first, then the 4 measurements, then 3 voltages
         ts = [t0 + (k + j) * T for j in range(4)]
-        bus.publish(contract.APPLIED, joint_state(JS, ts[0], effort=_u(k)))
+        publish(bus, contract.APPLIED, joint_state(JS, ts[0], effort=_u(k)))
         for t in ts:
-            bus.publish(contract.MEASUREMENT, _meas(JS, t))
+            publish(bus, contract.MEASUREMENT, _meas(JS, t))
         for j in range(1, 4):
-            bus.publish(contract.APPLIED, joint_state(JS, ts[j], effort=_u(k + j)))
+            publish(bus, contract.APPLIED, joint_state(JS, ts[j], effort=_u(k + j)))
         bus.spin_once()
     assert node.counts["unpaired"] == 0
     ref = make_estimator(CFG["estimator"], None, False)  # the same filter fed in order, each sample its own voltage
@@ -66,10 +67,10 @@ def test_a_voltage_that_never_comes_delays_no_more_than_pending_max_samples():
     bus, node, est = _setup()
     JS = bus.msg("sensor_msgs/msg/JointState")
     t0 = bus.now_ns
-    bus.publish(contract.APPLIED, joint_state(JS, t0, effort=_u(0)))
-    bus.publish(contract.MEASUREMENT, _meas(JS, t0))
+    publish(bus, contract.APPLIED, joint_state(JS, t0, effort=_u(0)))
+    publish(bus, contract.MEASUREMENT, _meas(JS, t0))
     for k in range(1, 2 * PENDING_MAX + 1):  # the voltages stop: measurements only
-        bus.publish(contract.MEASUREMENT, _meas(JS, t0 + k * T))
+        publish(bus, contract.MEASUREMENT, _meas(JS, t0 + k * T))
         bus.spin_once()
     assert len(est) == PENDING_MAX + 1  # each one waited PENDING_MAX samples at most, then went on with the latest
     assert node.counts["unpaired"] == PENDING_MAX

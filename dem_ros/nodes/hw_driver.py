@@ -54,6 +54,7 @@ from ..hardware.channel import ChannelError, open_channel
 from ..hardware.driver import HARDWARE_FAULTS, DriverState, HwDriver, Sample
 from ..hardware.link import HELLO_REQUEST, Mode, Status, encode
 from ..realtime import config_from_env
+from ..runstate import announce
 from ..transport import Node, run_node
 from .common import OK, WARN, CommandSource, Diagnostics, LatencyStats, diag_array, joint_state, stamp_ns, worth_logging
 
@@ -62,7 +63,7 @@ __all__ = ["HwDriverNode", "main"]
 RING = 256  # receive times kept by sample number (latency: sample received -> command sent)
 #: link and board counters whose growth makes the next /diagnostics report a WARN
 WARN_ON = ("lost", "duplicated", "reordered", "late", "corrupt", "hold_samples", "commands_dropped", "sensor_holds",
-           "link_loss", "watchdog", "commands_foreign", "publish_errors", "reader_errors")
+           "link_loss", "watchdog", "commands_foreign", "publish_errors", "reader_errors", "stalls")
 #: board modes that are reported as a standing WARN (the board is landing or has landed the plate)
 BOARD_DOWN = (Mode.LAND, Mode.LANDED, Mode.FAULT)
 STOP_LANDING_S = 1.0  # s: stopped from outside, the driver waits at most this for the board to take up LAND
@@ -108,6 +109,7 @@ class HwDriverNode:
         self.fail_t: float | None = None  # when it came [s on the experiment clock]
         self.board_down: tuple[float, str] | None = None  # (t [s], why) the board landed during the experiment
         self.end_landed_s: float | None = None  # the end-of-run landing took this long [s] (None: not yet landed)
+        self.board_run_samples = 0  # experiment samples at which the board was in RUN (or HOLD): the verdict's fact
         self.closing = False  # the node is shut down: no more publishing, the link lands the plate (close())
         self.stop_landed = False  # stopped from outside: LAND asked at the first frame after the node's shutdown
         self.publish_errors = 0  # samples the transport failed to publish while the node was up (not lost for good)
@@ -117,6 +119,7 @@ class HwDriverNode:
         self.t_boot = time.monotonic()
         self.cpu0: float | None = None
         self.last_state = (DriverState.INACTIVE, "", Mode.OFF)
+        self.board_announced = False
         self.answer = ""
         if c["auto_arm"]:
             self.drv.arm()
@@ -265,6 +268,7 @@ class HwDriverNode:
             if s.seq == self.epoch_seq:
                 self.epoch_ns = s.stamp_ns
                 self.cpu0 = time.process_time()
+                announce("t0", "hw_driver", epoch_ns=s.stamp_ns)
             if self.n_end and s.seq - self.epoch_seq >= self.n_end:
                 self.finished = True
                 self.t_finish = time.monotonic()
@@ -275,6 +279,8 @@ class HwDriverNode:
             frame = contract.FRAME_PREROLL
         if frame == contract.FRAME:
             self._watch_experiment(s)
+            if s.mode in (Mode.RUN, Mode.HOLD):
+                self.board_run_samples += 1  # the board ran the controller's commands at this sample
         JS = self.JS
         self.pub_applied.publish(joint_state(JS, s.stamp_ns, effort=s.applied, frame=frame))
         self.pub_meas.publish(joint_state(JS, s.stamp_ns, position=s.gap, effort=s.current, frame=frame))
@@ -342,7 +348,12 @@ class HwDriverNode:
         if key != self.last_state:
             self.node.logger.info(f"state {d.state.name.lower()}, board {Mode(d.board_mode).name.lower()}"
                                   + (f": {d.reason}" if d.reason else ""))
+            if d.state == DriverState.FAULT and self.last_state[0] != DriverState.FAULT:
+                announce("fault", "hw_driver", reason=d.reason, t0=self.epoch_ns is not None)
             self.last_state = key
+        if d.hello is not None and not self.board_announced:  # the board answered the driver's hello
+            self.board_announced = True
+            announce("board", "hw_driver", url=self.cfg["url"], board_id=d.hello.board_id)
         st = diag_array(*self.D, self.node.now_ns(), "hw_driver: state", self._level(), d.state.name.lower(),
                         {**self.stats(), "answer": self.answer}).status[0]
         self.pub_state.publish(st)
@@ -369,7 +380,7 @@ class HwDriverNode:
                 "latency_p50_us": round(lat["p50"], 1), "latency_p99_us": round(lat["p99"], 1),
                 "latency_max_us": round(lat["max"], 1), "failed": bool(self.failed), "fault": self.failed,
                 **({"fail_time_s": round(self.fail_t, 3)} if self.fail_t is not None else {}),
-                "holds": st["hold_samples"], **self._landing(), **st,
+                "holds": st["hold_samples"], "board_run_samples": self.board_run_samples, **self._landing(), **st,
                 "publish_errors": self.publish_errors, "reader_errors": self.reader_errors,
                 **self.source.values()}
 
@@ -377,7 +388,7 @@ class HwDriverNode:
         """``landing`` / ``landing_reason`` of the loop status: a board landing during the experiment (its time and
         why), else the end-of-run landing (expected: ``failed`` stays False)."""
         if self.board_down is not None:
-            return {"landing": True, "landing_reason": self.board_down[1]}
+            return {"landing": True, "landing_reason": self.board_down[1], "landing_t_s": round(self.board_down[0], 3)}
         if not self.finished:
             return {"landing": False, "landing_reason": ""}
         end = f"end of the run: disarmed after {self.cfg['duration']:g} s, "
@@ -403,6 +414,7 @@ class HwDriverNode:
         msg = f"finished {self.cfg['duration']:g} s; board {s['board_mode']}" + (f"; fault: {self.failed}" if self.failed else "")
         self.node.logger.info(msg)
         self.diag.publish(2 if self.failed else 0, "finished: " + msg, s)
+        announce("finished", "hw_driver", message=msg, failed=bool(self.failed))
         self.publish_state(force=True)
         self.node.timer(0.3, self.node.shutdown)
 

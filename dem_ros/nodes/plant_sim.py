@@ -58,6 +58,7 @@ from ..core.params import TABLE2
 from ..core.plant import DemPlant
 from ..core.safety import SAFETY_KEYS, Mode, Supervisor
 from ..core.warmup import warm_up
+from ..runstate import announce
 from ..transport import Node, run_node
 from .common import ERROR, OK, WARN, CommandSource, Diagnostics, JointStates, LatencyStats, all_finite, stamp_ns
 
@@ -113,6 +114,7 @@ class PlantSimNode:
         self.misses = 0
         self.preroll_misses = 0
         self.lockstep_landing = 0
+        self.landing_t: float | None = None  # experiment time [s] the board began to land the plate
         self.lat = LatencyStats()
         self.late = LatencyStats()
         self.timer = node.timer(c["dt"], self.tick)
@@ -181,6 +183,7 @@ class PlantSimNode:
             self._publish(self.k_next)
             if self.k_next == 0:
                 self.cpu0 = time.process_time()
+                announce("t0", "plant_sim", epoch_ns=self.epoch)  # to the launcher (dem_ros.runstate)
             if self.k_next >= 0:
                 self.late.add(now - self.due)
             self.k_next += 1
@@ -263,6 +266,8 @@ class PlantSimNode:
         if b.mode == Mode.RUN:
             return
         if b.mode == Mode.LAND:
+            if self.landing_t is None:
+                self.landing_t = k * self.cfg["dt"]  # the verdict's "landed at t = ..." (negative: in the pre-roll)
             x = self.plant.x
             (log.error if b.fault else log.warn)(f"{when}: safe landing from gaps {x[0] * 1e3:.3f} / {x[2] * 1e3:.3f} mm to"
                       f" {self.cfg['landing_gap'] * 1e3:g} mm at <= {self.cfg['landing_speed'] * 1e3:g} mm/s: {b.reason}")
@@ -315,6 +320,7 @@ class PlantSimNode:
             "clipped": c["clipped"], "trips": c["trips"], "landing": c["landings"] > 0 or b.mode == Mode.LANDED,
             "landed": c["landed"] > 0, "landing_reason": b.reason if c["landings"] else "",
             "board_fault": b.fault, "lockstep_timeouts": self.lockstep_landing,
+            **({"landing_t_s": round(self.landing_t, 3)} if self.landing_t is not None else {}),
         }
 
     def status(self) -> None:
@@ -339,6 +345,7 @@ class PlantSimNode:
         log = self.node.logger
         (log.error if level >= 2 else log.warn if level == 1 else log.info)(message)
         self.diag.publish(level, "finished: " + message)
+        announce("finished", "plant_sim", message=message, level=level)
         # give the last samples time to reach subscribers, then stop the node
         self.node.timer(0.3, self.node.shutdown)
 

@@ -4,7 +4,6 @@ the nodes (no control math)."""
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -15,9 +14,13 @@ from ..contract import FRAME, MAGNETS
 __all__ = [
     "ERROR",
     "OK",
+    "PLANT_SOURCES",
+    "SHAPES",
     "WARN",
+    "Binding",
     "CommandSource",
     "Diagnostics",
+    "Inputs",
     "JointStates",
     "LatencyStats",
     "all_finite",
@@ -309,75 +312,305 @@ class Diagnostics:
         self._pub.publish(diag_array(*self._cls, self.node.now_ns(), self.name, lv, msg, vals))
 
 
-class CommandSource:
-    """The command source lock of a node that drives the coils (``plant_sim``, ``hw_driver``).
+def _writer(gid: bytes) -> str:
+    """A writer's GID as the log and /diagnostics name it."""
+    return gid.hex() if gid else "(a writer the transport cannot tell)"
 
-    ``/dem/command`` counts only from the writers that the ROS graph attributes to the node ``source``
-    (``command_source``: a name in the node's namespace or ``/ns/name``), recognised by each sample's
-    writer GID (:meth:`~dem_ros.transport.api.Node.subscribe_with_source`). :meth:`accepts` answers for
-    one sample. A writer not in the source's last looked-up set is looked up on its sample (a restarted
-    controller's graph information can trail its first samples by a few ms, and its commands must count
-    from the first sample after it arrives: the board holds only ``hold_timeout``, 50 ms, before it
-    lands); a writer found foreign is looked up again after ``retry_s``, then after twice as long each
-    time, up to ``refresh_s`` (a writer whose graph information trails its samples by D is accepted
-    within about 2 D; a foreign 1 kHz writer costs about 10 look-ups in its first 100 ms, then one per
-    ``refresh_s``: a look-up reads the graph, far too dear to repeat at 1 kHz; at most 64 are remembered). Every foreign sample is counted
-    (``commands_foreign``); the log says it once per writer. :attr:`matched` tells whether the
-    source's writer is on the graph (a run must not start before).
 
-    What it protects against: a second controller, a test or replay publisher, a stray tool on the
-    same domain. What it does not: without DDS-Security (the PyPI cyclonedds wheel has none) any
-    process can forge a GID or announce itself under the source's name.
+def _counts_of(field: str, *allowed: int) -> Callable[[Any], str | None]:
+    """A check that ``msg.<field>`` has one of the ``allowed`` element counts."""
+
+    def check(msg: Any) -> str | None:
+        n = len(getattr(msg, field))
+        return None if n in allowed else f"{n} values in {field}, expected {' or '.join(map(str, allowed))}"
+
+    return check
+
+
+def _all_of(*checks: Callable[[Any], str | None]) -> Callable[[Any], str | None]:
+    def check(msg: Any) -> str | None:
+        for c in checks:
+            reason = c(msg)
+            if reason:
+                return reason
+        return None
+
+    return check
+
+
+#: the shape of every loop input (element counts of the contract, :mod:`dem_ros.contract`): a sample of another
+#: shape from the bound writer is malformed (rejected and counted)
+SHAPES: dict[str, Callable[[Any], str | None]] = {
+    "/dem/measurement": _all_of(_counts_of("position", 2), _counts_of("velocity", 0, 2), _counts_of("effort", 2)),
+    "/dem/applied_voltage": _counts_of("effort", 2),
+    "/dem/state_estimate": _all_of(_counts_of("position", 2), _counts_of("velocity", 0, 2), _counts_of("effort", 2)),
+    "/dem/reference": _counts_of("position", 10),
+    "/dem/command": _counts_of("effort", 2),
+}
+#: the nodes that write the plant's streams (/dem/measurement, /dem/applied_voltage): the simulator or the driver
+PLANT_SOURCES = ("plant_sim", "hw_driver")
+
+
+class Binding:
+    """One loop input bound to one writer (made by :meth:`Inputs.bind`; docs/manual/trust.md).
+
+    Samples reach ``callback(msg)`` only from the bound writer (by GID, :meth:`~dem_ros.transport.api.Node.
+    subscribe_with_source`) and only when they have the contract's shape (:data:`SHAPES`; else ``malformed``).
+    The bound writer is the one writer that the ROS graph attributes to one of the ``sources`` node names
+    (:meth:`~dem_ros.transport.api.Node.publisher_gids`), looked up at start-up and again while unbound:
+
+    * a writer the graph does not attribute yet, while nothing is bound (a node whose graph information trails its
+      first samples: discovery came late), is *held*: its latest sample is kept and delivered the moment the graph
+      attributes the writer to the source (looked up after 2, 4, 8, 16 ms, then every ``retry_max_s``, from its
+      samples and from the :class:`Inputs` timer, so a lockstep loop waiting for that one sample gets it), at
+      most ``attribute_s``; then it is refused;
+    * any other writer while one is bound, a second writer with the source's node name included, is refused:
+      every sample counted (``refused``), logged once per writer (WARN) and reported (ERROR on /diagnostics,
+      naming its GID);
+    * two writers of the source at once with nothing bound: none is bound (ERROR) until one is gone;
+    * the bound writer gone from the graph (the node left, or its participant's lease ran out): unbound, and the
+      next single writer of the source is bound (``rebinds``): the defined path of a restarted node.
     """
 
-    def __init__(self, node: Any, source: str, *, refresh_s: float = 0.1, retry_s: float = 0.002,
-                 topic: Any = None):
-        from ..contract import COMMAND
+    def __init__(self, inputs: Inputs, topic: Any, sources: tuple[str, ...], callback: Callable[[Any], object],
+                 check: Callable[[Any], str | None] | None):
+        self.inputs = inputs
+        self.node = inputs.node
+        self.topic = topic
+        self.sources = sources
+        self.callback = callback
+        self.check = check
+        self.key = topic.name.rsplit("/", 1)[-1]  # /dem/command -> command: its /diagnostics keys
+        self.bound = b""  # the bound writer's GID (b"": none)
+        self.writers: frozenset[bytes] = frozenset()  # the sources' live writers, as last looked up
+        self.ambiguous = False  # two or more writers of the sources with nothing bound
+        self._next_ns = 0  # the next look-up is due (node clock, ns)
+        self._wait_ns = inputs.retry_ns  # the wait after it
+        self.pending: dict[bytes, list[Any]] = {}  # unattributed writer -> [first seen (ns), latest sample, held]
+        self.refused_writers: dict[bytes, str] = {}  # writer -> why (at most 64 remembered)
+        self.accepted = self.held = self.released = self.refused = self.malformed = self.rebinds = self.lookups = 0
+        self.last_refused = b""  # the GID of the writer refused last
+        self.node.subscribe_with_source(topic, self.on_sample)
 
-        self.node = node
-        self.source = source
-        self.topic = topic or COMMAND
-        self.refresh_s = float(refresh_s)  # :attr:`matched`: look-ups while the source has no writer
-        self.retry_s = float(retry_s)
-        # writer found foreign -> (monotonic time to look it up again, the wait after that look-up fails)
-        self._rejected: dict[bytes, tuple[float, float]] = {}
-        self.gids: frozenset[bytes] = frozenset()  # the source's writers on the topic, as last looked up
-        self.checked = -math.inf  # monotonic time of the last look-up (s)
-        self.foreign = 0
-        self._logged: set[bytes] = set()  # foreign writers already logged (at most 64)
-
-    def values(self) -> dict[str, Any]:
-        """For /diagnostics: ``command_source``, ``command_writers`` (the source's), ``commands_foreign``."""
-        return {"command_source": self.source, "command_writers": len(self.gids), "commands_foreign": self.foreign}
-
-    def _lookup(self) -> frozenset[bytes]:
-        self.checked = time.monotonic()
-        self.gids = self.node.publisher_gids(self.topic, self.source)
-        return self.gids
+    @property
+    def source_text(self) -> str:
+        return " or ".join(repr(s) for s in self.sources)
 
     @property
     def matched(self) -> bool:
-        """The source has a writer on the topic (looked up at most every ``refresh_s`` while it has none)."""
-        if not self.gids and time.monotonic() - self.checked >= self.refresh_s:
-            self._lookup()
-        return bool(self.gids)
+        """A writer is bound (looked up now when due)."""
+        if not self.bound:
+            self.resolve(self.node.now_ns())
+        return bool(self.bound)
 
-    def accepts(self, gid: bytes) -> bool:
-        """True for a sample of the source's writers; another writer's is counted (and logged once)."""
-        if gid in self.gids:
-            return True
-        now = time.monotonic()
-        due, wait = self._rejected.get(gid, (-math.inf, self.retry_s))
-        if now >= due:
-            if gid in self._lookup():
-                self._rejected.pop(gid, None)
-                return True
-            if gid not in self._rejected and len(self._rejected) >= 64:
-                self._rejected.pop(next(iter(self._rejected)))  # the oldest
-            self._rejected[gid] = (now + wait, min(2.0 * wait, max(self.refresh_s, self.retry_s)))
-        self.foreign += 1
-        if gid not in self._logged and len(self._logged) < 64:
-            self._logged.add(gid)
-            self.node.logger.warn(f"{self.topic.name} from writer {gid.hex() or '(unknown)'}, not {self.source!r}'s:"
-                                  " dropped (further samples are counted)")
-        return False
+    def values(self) -> dict[str, Any]:
+        """This input's keys on /diagnostics (``<key>_writer``, ``_refused``, ``_malformed``, ...)."""
+        k = self.key
+        return {f"{k}_writer": self.bound.hex(), f"{k}_refused": self.refused,
+                f"{k}_refused_writers": len(self.refused_writers), f"{k}_malformed": self.malformed,
+                f"{k}_held": self.held, f"{k}_late": self.released, f"{k}_rebinds": self.rebinds}
+
+    # -- samples ----------------------------------------------------------------------------------------
+    def on_sample(self, msg: Any, gid: bytes) -> None:
+        if gid == self.bound and gid:
+            self._deliver(msg)
+            return
+        now = self.node.now_ns()
+        if not gid:
+            self._refuse(gid, "the transport cannot tell which writer sent it", 1)
+            return
+        if gid in self.refused_writers:
+            self.resolve(now)  # when due: the bound writer may be gone and this one the source's next
+            if gid == self.bound:
+                self._deliver(msg)
+            else:
+                self._refuse(gid, self.refused_writers[gid], 1)
+            return
+        if self.bound:
+            # a new writer beside the bound one: the graph is looked up at once (the bound writer may have left:
+            # a restart); while the bound one lives, the new one is refused, whatever its node name
+            self._wait_ns = self.inputs.retry_ns
+            self.resolve(now, force=True)
+            if gid == self.bound:
+                self._deliver(msg)
+                return
+            if self.bound:
+                self._refuse(gid, self._why(gid), 1)
+                return
+        # nothing bound: the writer may be the source's, its graph information not here yet: held
+        p = self.pending.get(gid)
+        if p is None:
+            self.pending[gid] = [now, msg, 1]
+            self._wait_ns = self.inputs.retry_ns
+            self.held += 1
+            self.resolve(now, force=True)
+        else:
+            p[1] = msg
+            p[2] += 1
+            self.held += 1
+            self.resolve(now)
+
+    def _deliver(self, msg: Any) -> None:
+        reason = self.check(msg) if self.check is not None else None
+        if reason:
+            self.malformed += 1
+            if worth_logging(self.malformed):
+                self.node.logger.warn(f"{self.topic.name}: malformed sample from the bound writer rejected: {reason}"
+                                      f" ({self.malformed} so far)")
+            return
+        self.accepted += 1
+        self.callback(msg)
+
+    def _why(self, gid: bytes) -> str:
+        if gid in self.writers:
+            return f"a second writer of {self.source_text} (the bound one is {self.bound.hex()})"
+        return f"not the bound writer of {self.source_text} ({self.bound.hex() or 'none bound'})"
+
+    def _refuse(self, gid: bytes, why: str, n: int) -> None:
+        self.refused += n
+        self.last_refused = gid
+        if len(self.inputs.refused_now) < 16:
+            self.inputs.refused_now.setdefault((self.topic.name, gid), why)
+        if gid not in self.refused_writers:
+            if len(self.refused_writers) >= 64:
+                self.refused_writers.pop(next(iter(self.refused_writers)))  # the oldest
+            self.refused_writers[gid] = why
+            self.node.logger.warn(f"{self.topic.name} from writer {_writer(gid)} refused: {why} (further samples are"
+                                  " counted)")
+
+    # -- the graph --------------------------------------------------------------------------------------
+    def resolve(self, now: int, force: bool = False) -> None:
+        """Look the sources' writers up when due (or ``force``) and bind, re-bind or refuse accordingly."""
+        if not force and now < self._next_ns:
+            return
+        inp = self.inputs
+        self.lookups += 1
+        live: frozenset[bytes] = frozenset()
+        for s in self.sources:
+            live = live | self.node.publisher_gids(self.topic, s)
+        self.writers = live
+        if self.bound and self.bound not in live:
+            self.node.logger.warn(f"{self.topic.name}: the bound writer {self.bound.hex()} of {self.source_text} is "
+                                  "gone: the next writer of the source is bound")
+            self.bound = b""
+            self.rebinds += 1
+            self._wait_ns = inp.retry_ns
+        if not self.bound:
+            if len(live) == 1:
+                (gid,) = live
+                self.bound = gid
+                self.ambiguous = False
+                self.refused_writers.pop(gid, None)
+                self.node.logger.info(f"{self.topic.name}: bound to writer {gid.hex()} of {self.source_text}")
+                held = self.pending.pop(gid, None)
+                if held is not None:
+                    self.released += 1
+                    self._deliver(held[1])  # the latest sample it sent before the graph named it
+            elif len(live) > 1 and not self.ambiguous:
+                self.ambiguous = True
+                self.node.logger.warn(f"{self.topic.name}: {len(live)} writers of {self.source_text} "
+                                      f"({', '.join(g.hex() for g in sorted(live))}): none bound until one is gone")
+        for gid, (first, _msg, n) in list(self.pending.items()):
+            if self.bound:
+                del self.pending[gid]
+                self._refuse(gid, self._why(gid), n)
+            elif now - first > inp.attribute_ns:
+                del self.pending[gid]
+                self._refuse(gid, f"no writer of {self.source_text} after {inp.attribute_ns / 1e9:g} s", n)
+        cap = inp.retry_max_ns if self.pending else inp.waiting_ns if not self.bound else inp.refresh_ns
+        self._next_ns = now + min(self._wait_ns, cap)
+        self._wait_ns = min(2 * self._wait_ns, cap)
+
+
+class Inputs:
+    """The loop inputs of one node, each bound to its writer (:class:`Binding`): the one mechanism every node
+    uses for ``/dem/measurement``, ``/dem/applied_voltage``, ``/dem/state_estimate``, ``/dem/reference`` and
+    ``/dem/command`` (docs/manual/trust.md).
+
+    A timer every ``period_s`` looks up what is due (unbound inputs, held writers; a bound writer's liveness
+    every ``refresh_s``). The node's ``<node>: inputs`` status on /diagnostics (every second): ERROR while
+    writers are refused (the message names each one's GID and why; ``refused`` counts every refused sample, the
+    figure a run's verdict reads), ERROR while two writers of one source leave an input unbound, WARN after a
+    malformed sample, else OK; the values hold each input's counts (:meth:`Binding.values`).
+    """
+
+    def __init__(self, node: Any, *, period_s: float = 0.005, retry_s: float = 0.002, retry_max_s: float = 0.02,
+                 waiting_s: float = 0.1, refresh_s: float = 0.5, attribute_s: float = 2.0):
+        self.node = node
+        self.retry_ns = round(retry_s * 1e9)
+        self.retry_max_ns = round(retry_max_s * 1e9)
+        self.waiting_ns = round(waiting_s * 1e9)
+        self.refresh_ns = round(refresh_s * 1e9)
+        self.attribute_ns = round(attribute_s * 1e9)
+        self.bindings: list[Binding] = []
+        self.refused_now: dict[tuple[str, bytes], str] = {}  # (topic, writer) -> why: refusals since the last report
+        self.diag = Diagnostics(node, f"{node.name}: inputs", warn_on=("malformed",), values=self.values,
+                                timer=False)
+        node.timer(period_s, self.tick)
+        node.timer(1.0, self.report)
+
+    def bind(self, topic: Any, sources: str | Sequence[str], callback: Callable[[Any], object], *,
+             check: Callable[[Any], str | None] | None = None) -> Binding:
+        """Deliver ``topic`` to ``callback(msg)`` from the one writer of ``sources`` (node names), samples of
+        the contract's shape only (``check``: default :data:`SHAPES`)."""
+        b = Binding(self, topic, (sources,) if isinstance(sources, str) else tuple(sources), callback,
+                    check or SHAPES.get(topic.name))
+        self.bindings.append(b)
+        return b
+
+    def tick(self) -> None:
+        now = self.node.now_ns()
+        for b in self.bindings:
+            b.resolve(now)
+
+    def values(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"refused": sum(b.refused for b in self.bindings),
+                               "malformed": sum(b.malformed for b in self.bindings)}
+        for b in self.bindings:
+            out.update(b.values())
+        return out
+
+    def report(self) -> None:
+        """Publish the ``<node>: inputs`` status (once a second)."""
+        seen, self.refused_now = self.refused_now, {}
+        ambiguous = [b for b in self.bindings if b.ambiguous and not b.bound]
+        if seen:
+            self.diag.set_condition(ERROR, "; ".join(f"refused {t} writer {_writer(g)}: {why}"
+                                                     for (t, g), why in list(seen.items())[:4]))
+        elif ambiguous:
+            self.diag.set_condition(ERROR, "; ".join(f"{b.topic.name}: {len(b.writers)} writers of {b.source_text},"
+                                                     " none bound" for b in ambiguous))
+        else:
+            waiting = [b.topic.name for b in self.bindings if not b.bound]
+            self.diag.set_condition(OK, f"waiting for the writer of {', '.join(waiting)}" if waiting else "")
+        self.diag.publish()
+
+
+class CommandSource:
+    """The command source lock of a node that drives the coils (``plant_sim``, ``hw_driver``): ``/dem/command``
+    bound (:class:`Binding`) to the writer of the node ``source`` (``command_source``), delivered to
+    ``callback(msg)``. :attr:`matched`: a writer is bound (a run must not start before)."""
+
+    def __init__(self, node: Any, source: str, callback: Callable[[Any], object], *, inputs: Inputs | None = None):
+        from ..contract import COMMAND
+
+        self.source = source
+        self.inputs = inputs or Inputs(node)
+        self.binding = self.inputs.bind(COMMAND, source, callback)
+
+    @property
+    def matched(self) -> bool:
+        return self.binding.matched
+
+    @property
+    def foreign(self) -> int:
+        """Commands refused (from writers not bound, and held ones never attributed to the source)."""
+        return self.binding.refused
+
+    def values(self) -> dict[str, Any]:
+        """For the loop status: ``command_source``, ``command_writer`` (the bound GID), ``commands_foreign``
+        (refused), ``commands_late`` (held until discovery attributed their writer, then applied),
+        ``commands_malformed``."""
+        b = self.binding
+        return {"command_source": self.source, "command_writer": b.bound.hex(), "commands_foreign": b.refused,
+                "commands_late": b.released, "commands_malformed": b.malformed}

@@ -93,8 +93,7 @@ class HwDriverNode:
         self.diag = Diagnostics(node, contract.HW_LOOP_STATUS, warn_on=WARN_ON, values=self.stats, timer=False)
         self.pub_state = node.publisher(contract.HW_STATE)
         # the command source lock: /dem/command only from command_source's writers (nodes/common.CommandSource)
-        self.source = CommandSource(node, c["command_source"])
-        node.subscribe_with_source(contract.COMMAND, self.on_command)
+        self.source = CommandSource(node, c["command_source"], self.on_command)
         node.subscribe(contract.HW_REQUEST, self.on_request)
         node.subscribe(contract.HW_ESTOP, self.on_estop)
         for verb in ("arm", "disarm", "estop", "status"):  # ~/arm ... (std_srvs/Trigger), as the request topic
@@ -299,9 +298,7 @@ class HwDriverNode:
                                else "its own trip")
             self.board_down = (t, f"board {Mode(d.board_mode).name} at t = {t:.3f} s: {why}")
 
-    def on_command(self, msg, gid: bytes) -> None:
-        if not self.source.accepts(gid) or len(msg.effort) < 2:
-            return
+    def on_command(self, msg) -> None:
         t = stamp_ns(msg)
         with self.lock:
             was = self.drv.state

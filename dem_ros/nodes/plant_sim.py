@@ -33,13 +33,10 @@ Before t = 0 the plant levitates in closed loop for ``preroll`` seconds
 then on a missing command is held at most ``hold_timeout``: a graph that cannot
 keep up lands the plate.
 Command source lock (:class:`~dem_ros.nodes.common.CommandSource`): ``/dem/command`` is taken only
-from the writers that the ROS graph attributes to the node ``command_source`` (default
-``controller``; read-only), by each sample's writer GID. A command from any other writer is
-dropped, counted (``commands_foreign``), logged once per writer and reported (WARN) on
-``/diagnostics``. The run does not start (either timing mode) before that node's ``/dem/command``
-writer is on the graph: until then the plant waits, reporting WARN "waiting for ...". What the
-lock protects against and what it does not (no DDS-Security: any process can forge a GID): see
-that class.
+from the one writer bound to the node ``command_source`` (default ``controller``; read-only), by each
+sample's writer GID; other writers are refused, counted (``commands_foreign``) and reported; a writer
+whose graph information comes late is held, not dropped (docs/manual/trust.md). The run does not start
+(either timing mode) before that writer is bound: until then the plant waits, reporting WARN "waiting for ...".
 
 Latency = receive time of a command - publish time of the measurement it
 answers. A hardware driver replaces this node by honouring the same topics.
@@ -90,8 +87,7 @@ class PlantSimNode:
         # /diagnostics "plant_sim: loop": published by status() once a second and at once on board events
         self.diag = Diagnostics(node, contract.LOOP_STATUS, warn_on=("commands_foreign",), values=self.stats,
                                 timer=False)
-        self.source = CommandSource(node, c["command_source"])
-        node.subscribe_with_source(contract.COMMAND, self.on_command)
+        self.source = CommandSource(node, c["command_source"], self.on_command)
         self.cmd_stamp = np.full(RING, -1, dtype=np.int64)  # stamp of the command held in each slot
         self.cmd_u = np.zeros((RING, 2))
         self.pub_wall = np.zeros(RING, dtype=np.int64)  # when each sample was published (wall clock, ns)
@@ -129,8 +125,8 @@ class PlantSimNode:
         self.plant.pc.update(values)  # disturbances and noise act from the next sample
         return None
 
-    def on_command(self, msg, gid: bytes) -> None:
-        if not self.source.accepts(gid) or not self.started or len(msg.effort) < 2:
+    def on_command(self, msg) -> None:
+        if not self.started:
             return
         u = msg.effort[:2]
         if not all_finite(u):

@@ -132,7 +132,7 @@ def test_a_rogue_publisher_of_1e6_volts_changes_nothing_and_is_reported(tmp_path
     assert foreign >= rogue_cmds // 2, (foreign, rogue_cmds)  # what the plant saw (the bag: what the recorder saw)
     warned = [d for d in r["diags"] if d[0] >= 1 and "commands_foreign +" in d[1]]
     assert warned, [d[:2] for d in r["diags"]]
-    assert plant_log.count("/dem/command from writer") == 1 and "not 'controller''s" in plant_log
+    assert plant_log.count("/dem/command from writer") == 1 and "refused: not the bound writer of 'controller'" in plant_log
     print(f"\nrogue: {rogue_cmds} commands of 1e6 V in the bag, {foreign} dropped by the plant; max applied "
           f"{r['applied'].max():.2f} V; gaps {r['gaps'].min() * 1e3:.3f}..{r['gaps'].max() * 1e3:.3f} mm")
 

@@ -113,7 +113,8 @@ class RunMetrics:
     peak_current_a: float | None = None
     final_estimates: dict[str, float] | None = None  # m_kg, R_ohm, K (N m^2/A^2)
     duration_s: float | None = None  # of the experiment (s)
-    command_latency_at_recorder_us: dict[str, float] | None = None  # p50, p99, max of stamp -> recorder log time
+    #: p50, p99, max [us] of the recorder's receipt of a sample's measurement -> of its command (one clock)
+    command_latency_at_recorder_us: dict[str, float] | None = None
     wall_time_s: float | None = None
     loop: LoopStats | None = None
     controllers_used: list[str] | None = None  # the laws in the order they ran (a live switch adds one)
@@ -317,10 +318,17 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
         m.peak_voltage_v = float(np.nanmax(np.abs(cmd["effort"])))
         series["cmd_t"] = (cmd["stamp_ns"] - t0) * 1e-9
         series["cmd"] = cmd["effort"][:, :2]
-        lat = (cmd["log_time_ns"] - cmd["stamp_ns"]) * 1e-3
-        series["cmd_latency_us"] = lat
-        m.command_latency_at_recorder_us = {"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
-                                            "max": float(lat.max())}
+        if meas is not None:  # one clock, the recorder's: it had the sample's measurement, then its command
+            _, ic, im = np.intersect1d(cmd["stamp_ns"], meas["stamp_ns"], return_indices=True)
+            # A stamp is on the plant's experiment clock (lockstep: behind or ahead of wall time), the log time
+            # on the recorder's: their difference is no latency (it was negative). Received together (the
+            # recorder read the command's topic first) is 0, never negative
+            lat = np.maximum(cmd["log_time_ns"][ic] - meas["log_time_ns"][im], 0) * 1e-3
+            if lat.size:
+                series["cmd_latency_t"] = (cmd["stamp_ns"][ic] - t0) * 1e-9
+                series["cmd_latency_us"] = lat
+                m.command_latency_at_recorder_us = {"p50": float(np.percentile(lat, 50)),
+                                                    "p99": float(np.percentile(lat, 99)), "max": float(lat.max())}
     if truth is not None:
         series["current"] = truth["effort"][i_s, :2]
         series["mass"] = truth["position"][i_s, 2] if truth["position"].shape[1] > 2 else None

@@ -61,12 +61,15 @@ import time
 from collections.abc import Callable, Collection, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .. import contract
 from .common import UsageError, write_json
+
+if TYPE_CHECKING:
+    from .launcher import LaunchOptions
 
 __all__ = ["CATALOGUE", "RIG_CATALOGUE", "FaultSpec", "Injector", "Row", "add_arguments", "cmd_faults", "run_row"]
 
@@ -393,6 +396,7 @@ class Row:
     counted: str = ""  # hardware rows: the driver's, board's (or estimator's) counters of the fault
     counts: dict[str, float] = field(default_factory=dict)  # the same, by "driver corrupt", "emulator corrupt" ...
     descent_mm_s: float | None = None  # hardware rows: the plate's fastest true descent while the board landed it
+    verdict: str = ""  # the run's own verdict (dem_ros.tools.verdict): a landing the row allows is a failed run
 
 
 # -- one run -----------------------------------------------------------------------------------------------
@@ -424,19 +428,11 @@ def _kill_hook(spec: FaultSpec, inj: Injector) -> Callable[..., Collection[str]]
 
 
 def _launch_args(scenario: str, duration: float, compose: bool, free_run: bool, bag_dir: Path, domain_id: int,
-                 sets: list[str], hardware: str | None = None) -> argparse.Namespace:
-    argv = ["--scenario", scenario, "--duration", str(duration), "--bag-dir", str(bag_dir),
-            "--domain-id", str(domain_id), "--transport", "dds"]
-    argv += ["--compose"] if compose else []
-    argv += ["--free-run"] if free_run else []
-    argv += ["--hardware", hardware] if hardware else []
-    for s in sets:
-        argv += ["--set", s]
-    from .launcher import add_arguments
+                 sets: list[str], hardware: str | None = None) -> LaunchOptions:
+    from .launcher import LaunchOptions
 
-    parser = argparse.ArgumentParser(prog="dem-ros faults")
-    add_arguments(parser)
-    return parser.parse_args(argv)
+    return LaunchOptions(scenario=scenario, duration=duration, bag_dir=str(bag_dir), domain_id=domain_id,
+                         transport="dds", compose=compose, free_run=free_run, hardware=hardware, set=list(sets))
 
 
 def _log_lines(logs: dict[str, str], since_ns: int) -> list[tuple[str, str]]:
@@ -772,16 +768,19 @@ def _lost(info: dict[str, Any], problems: list[str]) -> list[str]:
     return lost
 
 
-def _launch_injected(args: argparse.Namespace, spec: FaultSpec, inj: Injector,
+def _launch_injected(args: LaunchOptions, spec: FaultSpec, inj: Injector,
                      logs_dir: Path | None = None) -> dict[str, Any] | str:
-    """``dem-ros launch`` with the injector running and the row's kill hook: the launch facts, or why the run
-    was cut short (the injector is closed either way)."""
+    """``dem-ros launch`` with the injector running and the row's kill hook: the launch facts (with the run's
+    verdict), or why the run did not start or was cut short (the injector is closed either way)."""
     from ..bag import BagError
     from .launcher import GraphError, launch
 
     hook = _kill_hook(spec, inj) if spec.kill else None
     try:
-        return launch(args, quiet=True, supervise=hook, logs_dir=logs_dir)[1]
+        metrics, info = launch(args, quiet=True, supervise=hook, logs_dir=logs_dir)
+        if info.get("cut_short"):
+            return f"run cut short: {info['cut_short']}"
+        return info | {"verdict": metrics.verdict, "verdict_reasons": metrics.verdict_reasons}
     except GraphError as exc:
         return f"run cut short: {exc}"
     except BagError as exc:  # the run ended, but its summary could not read the bag: judge it here
@@ -843,7 +842,7 @@ def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duratio
                     else f"the restarted node was not ready again before the run ended ({hold})")
     detail = "; ".join([*inj.events, *sent, j.get("detail", "")]).strip("; ")
     return Row(spec.name, how, j["outcome"], j["min_gap_mm"], j.get("max_error_um"), reported, data_lost, ok, detail,
-               j["diagnostics"])
+               j["diagnostics"], verdict=_verdict_text(info))
 
 
 HW_SETS = ("controller.command_delay=2",)  # the README's hardware runs: a loaded host keeps the loop in time
@@ -902,7 +901,14 @@ def _run_hw_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, dura
     detail = "; ".join(x for x in [early, *inj.events, *sent, j.get("detail", "")] if x)
     return Row(spec.name, how, j["outcome"], j["min_gap_mm"], j.get("max_error_um"), reported,
                "; ".join(lost) or "none", ok, detail, j["diagnostics"], counted, counts,
-               (rig or {}).get("land_speed_max_mm_s"))
+               (rig or {}).get("land_speed_max_mm_s"), _verdict_text(info))
+
+
+def _verdict_text(info: dict[str, Any]) -> str:
+    """The run's verdict in a row: ``failed: landed before the planned end ...`` ("" when launch gave none)."""
+    v = info.get("verdict", "")
+    reasons = info.get("verdict_reasons") or []
+    return v + (f": {'; '.join(reasons)}" if reasons and v else "")
 
 
 # -- the command -------------------------------------------------------------------------------------------

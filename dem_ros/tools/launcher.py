@@ -219,7 +219,7 @@ class _Graph:
                 raise StartupError(f"node {n} exited during start-up (code {p.returncode})"
                                    + (f": {why}" if why else "") + f"; see {self.logs[n]}")
 
-    def _wait(self, done: Callable[[], bool], timeout: float, what: Callable[[], str], boot: Progress) -> bool:
+    def _wait(self, done: Callable[[], bool], timeout: float, what: Callable[[], str] | str, boot: Progress) -> bool:
         """Wait until ``done()`` (events read, exits checked), saying ``what()`` it waits for; False on timeout."""
         end = time.monotonic() + timeout
         t_start = time.monotonic()
@@ -228,7 +228,7 @@ class _Graph:
             if done() or self.not_started:
                 return True
             self._check_exits(boot=True)
-            boot.stage(f"waiting for {what()} ({time.monotonic() - t_start:.0f} s)")
+            boot.stage(f"waiting for {what if isinstance(what, str) else what()} ({time.monotonic() - t_start:.0f} s)")
             time.sleep(0.05)
         return done()
 
@@ -254,10 +254,9 @@ class _Graph:
                 self._wait_nodes(boot)
             self._popen(name, node_params, extra)
             if name == "hw_driver":  # the link first: no board, no run (and no waiting for the other nodes)
-                if not self._wait(lambda: "hw_driver" in self.ready, READY_S, lambda: "hw_driver", boot):
+                if not self._wait(lambda: "hw_driver" in self.ready, READY_S, "hw_driver", boot):
                     raise StartupError(f"node hw_driver not ready after {READY_S:.0f} s; see {self.logs['hw_driver']}")
-                where = f"the board at {url}"
-                if not self._wait(lambda: self.board is not None, BOARD_S, lambda w=where: w, boot):
+                if not self._wait(lambda: self.board is not None, BOARD_S, f"the board at {url}", boot):
                     raise StartupError(_no_board(url, BOARD_S))
         self._wait_nodes(boot)
         if self.not_started:

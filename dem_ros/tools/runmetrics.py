@@ -173,11 +173,13 @@ class RunMetrics:
     def rows(self) -> list[tuple[str, str]]:
         """(label, value) rows of the printed table."""
         laws = " -> ".join(self.controllers_used) if self.controllers_used else self.controller
-        planned = f" of {self.planned_samples} planned" if self.planned_samples is not None else ""
+        made = self.facts.samples if self.facts is not None else None
+        planned = (f"; the plant made {made} of the {self.planned_samples} planned" if made is not None
+                   and self.planned_samples is not None else "")
         rows = [
             ("verdict", Verdict(self.verdict, tuple(self.verdict_reasons)).line().split("  ", 1)[1]),
             ("scenario / controller / estimator", f"{self.scenario} / {laws} / {self.estimator} ({self.transport})"),
-            ("samples", f"{self.samples}{planned} (e = {self.error_source} gap - y_m)"),
+            ("samples", f"{self.samples} with gap and reference (e = {self.error_source} gap - y_m){planned}"),
         ]
         # a figure that does not apply is left out, never printed as nan: no sample from t = 0 (a plate that
         # landed in the pre-roll) has no error, a run shorter than 40 s no error after 40 s; a failed run's
@@ -351,7 +353,9 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     m.problems = run_problems(r, src["stamp_ns"], ref["stamp_ns"], epoch, ts, m.duration_s, had_ref)
     m.problems += [f"{n} message(s) on {topic} left out: not the topic's JointState layout (a foreign or corrupt"
                    " writer)" for topic, n in skipped.items()]
-    facts = run_facts(src["stamp_ns"], epoch, run, loop_hist, m.problems)
+    status = ((r.metadata_yaml or {}).get("custom_data") or {}).get("dem_ros.status")
+    facts = run_facts(src["stamp_ns"], epoch, run, loop_hist, m.problems,
+                      record_incomplete=r.truncated is not None or status == "failed")
     m.facts = facts
     m.set_verdict(judge(facts))
     m.planned_samples = facts.planned_samples
@@ -377,7 +381,8 @@ def _float(v: str | None) -> float | None:
 
 
 def run_facts(src_ns: np.ndarray, epoch_ns: int | None, run: Mapping[str, Any],
-              loop_hist: list[tuple[int, dict[str, str]]], problems: list[str]) -> RunFacts:
+              loop_hist: list[tuple[int, dict[str, str]]], problems: list[str],
+              record_incomplete: bool = False) -> RunFacts:
     """The facts of a recorded run for its verdict (:func:`dem_ros.tools.verdict.judge`).
 
     Args:
@@ -387,6 +392,8 @@ def run_facts(src_ns: np.ndarray, epoch_ns: int | None, run: Mapping[str, Any],
         loop_hist: (log time, values) of every loop status of the plant (or hardware driver), in order.
         problems: what qualifies the record (degraded); extended here by a recorder that stopped before the
             plant's last samples.
+        record_incomplete: the bag says its recording stopped early (truncated, or the recorder's failure):
+            samples missing at its end are the record's loss, not a short run (degraded, not failed).
 
     Samples are counted on the plant's stamp grid (t = 0 to its last stamp in the bag, dt apart), not from
     the recorder's counters: a sample the recorder lost inside the run still counts (a problem of the
@@ -400,11 +407,16 @@ def run_facts(src_ns: np.ndarray, epoch_ns: int | None, run: Mapping[str, Any],
     exp = src_ns if epoch_ns is None else src_ns[src_ns >= epoch_ns]
     origin = epoch_ns if epoch_ns is not None else (int(exp.min()) if exp.size else 0)
     samples = round((int(exp.max()) - origin) / dt_ns) + 1 if exp.size else 0
+    if planned is not None:  # plant_sim stamps t = 0 .. duration (planned + 1 samples), a driver t < duration
+        samples = min(samples, planned)
     last = loop_hist[-1][1] if loop_hist else {}
     cycles = int(last.get("cycles", 0) or 0)
-    if planned is not None and samples < planned <= cycles:  # the plant made them; the bag ends before
-        problems.append(f"the bag ends {planned - samples} sample(s) before the plant's last (the recorder stopped"
-                        " early) - the metrics cover the recorded samples")
+    if planned is not None and samples < planned and (planned <= cycles or record_incomplete):
+        # the plant made them (its last status says so) or the bag cannot tell (its recording stopped): the
+        # record is short, not (as far as the bag knows) the run
+        problems.append(f"the bag ends {planned - samples} sample(s) before the planned end (at t = {samples * dt:.3f}"
+                        f" of {planned * dt:g} s): the recording stopped early - the metrics cover the recorded"
+                        " samples" + ("" if planned <= cycles else "; what happened after is not in the bag"))
         samples = planned
     f = RunFacts(planned_samples=planned, samples=samples, reached_t0=exp.size > 0, dt=dt, problems=problems)
     if last.get("failed") == "True":

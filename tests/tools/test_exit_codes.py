@@ -60,9 +60,8 @@ def test_replay_flags_stretches_without_a_reference_as_degraded_exit_3(tmp_path,
     out, err = capsys.readouterr()
     assert "250 sample(s) without a reference in 1 stretch(es); longest 250 samples" in out
     assert "recorder lost" not in out and "missing from the bag" not in out
-    assert "replay: degraded: 250 sample(s)" in err and out.splitlines()[0].split() == ["verdict", "degraded:",
-                                                                                      "250", "sample(s)"] + \
-        out.splitlines()[0].split()[4:]
+    assert "replay: degraded: 250 sample(s)" in err
+    assert out.splitlines()[0].split()[:4] == ["verdict", "degraded:", "250", "sample(s)"]  # the first line
 
 
 def test_replay_tells_samples_the_recorder_lost_from_a_reference_outage(tmp_path, capsys):

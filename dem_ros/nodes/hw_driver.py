@@ -223,7 +223,7 @@ class HwDriverNode:
                         if worth_logging(self.reader_errors):
                             self.node.logger.error(f"link reader: a frame raised {exc!r} ({self.reader_errors} so far);"
                                                    " carrying on with the next")
-                if not ready:
+                if not ready and not poller.poll(0):  # silent, still (a stall after the wait is no silence)
                     self.drv.check(time.monotonic_ns())
             if batch >= DRAIN_BATCH:
                 time.sleep(DRAIN_PAUSE_S)  # the executor's turn for the lock (on_command), and a sleep for the RT budget

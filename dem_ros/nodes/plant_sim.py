@@ -111,6 +111,7 @@ class PlantSimNode:
         self.preroll_misses = 0
         self.lockstep_landing = 0
         self.landing_t: float | None = None  # experiment time [s] the board began to land the plate
+        self.holds0 = 0  # board holds before t = 0 (the pre-roll's: reported apart, as its misses are)
         self.lat = LatencyStats()
         self.late = LatencyStats()
         self.timer = node.timer(c["dt"], self.tick)
@@ -179,6 +180,7 @@ class PlantSimNode:
             self._publish(self.k_next)
             if self.k_next == 0:
                 self.cpu0 = time.process_time()
+                self.holds0 = self.board.counters["holds"]  # the pre-roll's holds are not the experiment's
                 announce("t0", "plant_sim", epoch_ns=self.epoch)  # to the launcher (dem_ros.runstate)
             if self.k_next >= 0:
                 self.late.add(now - self.due)
@@ -311,7 +313,10 @@ class PlantSimNode:
         b = self.board
         c = b.counters
         return {
-            "board_mode": b.mode.name, "holds": c["holds"], "hold_events": c["hold_events"],
+            # holds and misses count the same samples (the experiment's, from t = 0): a free-running board holds
+            # at each missed deadline; the pre-roll's are apart (preroll_holds, preroll_misses)
+            "board_mode": b.mode.name, "holds": c["holds"] - (self.holds0 if self.k_next > 0 else c["holds"]),
+            "preroll_holds": self.holds0 if self.k_next > 0 else c["holds"], "hold_events": c["hold_events"],
             "longest_hold_ms": c["longest_hold_us"] / 1000,
             "clipped": c["clipped"], "trips": c["trips"], "landing": c["landings"] > 0 or b.mode == Mode.LANDED,
             "landed": c["landed"] > 0, "landing_reason": b.reason if c["landings"] else "",

@@ -360,6 +360,8 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     m.set_verdict(judge(facts))
     m.planned_samples = facts.planned_samples
     cut = facts.cut_time()
+    if m.failed and m.fail_time_s is None:
+        m.fail_time_s = cut if cut is not None else (facts.samples * facts.dt if facts.reached_t0 else None)
     if m.failed and cut is not None and t.size:  # the figures of the samples before the failure, never after
         keep = t < cut
         em = error_metrics(t[keep], e[keep])

@@ -58,7 +58,7 @@ from ..runstate import announce
 from ..transport import Node, run_node
 from .common import OK, WARN, CommandSource, Diagnostics, LatencyStats, diag_array, joint_state, stamp_ns, worth_logging
 
-__all__ = ["HwDriverNode", "main"]
+__all__ = ["HwClient", "HwDriverNode", "main", "request"]
 
 RING = 256  # receive times kept by sample number (latency: sample received -> command sent)
 #: link and board counters whose growth makes the next /diagnostics report a WARN
@@ -446,60 +446,90 @@ class HwDriverNode:
 _ANSWERS = {"arm": ("armed", "already active"), "disarm": ("disarmed",), "estop": ("e-stop",)}
 
 
-def request(verb: str, reason: str = "", *, domain_id: int | None = None, timeout_s: float = 5.0) -> dict[str, str]:
-    """``dem-ros hw arm|disarm|estop|status``: send one request to the running hw_driver, return its state.
+class HwClient:
+    """A client of the running hw_driver (``dem-ros hw``, a test's operator): one DDS participant for all its
+    requests, so that discovery (seconds on a loaded host) is paid once, when it is made, not at each request.
 
-    The request goes on ``/dem/hw/request`` (an e-stop on ``/dem/hw/estop``); the answer is the
-    driver's latched ``/dem/hw/state`` (its key/values plus ``state`` and ``level``). A request is
-    repeated until the state shows the answer (each is idempotent), for at most ``timeout_s``.
-
-    Raises:
-        TimeoutError: no hw_driver answered within ``timeout_s``.
+    Requests go on ``/dem/hw/request`` (an e-stop on ``/dem/hw/estop``); the answer is the driver's latched
+    ``/dem/hw/state`` (its key/values plus ``state`` and ``level``). A request is repeated until the state
+    shows the answer (each is idempotent), for at most ``timeout_s``.
     """
-    import os
 
-    from ..transport import make_node
+    def __init__(self, domain_id: int | None = None):
+        import os
 
-    if verb not in ("arm", "disarm", "estop", "status"):
-        raise ValueError(f"unknown request {verb!r}: arm, disarm, estop, status")
-    if domain_id is not None:
-        os.environ["ROS_DOMAIN_ID"] = str(domain_id)
-    node = make_node("dem_ros_hw", transport="dds", args=[])
-    states: list = []
-    node.subscribe(contract.HW_STATE, states.append)
-    pub = node.publisher(contract.HW_ESTOP if verb == "estop" else contract.HW_REQUEST)
-    String = node.msg("std_msgs/msg/String")
-    deadline = time.monotonic() + timeout_s
+        from ..transport import make_node
 
-    def values(st) -> dict[str, str]:
+        if domain_id is not None:
+            os.environ["ROS_DOMAIN_ID"] = str(domain_id)
+        self.node = make_node("dem_ros_hw", transport="dds", args=[])
+        self.states: list = []
+        self.node.subscribe(contract.HW_STATE, self.states.append)
+        self.pubs = {t.name: self.node.publisher(t) for t in (contract.HW_REQUEST, contract.HW_ESTOP)}
+        self.String = self.node.msg("std_msgs/msg/String")
+
+    @staticmethod
+    def _values(st) -> dict[str, str]:
         out = {kv.key: kv.value for kv in st.values}
         out["state"] = st.message
         out["level"] = str(st.level[0] if isinstance(st.level, bytes) else st.level)
         return out
 
-    try:
-        while time.monotonic() < deadline and not states:  # discovery: the latched state arrives
+    def request(self, verb: str, reason: str = "", *, timeout_s: float = 5.0) -> dict[str, str]:
+        """``arm``, ``disarm``, ``estop`` or ``status``: the driver's state once it shows the answer.
+
+        Raises:
+            TimeoutError: no hw_driver answered (or confirmed) within ``timeout_s``.
+        """
+        if verb not in ("arm", "disarm", "estop", "status"):
+            raise ValueError(f"unknown request {verb!r}: arm, disarm, estop, status")
+        deadline = time.monotonic() + timeout_s
+        node = self.node
+        while time.monotonic() < deadline and not self.states:  # discovery: the latched state arrives
             node.spin_once(0.05)
-        if not states:
+        if not self.states:
             raise TimeoutError(f"no hw_driver answered on {contract.HW_STATE.name} within {timeout_s:g} s")
         if verb == "status":
-            return values(states[-1])
-        msg = String()
+            node.spin_once(0.05)
+            return self._values(self.states[-1])
+        msg = self.String()
         msg.data = reason if verb == "estop" else verb
         if verb == "estop" and not reason:
             msg.data = "dem-ros hw estop"
+        pub = self.pubs[(contract.HW_ESTOP if verb == "estop" else contract.HW_REQUEST).name]
+        seen = len(self.states)  # an answer counts from a state published after the first send
         next_send = 0.0
         while time.monotonic() < deadline:
             if time.monotonic() >= next_send:
                 pub.publish(msg)
                 next_send = time.monotonic() + 0.3
             node.spin_once(0.05)
-            v = values(states[-1])
-            if v.get("answer", "").startswith(_ANSWERS[verb]) or (verb == "estop" and v["state"] == "fault"):
-                return v
-        raise TimeoutError(f"hw_driver did not confirm '{verb}' within {timeout_s:g} s (state {values(states[-1])['state']})")
+            for st in self.states[seen:]:
+                v = self._values(st)
+                if v.get("answer", "").startswith(_ANSWERS[verb]) or (verb == "estop" and v["state"] == "fault"):
+                    return v
+            seen = max(seen, len(self.states) - 1)
+        raise TimeoutError(f"hw_driver did not confirm '{verb}' within {timeout_s:g} s"
+                           f" (state {self._values(self.states[-1])['state']})")
+
+    def close(self) -> None:
+        self.node.shutdown()
+
+
+def request(verb: str, reason: str = "", *, domain_id: int | None = None, timeout_s: float = 5.0) -> dict[str, str]:
+    """``dem-ros hw arm|disarm|estop|status``: one request to the running hw_driver (a :class:`HwClient` of its
+    own), its state once it shows the answer.
+
+    Raises:
+        TimeoutError: no hw_driver answered within ``timeout_s``.
+    """
+    if verb not in ("arm", "disarm", "estop", "status"):
+        raise ValueError(f"unknown request {verb!r}: arm, disarm, estop, status")
+    client = HwClient(domain_id)
+    try:
+        return client.request(verb, reason, timeout_s=timeout_s)
     finally:
-        node.shutdown()
+        client.close()
 
 
 def main(args=None) -> int:

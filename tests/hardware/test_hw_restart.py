@@ -32,7 +32,7 @@ from pathlib import Path
 from dem_ros import contract
 from dem_ros.bag import BagReader
 from dem_ros.core.scenarios import get_scenario
-from dem_ros.nodes.hw_driver import request
+from dem_ros.nodes.hw_driver import HwClient
 from dem_ros.tools.launcher import run_graph
 
 DELAY = 4
@@ -65,12 +65,14 @@ class Script:
         self.rearms = 0
         self.landings_at_arm = 0
         self.liftoffs_at_arm = 0  # the controller's 'lift-off done' lines when the driver was (re-)armed
+        self.client = HwClient(domain)  # discovered while the graph starts
 
     def arm(self) -> None:
-        """``dem-ros hw arm`` (its function, in this process: a CLI process takes 10-100 s to start at load 15-25)."""
+        """``dem-ros hw arm`` (its client, made before the run: a CLI process, or a client made now, would pay
+        start-up and discovery, tens of seconds on a loaded host, at the moment the arm is needed)."""
         self.liftoffs_at_arm = self._log().count("lift-off done")
         self.t.pop("lifted", None)  # a lift-off the board ended by landing the plate does not count
-        self.arm_out = str(request("arm", domain_id=self.domain, timeout_s=30.0))
+        self.arm_out = str(self.client.request("arm", timeout_s=30.0))
         self.t["armed"] = time.monotonic()  # confirmed by the driver (discovery alone takes 20 s at load 15)
 
     def _log(self) -> str:
@@ -118,8 +120,12 @@ def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path
     workdir = tmp_path / "run"
     script = Script(workdir, domain_id, support_mm)
     bag = tmp_path / "bag"
-    facts = run_graph(cfg, duration=2 * LIMIT_S, transport="dds", bag=bag, meta={"scenario": "S1", "duration_s": LIMIT_S},
-                      domain_id=domain_id, status=False, workdir=workdir, hardware="rig", supervise=script)
+    try:
+        facts = run_graph(cfg, duration=2 * LIMIT_S, transport="dds", bag=bag,
+                          meta={"scenario": "S1", "duration_s": LIMIT_S}, domain_id=domain_id, status=False,
+                          workdir=workdir, hardware="rig", supervise=script)
+    finally:
+        script.client.close()
     rig = facts["rig"]
     logs = {n: Path(p).read_text(errors="replace")[-3000:] for n, p in facts["logs"].items()}
     assert script.phase == "stop", (script.phase, script.t, _rig_status(workdir), logs)

@@ -727,36 +727,34 @@ def run_row(spec: FaultSpec, *, compose: bool, scenario: str, duration: float, a
             subprocess.run(["umount", "-l", str(disk)], check=False)
 
 
-def _plant_end(logs: dict[str, str]) -> str:
-    """The plant's own last word in its log: "finished 4 s", "landed safely at ...", "plant failure ..." ("": none)."""
-    end = ""
-    for name in ("plant_sim", "container"):
-        try:
-            text = Path(logs[name]).read_text(errors="replace") if name in logs else ""
-        except OSError:
-            continue
-        for line in text.splitlines():
-            if "] [plant_sim]: " in line:
-                said = line.split("] [plant_sim]: ", 1)[1]
-                if said.startswith(("finished", "landed safely", "plant failure")):
-                    end = said
-    return end
+def run_events(info: dict[str, Any], logdir: Path | None) -> list[dict[str, Any]]:
+    """The run's run-state events: from the launch facts, else from the file the launcher keeps beside the logs
+    (a run whose bag could not be summarised)."""
+    from .launcher import RUN_STATE_FILE
 
-
-def _outage_s(logs: dict[str, str], name: str, killed_ns: int | None) -> float | None:
-    """Seconds from the SIGKILL of ``name`` to the 'ready' of its restarted process (its log), or None."""
-    if killed_ns is None or name not in logs:
-        return None
+    if info.get("events"):
+        return list(info["events"])
     try:
-        text = Path(logs[name]).read_text(errors="replace")
+        text = (logdir / RUN_STATE_FILE).read_text() if logdir is not None else ""
     except OSError:
+        return []
+    return [json.loads(line) for line in text.splitlines() if line.strip()]
+
+
+def _plant_end(info: dict[str, Any]) -> str:
+    """The plant's own last word, its "finished" run-state event: "finished 4 s", "landed safely at ...",
+    "plant failure ..." ("": none came)."""
+    ends = [e for e in info.get("events") or [] if e.get("event") == "finished" and e.get("node") == "plant_sim"]
+    return str(ends[-1].get("message", "")) if ends else ""
+
+
+def _outage_s(info: dict[str, Any], name: str, killed_ns: int | None) -> float | None:
+    """Seconds from the SIGKILL of ``name`` to the "ready" event of its restarted process, or None."""
+    if killed_ns is None:
         return None
-    for line in text.splitlines():
-        if line.startswith("[INFO] [") and line.endswith(f"[{name}]: ready"):
-            t = float(line.split("] [", 1)[1].split("]", 1)[0])
-            if t * 1e9 > killed_ns:
-                return t - killed_ns * 1e-9
-    return None
+    ready = [int(e["time_ns"]) for e in info.get("events") or []
+             if e.get("event") == "ready" and e.get("node") == name and int(e.get("time_ns", 0)) > killed_ns]
+    return (ready[0] - killed_ns) * 1e-9 if ready else None
 
 
 def _lost(info: dict[str, Any], problems: list[str]) -> list[str]:
@@ -807,11 +805,12 @@ def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duratio
     logs = json.loads((bag / "summary.json").read_text()).get("logs", {}) if (bag / "summary.json").exists() else {}
     logdir = logdir or bag.parent / (bag.name + "_logs")
     logs = {p.stem: str(p) for p in logdir.glob("*.log")} if logdir.is_dir() else logs
-    end = _plant_end(logs)
+    info["events"] = run_events(info, logdir)
+    end = _plant_end(info)
     if disk is not None and j["outcome"] == "levitating" and not end.startswith("finished"):
-        # the bag stops where the disk filled: the plant's log says how the run ended
+        # the bag stops where the disk filled: the plant's own last word says how the run ended
         j["outcome"] = "landed safely" if end.startswith("landed") else "failed"
-        j["detail"] = f"the plant: {end or 'no last word in its log'}"
+        j["detail"] = f"the plant: {end or 'no last word from it'}"
     levels = _log_levels(logs, j["fault_ns"] - 10**9)
     exits = info.get("exits") or []  # node processes the launcher saw die (reported on its stderr at once)
     # heard live but not in the bag (a full disk stops the recording before the recorder's own ERROR)
@@ -835,7 +834,7 @@ def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duratio
     ok = j["outcome"] in spec.allowed and (bool(told) or bool(levels))
     sent = [f"{v} {k}" for k, v in inj.counts.items()]
     if spec.kill and spec.restart_after is not None:  # what the outage was, against the board's hold
-        down = _outage_s(logs, spec.kill, inj.killed_ns)
+        down = _outage_s(info, spec.kill, inj.killed_ns)
         hold = (f"lockstep_timeout {cfg['plant_sim']['lockstep_timeout']:g} s" if cfg["plant_sim"]["lockstep"]
                 else f"hold_timeout {cfg['plant_sim']['hold_timeout'] * 1e3:g} ms")
         sent.append(f"down {down:.1f} s (SIGKILL to the restarted node's 'ready'; {hold})" if down is not None

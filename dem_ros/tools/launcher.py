@@ -102,6 +102,8 @@ def _node_cmd(name: str, transport: str, params: Path, extra: list[str]) -> list
 #: s: start-up bounds. A node must be set up (its "ready" event) within READY_S of its start; the board must
 #: answer the driver's hello within BOARD_S of the driver's "ready"; t = 0 must come within T0_S of the last
 #: node's "ready" (the plant's pre-roll, or the driver's arming and pre-roll)
+#: the run's run-state events (JSON lines, dem_ros.runstate), beside the node logs
+RUN_STATE_FILE = "run_state.jsonl"
 READY_S = 120.0
 BOARD_S = 10.0
 T0_S = 60.0
@@ -149,6 +151,7 @@ class _Graph:
         self.exits: list[dict[str, Any]] = []  # node processes that exited before the end (see _report_exit)
         self.seen_exits: set[int] = set()
         self.ready: set[str] = set()
+        self.events: list[dict[str, Any]] = []  # every run-state event, in order (dem_ros.runstate)
         self.board: dict[str, Any] | None = None  # the driver's "board" event: the board answered
         self.t_zero: float | None = None
         self.finished: dict[str, Any] | None = None
@@ -186,6 +189,9 @@ class _Graph:
                 self._on_event(ev)
 
     def _on_event(self, ev: dict[str, Any]) -> None:
+        self.events.append(ev)
+        with contextlib.suppress(OSError), open(self.workdir / RUN_STATE_FILE, "a") as out:  # kept with the logs
+            out.write(json.dumps(ev) + "\n")
         kind, node = ev.get("event"), str(ev.get("node", ""))
         if kind == "ready":
             self.ready.add(node)
@@ -387,7 +393,8 @@ class _Graph:
                 "returncodes": {n: p.returncode for n, p in self.procs.items()},
                 "logs": {n: str(p) for n, p in self.logs.items()}, "recorder": recorder_counts,
                 "domain_id": self.domain_id, "workdir": str(self.workdir), "rig": self.rig_summary,
-                "exits": self.exits, "cut_short": self.cut_short, "reached_t0": self.t_zero is not None}
+                "exits": self.exits, "cut_short": self.cut_short, "reached_t0": self.t_zero is not None,
+                "events": self.events}
 
 
 def _no_board(url: str, waited: float) -> str:
@@ -701,7 +708,7 @@ def launch(args: LaunchOptions | argparse.Namespace, *, quiet: bool = False, sup
         offline = simulate(cfg, controller=cfg["controller"]["type"], estimator=cfg["estimator"]["type"], duration=ran,
                            scenario=sc.name).metrics() if ran > 0 else {"rms_error_um": None}
     info = {"composed": compose, "offline_rms_error_um": offline["rms_error_um"], "offline_duration_s": ran, "bag": str(bag) if record else None,
-            "hardware": hardware, "rig": facts.get("rig"), "cut_short": facts["cut_short"],
+            "hardware": hardware, "rig": facts.get("rig"), "cut_short": facts["cut_short"], "events": facts["events"],
             "recorder": facts["recorder"], "interrupted": facts["interrupted"], "exits": facts["exits"]}
     _judge(metrics, facts)
     if record and bag.is_dir():  # the run-time summary travels with the bag (replay compares against it)

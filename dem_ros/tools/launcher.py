@@ -562,11 +562,14 @@ class LaunchOptions:
         return cls(**given)
 
 
-#: controller.command_delay of a hardware run with a process per node, unless the configuration sets it:
-#: a measurement crosses three processes (driver -> estimator -> controller -> driver) over DDS, p50 0.8 ms,
-#: p99 1.8-2.6 ms on a loaded 2-core host; with 1 sample half the commands came too late (the board held,
-#: then landed), 3 samples leave the loop's tail room (the law predicts over it; offline simulates it)
-HW_PER_PROCESS_COMMAND_DELAY = 3
+#: controller.command_delay of a run on the emulated rig (``--hardware rig`` / ``rig-serial``: the launcher
+#: configures the emulated board too), unless the configuration sets it. With a process per node a measurement
+#: crosses three processes (driver -> estimator -> controller -> driver) over DDS, p50 0.8 ms, p99 1.8-2.6 ms
+#: on a loaded 2-core host: with 1 sample half the commands came too late (the board held, then landed); 3
+#: samples leave the loop's tail room, composed as well (the law predicts over it; offline simulates it). A
+#: real board applies commands at its firmware's delay (its hello says which; the driver refuses another):
+#: there the configuration must name it.
+RIG_COMMAND_DELAY = 3
 
 
 def _options(args: LaunchOptions | argparse.Namespace) -> LaunchOptions:
@@ -593,8 +596,8 @@ def _config_from_args(args: LaunchOptions | argparse.Namespace) -> tuple[dict[st
         cfg["estimator"]["type"] = opts.estimator
     if opts.free_run:
         cfg["plant_sim"]["lockstep"] = False
-    if opts.hardware is not None and not opts.compose and not _delay_is_set(opts):
-        d = HW_PER_PROCESS_COMMAND_DELAY
+    if opts.hardware in ("rig", "rig-serial") and not _delay_is_set(opts):
+        d = RIG_COMMAND_DELAY
         cfg["controller"]["command_delay"] = d
         cfg["controller"]["max_age"] = max(cfg["controller"]["max_age"], (d + 1) * cfg["plant_sim"]["dt"])
     duration = opts.duration if opts.duration is not None else sc.duration

@@ -2,10 +2,17 @@
 
 Writes the run's full configuration as a ROS 2 params file, starts recorder,
 reference, estimator, controller and plant_sim (last, so it starts its clock
-once the others have matched), shows the plant's status line live, stops every
-process cleanly at the end or on Ctrl-C / SIGTERM (recorder last, so the bag
-is complete), and prints a summary read back from the bag: tracking metrics
-(e = true gap - y_m, matched by stamp), loop statistics and CPU per node.
+once the others are set up; on hardware the driver first, so that a link with no
+board behind it ends the start-up in seconds), shows the plant's status line live,
+stops every process cleanly at the end or on Ctrl-C / SIGTERM (recorder last, so
+the bag is complete), and prints a summary read back from the bag: the run's
+verdict first (:mod:`.verdict`), tracking metrics (e = true gap - y_m, matched by
+stamp), loop statistics and CPU per node.
+
+Three steps (:class:`_Graph`): start, run, stop. What the launcher waits for comes from
+the nodes' run-state events (:mod:`dem_ros.runstate`: set up, board answered, t = 0,
+driver fault, finished), never from their log text; the progress line names it.
+Options are typed (:class:`LaunchOptions`).
 """
 
 from __future__ import annotations

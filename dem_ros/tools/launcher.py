@@ -689,10 +689,12 @@ def launch(args: LaunchOptions | argparse.Namespace, *, quiet: bool = False, sup
                           status=not quiet, workdir=logs_dir or ((bag.parent / (bag.name + "_logs")) if record else None),
                           compose=compose, hardware=hardware, faults=opts.fault,
                           supervise=supervise)
+        if facts["interrupted"] and not facts["reached_t0"]:  # Ctrl-C while starting: no run, no bag (exit 130)
+            raise KeyboardInterrupt
         with Progress("dem-ros launch", None, enabled=not quiet) as bar:
             bar.stage(f"reading the bag for the metrics ({bag.name})")
             metrics = RunMetrics.from_bag(bag)
-    except StartupError:
+    except (StartupError, KeyboardInterrupt):
         if record:  # nothing ran: no partial bag (the node logs stay, the error names them)
             shutil.rmtree(bag, ignore_errors=True)
         raise

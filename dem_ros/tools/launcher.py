@@ -173,7 +173,8 @@ class _Graph:
                                                if n != "recorder" or bag is not None]
         if compose and hardware is not None:  # the loop's nodes composed, the driver beside them (it owns the link)
             names = ["container", "hw_driver"]
-        if hardware is not None:  # the driver first: the board answers (or not) while the others start
+        if hardware is not None:  # the driver first: the board answers (or not) while the others start; the
+            # controller last, once they are set up: its first commands arm the loop (the driver waits armed)
             names = ["hw_driver", *(n for n in names if n != "hw_driver")]
         self.names = names
         self._buf = ""
@@ -265,6 +266,8 @@ class _Graph:
                 node_params = write_params_file(self.cfg, self.workdir / "hw_driver_params.yaml")
             if name == "plant_sim":  # last, once the others are set up: it starts its clock at once
                 self._wait_nodes(boot)
+            if name == "controller" and self.hardware is not None:  # its commands start the loop: last
+                self._wait_nodes(boot, [n for n in self.started if n not in ("hw_driver", "container")])
             self._popen(name, node_params, extra)
             if name == "hw_driver":  # the link first: no board, no run (and no waiting for the other nodes)
                 if not self._wait(lambda: "hw_driver" in self.ready, READY_S, "hw_driver", boot):
@@ -275,9 +278,12 @@ class _Graph:
         if self.not_started:
             raise StartupError(self.not_started)
 
-    def _wait_nodes(self, boot: Progress) -> None:
-        """Until every node but the plant said "ready" (composed: the loop's nodes in the container)."""
-        if self.compose:
+    def _wait_nodes(self, boot: Progress, names: Sequence[str] | None = None) -> None:
+        """Until every node of ``names`` said "ready" (default: all but the plant; composed, the loop's nodes
+        in the container)."""
+        if names is not None:
+            waiting = list(names)
+        elif self.compose:
             waiting = ["reference", "estimator", "controller"] if self.hardware is not None else []
         else:
             waiting = [n for n in self.names if n != self.plant_node]

@@ -495,7 +495,9 @@ SCHEMA = Schema(
             *SAFETY_SPECS,
             COMMAND_SOURCE,
             ParamSpec("trip_samples", int, 3, "samples", "consecutive out-of-limit samples that trip (a single spike is counted, not tripped on)", 1, 1000),
-            ParamSpec("link_timeout", float, 0.05, "s", "no sensor frame this long while armed or active -> fault (the board's own watchdog lands it)", 1e-3, 10.0),
+            ParamSpec("link_timeout", float, 0.05, "s",
+                      "no sensor frame this long while active -> fault (the board's own watchdog lands it); while"
+                      " armed, not yet active: a host stall, counted (stalls), the driver handshakes again", 1e-3, 10.0),
             ParamSpec("late_threshold", float, 1e-3, "s", "a sensor frame received later than this after its sample is counted late", 1e-6, 1.0),
             ParamSpec("clock_sync_frames", int, 200, "", "frames whose minimum (receive - board time) sets the fixed board -> ROS time offset", 1, 100000),
             ParamSpec("arm_samples", int, 200, "samples", "armed -> active after this many consecutive controller commands in time (the loop proves itself live before the board gets a command)", 1, 100000),

@@ -55,6 +55,7 @@ __all__ = [
     "PtyChannel",
     "SerialChannel",
     "UdpChannel",
+    "check_link",
     "open_channel",
 ]
 
@@ -394,6 +395,42 @@ def open_channel(url: str, side: str) -> UdpChannel | SerialChannel | PtyChannel
             raise ChannelError(f"{url!r}: pty:// creates the board end; the PC opens its serial:///dev/pts/N")
         return PtyChannel(url)
     raise ChannelError(f"{url!r}: unknown scheme {parts.scheme!r}; use udp://HOST:PORT, serial:///dev/PATH or pty://")
+
+
+
+def check_link(url: str) -> None:
+    """Check the PC's end of the link ``url`` before anything starts, without talking to the board.
+
+    ``udp://HOST:PORT``: well formed, HOST resolves, a socket connects to it (a route exists; nothing is
+    sent). ``serial:///dev/PATH``: well formed, the device exists, is a character device and is readable
+    and writable by this user (it is not opened: opening a serial port can reset a board).
+
+    Raises:
+        ChannelError: malformed or unreachable, with the reason (one line).
+    """
+    parts = urlsplit(url)
+    if parts.scheme == "serial":
+        if parts.netloc or not parts.path.startswith("/"):
+            raise ChannelError(f"{url!r}: expected serial:///dev/PATH[?baud=N] (three slashes)")
+        query = parse_qs(parts.query, strict_parsing=False)
+        if set(query) - {"baud"} or not all(t.isdigit() and int(t) > 0 for t in query.get("baud", [])):
+            raise ChannelError(f"{url!r}: the only option is baud=N, a positive integer")
+        path = parts.path
+        try:
+            st = os.stat(path)
+        except OSError as e:
+            raise ChannelError(f"{url}: no such device {path} ({e.strerror}); is the board plugged in?") from None
+        import stat
+
+        if not stat.S_ISCHR(st.st_mode):
+            raise ChannelError(f"{url}: {path} is not a character device (a serial port)")
+        if not os.access(path, os.R_OK | os.W_OK):
+            raise ChannelError(f"{url}: {path} is not readable and writable by this user (group dialout?)")
+        return
+    if parts.scheme == "pty":
+        raise ChannelError(f"{url!r}: pty:// creates the board end; the PC opens its serial:///dev/pts/N")
+    ch = open_channel(url, "pc")  # udp: parsed, resolved, connected (nothing sent); other schemes refused
+    ch.close()
 
 
 assert MAX_FRAME_SIZE < _DGRAM_MAX

@@ -9,6 +9,7 @@ Lifecycle (published on ``/dem/hw/state`` and in ``/diagnostics``)::
         ^                 |                                    |
         +---disarm()------+------------------------------------+  (a controlled landing, LAND)
     any --trip / e-stop / watchdog / link loss--> FAULT (latched: LAND is sent every sample)
+    ARMED --no frame for link_timeout (a host stall)--> ARMED: handshakes again, counted (``stalls``), no fault
     FAULT --clear() (disarm) --> INACTIVE;  arm() clears a latched fault as well
     ACTIVE --arm()--> ARMED only while the board reports LANDED / FAULT: it landed the plate on its own
         (its hold_timeout is shorter than the driver's) and ignores commands until it is armed again
@@ -183,8 +184,9 @@ class HwDriver:
         self.counters = {
             "frames": 0, "samples": 0, "lost": 0, "duplicated": 0, "reordered": 0, "late": 0, "corrupt": 0,
             "commands_sent": 0, "commands_dropped": 0, "commands_stale": 0, "clipped": 0, "hold_samples": 0,
-            "land_sent": 0, "trips": 0, "watchdog": 0, "estops": 0, "link_loss": 0, "sensor_holds": 0,
+            "land_sent": 0, "trips": 0, "watchdog": 0, "estops": 0, "link_loss": 0, "sensor_holds": 0, "stalls": 0,
         }
+        self.longest_stall_ms = 0.0  # the longest silence an armed driver rode through (_stall) [ms]
         self.corrupt_reasons: dict[str, int] = {}
         self.status_counts: dict[str, int] = {}  # samples the board reported each status bit in
 
@@ -375,10 +377,24 @@ class HwDriver:
                 self.fault(f"command watchdog: no controller command for {quiet * 1e3:.1f} ms (> hold_timeout)")
         if self.state in (DriverState.ARMED, DriverState.ACTIVE) and self.last_rx_steady is not None:
             quiet = (steady_ns - self.last_rx_steady) * 1e-9
-            if quiet > c["link_timeout"]:
+            if quiet > c["link_timeout"] and self.state == DriverState.ARMED:
+                self._stall(quiet)
+            elif quiet > c["link_timeout"]:
                 self.counters["link_loss"] += 1
                 self.fault(f"link lost: no sensor frame for {quiet * 1e3:.1f} ms (> link_timeout)")
         return None
+
+    def _stall(self, quiet_s: float) -> None:
+        """Armed, not yet active, and no frame for ``link_timeout``: a host stall (the process did not run) or
+        a link that paused. The board has no command of ours to hold and levitates nothing for us yet, so
+        nothing is at stake: no fault is latched. The driver handshakes again (hello: the node asks until the
+        board answers; the loop proves itself again over ``arm_samples`` commands) and counts the stall
+        (``stalls``, the longest in ``longest_stall_ms``: reported on /diagnostics)."""
+        self.counters["stalls"] += 1
+        self.longest_stall_ms = max(self.longest_stall_ms, round(quiet_s * 1e3, 1))
+        self.hello = None
+        self._in_time = 0
+        self.last_rx_steady = None  # quiet from the next frame on
 
     def command(self, stamp_ns: int, u, steady_ns: int) -> bytes | None:
         """A controller command (voltages [V], stamped with its measurement) -> a RUN frame, or None.
@@ -435,7 +451,8 @@ class HwDriver:
         out: dict[str, Any] = {"state": self.state.name.lower(), "reason": self.reason,
                                "board_mode": Mode(self.board_mode).name.lower(), "board_status": self.board_status,
                                "bus_v": round(self.bus_v, 2), "clock_drift_us": round(self.drift_ns / 1e3, 1),
-                               "board_id": self.hello.board_id if self.hello else -1}
+                               "board_id": self.hello.board_id if self.hello else -1,
+                               "longest_stall_ms": self.longest_stall_ms}
         out.update(self.counters)
         for k, v in sorted(self.corrupt_reasons.items()):
             out[f"corrupt: {k}"] = v

@@ -54,15 +54,16 @@ from ..hardware.channel import ChannelError, open_channel
 from ..hardware.driver import HARDWARE_FAULTS, DriverState, HwDriver, Sample
 from ..hardware.link import HELLO_REQUEST, Mode, Status, encode
 from ..realtime import config_from_env
+from ..runstate import announce
 from ..transport import Node, run_node
 from .common import OK, WARN, CommandSource, Diagnostics, LatencyStats, diag_array, joint_state, stamp_ns, worth_logging
 
-__all__ = ["HwDriverNode", "main"]
+__all__ = ["HwClient", "HwDriverNode", "main", "request"]
 
 RING = 256  # receive times kept by sample number (latency: sample received -> command sent)
 #: link and board counters whose growth makes the next /diagnostics report a WARN
 WARN_ON = ("lost", "duplicated", "reordered", "late", "corrupt", "hold_samples", "commands_dropped", "sensor_holds",
-           "link_loss", "watchdog", "commands_foreign", "publish_errors", "reader_errors")
+           "link_loss", "watchdog", "commands_foreign", "publish_errors", "reader_errors", "stalls")
 #: board modes that are reported as a standing WARN (the board is landing or has landed the plate)
 BOARD_DOWN = (Mode.LAND, Mode.LANDED, Mode.FAULT)
 STOP_LANDING_S = 1.0  # s: stopped from outside, the driver waits at most this for the board to take up LAND
@@ -107,6 +108,7 @@ class HwDriverNode:
         self.fail_t: float | None = None  # when it came [s on the experiment clock]
         self.board_down: tuple[float, str] | None = None  # (t [s], why) the board landed during the experiment
         self.end_landed_s: float | None = None  # the end-of-run landing took this long [s] (None: not yet landed)
+        self.board_run_samples = 0  # experiment samples at which the board was in RUN (or HOLD): the verdict's fact
         self.closing = False  # the node is shut down: no more publishing, the link lands the plate (close())
         self.stop_landed = False  # stopped from outside: LAND asked at the first frame after the node's shutdown
         self.publish_errors = 0  # samples the transport failed to publish while the node was up (not lost for good)
@@ -116,6 +118,7 @@ class HwDriverNode:
         self.t_boot = time.monotonic()
         self.cpu0: float | None = None
         self.last_state = (DriverState.INACTIVE, "", Mode.OFF)
+        self.board_announced = False
         self.answer = ""
         if c["auto_arm"]:
             self.drv.arm()
@@ -220,7 +223,7 @@ class HwDriverNode:
                         if worth_logging(self.reader_errors):
                             self.node.logger.error(f"link reader: a frame raised {exc!r} ({self.reader_errors} so far);"
                                                    " carrying on with the next")
-                if not ready:
+                if not ready and not poller.poll(0):  # silent, still (a stall after the wait is no silence)
                     self.drv.check(time.monotonic_ns())
             if batch >= DRAIN_BATCH:
                 time.sleep(DRAIN_PAUSE_S)  # the executor's turn for the lock (on_command), and a sleep for the RT budget
@@ -264,6 +267,7 @@ class HwDriverNode:
             if s.seq == self.epoch_seq:
                 self.epoch_ns = s.stamp_ns
                 self.cpu0 = time.process_time()
+                announce("t0", "hw_driver", epoch_ns=s.stamp_ns)
             if self.n_end and s.seq - self.epoch_seq >= self.n_end:
                 self.finished = True
                 self.t_finish = time.monotonic()
@@ -274,6 +278,8 @@ class HwDriverNode:
             frame = contract.FRAME_PREROLL
         if frame == contract.FRAME:
             self._watch_experiment(s)
+            if s.mode in (Mode.RUN, Mode.HOLD):
+                self.board_run_samples += 1  # the board ran the controller's commands at this sample
         JS = self.JS
         self.pub_applied.publish(joint_state(JS, s.stamp_ns, effort=s.applied, frame=frame))
         self.pub_meas.publish(joint_state(JS, s.stamp_ns, position=s.gap, effort=s.current, frame=frame))
@@ -339,7 +345,12 @@ class HwDriverNode:
         if key != self.last_state:
             self.node.logger.info(f"state {d.state.name.lower()}, board {Mode(d.board_mode).name.lower()}"
                                   + (f": {d.reason}" if d.reason else ""))
+            if d.state == DriverState.FAULT and self.last_state[0] != DriverState.FAULT:
+                announce("fault", "hw_driver", reason=d.reason, t0=self.epoch_ns is not None)
             self.last_state = key
+        if d.hello is not None and not self.board_announced:  # the board answered the driver's hello
+            self.board_announced = True
+            announce("board", "hw_driver", url=self.cfg["url"], board_id=d.hello.board_id)
         st = diag_array(*self.D, self.node.now_ns(), "hw_driver: state", self._level(), d.state.name.lower(),
                         {**self.stats(), "answer": self.answer}).status[0]
         self.pub_state.publish(st)
@@ -366,7 +377,7 @@ class HwDriverNode:
                 "latency_p50_us": round(lat["p50"], 1), "latency_p99_us": round(lat["p99"], 1),
                 "latency_max_us": round(lat["max"], 1), "failed": bool(self.failed), "fault": self.failed,
                 **({"fail_time_s": round(self.fail_t, 3)} if self.fail_t is not None else {}),
-                "holds": st["hold_samples"], **self._landing(), **st,
+                "holds": st["hold_samples"], "board_run_samples": self.board_run_samples, **self._landing(), **st,
                 "publish_errors": self.publish_errors, "reader_errors": self.reader_errors,
                 **self.source.values()}
 
@@ -374,7 +385,7 @@ class HwDriverNode:
         """``landing`` / ``landing_reason`` of the loop status: a board landing during the experiment (its time and
         why), else the end-of-run landing (expected: ``failed`` stays False)."""
         if self.board_down is not None:
-            return {"landing": True, "landing_reason": self.board_down[1]}
+            return {"landing": True, "landing_reason": self.board_down[1], "landing_t_s": round(self.board_down[0], 3)}
         if not self.finished:
             return {"landing": False, "landing_reason": ""}
         end = f"end of the run: disarmed after {self.cfg['duration']:g} s, "
@@ -400,6 +411,7 @@ class HwDriverNode:
         msg = f"finished {self.cfg['duration']:g} s; board {s['board_mode']}" + (f"; fault: {self.failed}" if self.failed else "")
         self.node.logger.info(msg)
         self.diag.publish(2 if self.failed else 0, "finished: " + msg, s)
+        announce("finished", "hw_driver", message=msg, failed=bool(self.failed))
         self.publish_state(force=True)
         self.node.timer(0.3, self.node.shutdown)
 
@@ -434,60 +446,90 @@ class HwDriverNode:
 _ANSWERS = {"arm": ("armed", "already active"), "disarm": ("disarmed",), "estop": ("e-stop",)}
 
 
-def request(verb: str, reason: str = "", *, domain_id: int | None = None, timeout_s: float = 5.0) -> dict[str, str]:
-    """``dem-ros hw arm|disarm|estop|status``: send one request to the running hw_driver, return its state.
+class HwClient:
+    """A client of the running hw_driver (``dem-ros hw``, a test's operator): one DDS participant for all its
+    requests, so that discovery (seconds on a loaded host) is paid once, when it is made, not at each request.
 
-    The request goes on ``/dem/hw/request`` (an e-stop on ``/dem/hw/estop``); the answer is the
-    driver's latched ``/dem/hw/state`` (its key/values plus ``state`` and ``level``). A request is
-    repeated until the state shows the answer (each is idempotent), for at most ``timeout_s``.
-
-    Raises:
-        TimeoutError: no hw_driver answered within ``timeout_s``.
+    Requests go on ``/dem/hw/request`` (an e-stop on ``/dem/hw/estop``); the answer is the driver's latched
+    ``/dem/hw/state`` (its key/values plus ``state`` and ``level``). A request is repeated until the state
+    shows the answer (each is idempotent), for at most ``timeout_s``.
     """
-    import os
 
-    from ..transport import make_node
+    def __init__(self, domain_id: int | None = None):
+        import os
 
-    if verb not in ("arm", "disarm", "estop", "status"):
-        raise ValueError(f"unknown request {verb!r}: arm, disarm, estop, status")
-    if domain_id is not None:
-        os.environ["ROS_DOMAIN_ID"] = str(domain_id)
-    node = make_node("dem_ros_hw", transport="dds", args=[])
-    states: list = []
-    node.subscribe(contract.HW_STATE, states.append)
-    pub = node.publisher(contract.HW_ESTOP if verb == "estop" else contract.HW_REQUEST)
-    String = node.msg("std_msgs/msg/String")
-    deadline = time.monotonic() + timeout_s
+        from ..transport import make_node
 
-    def values(st) -> dict[str, str]:
+        if domain_id is not None:
+            os.environ["ROS_DOMAIN_ID"] = str(domain_id)
+        self.node = make_node("dem_ros_hw", transport="dds", args=[])
+        self.states: list = []
+        self.node.subscribe(contract.HW_STATE, self.states.append)
+        self.pubs = {t.name: self.node.publisher(t) for t in (contract.HW_REQUEST, contract.HW_ESTOP)}
+        self.String = self.node.msg("std_msgs/msg/String")
+
+    @staticmethod
+    def _values(st) -> dict[str, str]:
         out = {kv.key: kv.value for kv in st.values}
         out["state"] = st.message
         out["level"] = str(st.level[0] if isinstance(st.level, bytes) else st.level)
         return out
 
-    try:
-        while time.monotonic() < deadline and not states:  # discovery: the latched state arrives
+    def request(self, verb: str, reason: str = "", *, timeout_s: float = 5.0) -> dict[str, str]:
+        """``arm``, ``disarm``, ``estop`` or ``status``: the driver's state once it shows the answer.
+
+        Raises:
+            TimeoutError: no hw_driver answered (or confirmed) within ``timeout_s``.
+        """
+        if verb not in ("arm", "disarm", "estop", "status"):
+            raise ValueError(f"unknown request {verb!r}: arm, disarm, estop, status")
+        deadline = time.monotonic() + timeout_s
+        node = self.node
+        while time.monotonic() < deadline and not self.states:  # discovery: the latched state arrives
             node.spin_once(0.05)
-        if not states:
+        if not self.states:
             raise TimeoutError(f"no hw_driver answered on {contract.HW_STATE.name} within {timeout_s:g} s")
         if verb == "status":
-            return values(states[-1])
-        msg = String()
+            node.spin_once(0.05)
+            return self._values(self.states[-1])
+        msg = self.String()
         msg.data = reason if verb == "estop" else verb
         if verb == "estop" and not reason:
             msg.data = "dem-ros hw estop"
+        pub = self.pubs[(contract.HW_ESTOP if verb == "estop" else contract.HW_REQUEST).name]
+        seen = len(self.states)  # an answer counts from a state published after the first send
         next_send = 0.0
         while time.monotonic() < deadline:
             if time.monotonic() >= next_send:
                 pub.publish(msg)
                 next_send = time.monotonic() + 0.3
             node.spin_once(0.05)
-            v = values(states[-1])
-            if v.get("answer", "").startswith(_ANSWERS[verb]) or (verb == "estop" and v["state"] == "fault"):
-                return v
-        raise TimeoutError(f"hw_driver did not confirm '{verb}' within {timeout_s:g} s (state {values(states[-1])['state']})")
+            for st in self.states[seen:]:
+                v = self._values(st)
+                if v.get("answer", "").startswith(_ANSWERS[verb]) or (verb == "estop" and v["state"] == "fault"):
+                    return v
+            seen = max(seen, len(self.states) - 1)
+        raise TimeoutError(f"hw_driver did not confirm '{verb}' within {timeout_s:g} s"
+                           f" (state {self._values(self.states[-1])['state']})")
+
+    def close(self) -> None:
+        self.node.shutdown()
+
+
+def request(verb: str, reason: str = "", *, domain_id: int | None = None, timeout_s: float = 5.0) -> dict[str, str]:
+    """``dem-ros hw arm|disarm|estop|status``: one request to the running hw_driver (a :class:`HwClient` of its
+    own), its state once it shows the answer.
+
+    Raises:
+        TimeoutError: no hw_driver answered within ``timeout_s``.
+    """
+    if verb not in ("arm", "disarm", "estop", "status"):
+        raise ValueError(f"unknown request {verb!r}: arm, disarm, estop, status")
+    client = HwClient(domain_id)
+    try:
+        return client.request(verb, reason, timeout_s=timeout_s)
     finally:
-        node.shutdown()
+        client.close()
 
 
 def main(args=None) -> int:

@@ -56,6 +56,7 @@ from ..core.hold import command_sample
 from ..core.params import TABLE2
 from ..core.plant import DemPlant
 from ..core.warmup import warm_up
+from ..runstate import announce
 from ..transport import Node, run_node
 from .common import ERROR, OK, WARN, CommandSource, Diagnostics, JointStates, LatencyStats, all_finite, stamp_ns
 
@@ -110,6 +111,8 @@ class PlantSimNode:
         self.misses = 0
         self.preroll_misses = 0
         self.lockstep_landing = 0
+        self.landing_t: float | None = None  # experiment time [s] the board began to land the plate
+        self.holds0 = 0  # board holds before t = 0 (the pre-roll's: reported apart, as its misses are)
         self.lat = LatencyStats()
         self.late = LatencyStats()
         self.timer = node.timer(c["dt"], self.tick)
@@ -178,6 +181,8 @@ class PlantSimNode:
             self._publish(self.k_next)
             if self.k_next == 0:
                 self.cpu0 = time.process_time()
+                self.holds0 = self.board.counters["holds"]  # the pre-roll's holds are not the experiment's
+                announce("t0", "plant_sim", epoch_ns=self.epoch)  # to the launcher (dem_ros.runstate)
             if self.k_next >= 0:
                 self.late.add(now - self.due)
             self.k_next += 1
@@ -260,6 +265,8 @@ class PlantSimNode:
         if b.mode == Mode.RUN:
             return
         if b.mode == Mode.LAND:
+            if self.landing_t is None:
+                self.landing_t = k * self.cfg["dt"]  # the verdict's "landed at t = ..." (negative: in the pre-roll)
             x = self.plant.x
             (log.error if b.fault else log.warn)(f"{when}: safe landing from gaps {x[0] * 1e3:.3f} / {x[2] * 1e3:.3f} mm to"
                       f" {self.cfg['landing_gap'] * 1e3:g} mm at <= {self.cfg['landing_speed'] * 1e3:g} mm/s: {b.reason}")
@@ -307,11 +314,15 @@ class PlantSimNode:
         b = self.board
         c = b.counters
         return {
-            "board_mode": b.mode.name, "holds": c["holds"], "hold_events": c["hold_events"],
+            # holds and misses count the same samples (the experiment's, from t = 0): a free-running board holds
+            # at each missed deadline; the pre-roll's are apart (preroll_holds, preroll_misses)
+            "board_mode": b.mode.name, "holds": c["holds"] - (self.holds0 if self.k_next > 0 else c["holds"]),
+            "preroll_holds": self.holds0 if self.k_next > 0 else c["holds"], "hold_events": c["hold_events"],
             "longest_hold_ms": c["longest_hold_us"] / 1000,
             "clipped": c["clipped"], "trips": c["trips"], "landing": c["landings"] > 0 or b.mode == Mode.LANDED,
             "landed": c["landed"] > 0, "landing_reason": b.reason if c["landings"] else "",
             "board_fault": b.fault, "lockstep_timeouts": self.lockstep_landing,
+            **({"landing_t_s": round(self.landing_t, 3)} if self.landing_t is not None else {}),
         }
 
     def status(self) -> None:
@@ -336,6 +347,7 @@ class PlantSimNode:
         log = self.node.logger
         (log.error if level >= 2 else log.warn if level == 1 else log.info)(message)
         self.diag.publish(level, "finished: " + message)
+        announce("finished", "plant_sim", message=message, level=level)
         # give the last samples time to reach subscribers, then stop the node
         self.node.timer(0.3, self.node.shutdown)
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from ..realtime import ENV, REPORT_PREFIX, STALLS_PREFIX
 from .common import UsageError
-from .launcher import GraphError, launch
+from .launcher import GraphError, LaunchOptions, launch
 from .runmetrics import tracking_text
 
 __all__ = ["bench_loop", "bench_record", "bench_sim", "machine", "run"]
@@ -338,9 +338,8 @@ def _one_loop(transport: str, compose: bool, free_run: bool, duration: float) ->
     """One graph run (S1, recorded to a temporary bag): loop figures, RMS, holds, landing, rt."""
     tmp = Path(tempfile.mkdtemp(prefix="dem_ros_bench_"))
     try:
-        a = argparse.Namespace(scenario="S1", params=None, set=["plant_sim.lockstep=false"] if free_run else None,
-                               controller=None, estimator=None, duration=duration, transport=transport,
-                               bag_dir=str(tmp), no_record=False, domain_id=None, json=None, compose=compose)
+        a = LaunchOptions(scenario="S1", set=["plant_sim.lockstep=false"] if free_run else [], duration=duration,
+                          transport=transport, bag_dir=str(tmp), compose=compose)
         metrics, info = launch(a, quiet=False)
         bag = Path(info["bag"])
         status = _plant_status(bag)
@@ -352,7 +351,8 @@ def _one_loop(transport: str, compose: bool, free_run: bool, duration: float) ->
     if metrics.loop is None:
         raise GraphError("the plant reported no loop statistics (see the launch logs)")
     holds = status.get("holds")
-    return {"loop": metrics.to_dict()["loop"], "failed": metrics.failed, "fail_time_s": metrics.fail_time_s,
+    return {"verdict": metrics.verdict, "verdict_reasons": metrics.verdict_reasons,
+            "loop": metrics.to_dict()["loop"], "failed": metrics.failed, "fail_time_s": metrics.fail_time_s,
             "rms_error_um": metrics.rms_error_um, "offline_rms_error_um": info["offline_rms_error_um"],
             "holds": int(holds) if holds is not None else None,
             "landing": status.get("landing") == "True" if "landing" in status else None,
@@ -364,6 +364,7 @@ def _print_loop(r: dict[str, Any], label: str) -> None:
     lat = L["latency_us"]
     cyc = max(L["cycles"], 1)
     failed = f"yes, at t = {r['fail_time_s']:.3f} s" if r["failed"] else "no"
+    print(f"  [{label}] verdict {r['verdict']}" + (f": {'; '.join(r['verdict_reasons'])}" if r["verdict_reasons"] else ""))
     print(f"  [{label}] cycles {L['cycles']}, deadline misses {L['deadline_misses']}"
           f" ({100.0 * L['deadline_misses'] / cyc:.3f} %), holds {r['holds'] if r['holds'] is not None else 'n/a'},"
           f" landing {'n/a' if r['landing'] is None else ('YES: ' + str(r['landing_reason'])) if r['landing'] else 'no'},"

@@ -88,8 +88,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         print(f"dem-ros sim: FAILED{at}: {sc.name} with {m.controller}: a gap left "
               f"({pc['gap_min']:g}, {pc['gap_max']:g}] m (rail contact or drop) or the state went non-finite",
               file=sys.stderr)
-        return 1
-    return 0
+    return m.exit_code  # the verdict's (dem_ros.tools.verdict)
 
 
 def cmd_report(args) -> int:

@@ -18,6 +18,7 @@ import hashlib
 import json
 import math
 import os
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -157,6 +158,12 @@ def out_dir(text: str) -> Path:
             break
         d = d.parent
     _writable_dir(d, p)
+    if d != p:  # access() says yes for root on /proc: a directory made and removed there is the real test
+        try:
+            os.rmdir(tempfile.mkdtemp(prefix=".dem_ros_probe_", dir=d))
+        except OSError as exc:
+            raise argparse.ArgumentTypeError(f"cannot write {p}: cannot create a directory in {d}"
+                                             f" ({exc.strerror or exc})") from None
     return p
 
 

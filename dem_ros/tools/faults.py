@@ -61,12 +61,15 @@ import time
 from collections.abc import Callable, Collection, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .. import contract
 from .common import UsageError, write_json
+
+if TYPE_CHECKING:
+    from .launcher import LaunchOptions
 
 __all__ = ["CATALOGUE", "RIG_CATALOGUE", "FaultSpec", "Injector", "Row", "add_arguments", "cmd_faults", "run_row"]
 
@@ -393,6 +396,7 @@ class Row:
     counted: str = ""  # hardware rows: the driver's, board's (or estimator's) counters of the fault
     counts: dict[str, float] = field(default_factory=dict)  # the same, by "driver corrupt", "emulator corrupt" ...
     descent_mm_s: float | None = None  # hardware rows: the plate's fastest true descent while the board landed it
+    verdict: str = ""  # the run's own verdict (dem_ros.tools.verdict): a landing the row allows is a failed run
 
 
 # -- one run -----------------------------------------------------------------------------------------------
@@ -424,19 +428,11 @@ def _kill_hook(spec: FaultSpec, inj: Injector) -> Callable[..., Collection[str]]
 
 
 def _launch_args(scenario: str, duration: float, compose: bool, free_run: bool, bag_dir: Path, domain_id: int,
-                 sets: list[str], hardware: str | None = None) -> argparse.Namespace:
-    argv = ["--scenario", scenario, "--duration", str(duration), "--bag-dir", str(bag_dir),
-            "--domain-id", str(domain_id), "--transport", "dds"]
-    argv += ["--compose"] if compose else []
-    argv += ["--free-run"] if free_run else []
-    argv += ["--hardware", hardware] if hardware else []
-    for s in sets:
-        argv += ["--set", s]
-    from .launcher import add_arguments
+                 sets: list[str], hardware: str | None = None) -> LaunchOptions:
+    from .launcher import LaunchOptions
 
-    parser = argparse.ArgumentParser(prog="dem-ros faults")
-    add_arguments(parser)
-    return parser.parse_args(argv)
+    return LaunchOptions(scenario=scenario, duration=duration, bag_dir=str(bag_dir), domain_id=domain_id,
+                         transport="dds", compose=compose, free_run=free_run, hardware=hardware, set=list(sets))
 
 
 def _log_lines(logs: dict[str, str], since_ns: int) -> list[tuple[str, str]]:
@@ -731,36 +727,34 @@ def run_row(spec: FaultSpec, *, compose: bool, scenario: str, duration: float, a
             subprocess.run(["umount", "-l", str(disk)], check=False)
 
 
-def _plant_end(logs: dict[str, str]) -> str:
-    """The plant's own last word in its log: "finished 4 s", "landed safely at ...", "plant failure ..." ("": none)."""
-    end = ""
-    for name in ("plant_sim", "container"):
-        try:
-            text = Path(logs[name]).read_text(errors="replace") if name in logs else ""
-        except OSError:
-            continue
-        for line in text.splitlines():
-            if "] [plant_sim]: " in line:
-                said = line.split("] [plant_sim]: ", 1)[1]
-                if said.startswith(("finished", "landed safely", "plant failure")):
-                    end = said
-    return end
+def run_events(info: dict[str, Any], logdir: Path | None) -> list[dict[str, Any]]:
+    """The run's run-state events: from the launch facts, else from the file the launcher keeps beside the logs
+    (a run whose bag could not be summarised)."""
+    from .launcher import RUN_STATE_FILE
 
-
-def _outage_s(logs: dict[str, str], name: str, killed_ns: int | None) -> float | None:
-    """Seconds from the SIGKILL of ``name`` to the 'ready' of its restarted process (its log), or None."""
-    if killed_ns is None or name not in logs:
-        return None
+    if info.get("events"):
+        return list(info["events"])
     try:
-        text = Path(logs[name]).read_text(errors="replace")
+        text = (logdir / RUN_STATE_FILE).read_text() if logdir is not None else ""
     except OSError:
+        return []
+    return [json.loads(line) for line in text.splitlines() if line.strip()]
+
+
+def _plant_end(info: dict[str, Any]) -> str:
+    """The plant's own last word, its "finished" run-state event: "finished 4 s", "landed safely at ...",
+    "plant failure ..." ("": none came)."""
+    ends = [e for e in info.get("events") or [] if e.get("event") == "finished" and e.get("node") == "plant_sim"]
+    return str(ends[-1].get("message", "")) if ends else ""
+
+
+def _outage_s(info: dict[str, Any], name: str, killed_ns: int | None) -> float | None:
+    """Seconds from the SIGKILL of ``name`` to the "ready" event of its restarted process, or None."""
+    if killed_ns is None:
         return None
-    for line in text.splitlines():
-        if line.startswith("[INFO] [") and line.endswith(f"[{name}]: ready"):
-            t = float(line.split("] [", 1)[1].split("]", 1)[0])
-            if t * 1e9 > killed_ns:
-                return t - killed_ns * 1e-9
-    return None
+    ready = [int(e["time_ns"]) for e in info.get("events") or []
+             if e.get("event") == "ready" and e.get("node") == name and int(e.get("time_ns", 0)) > killed_ns]
+    return (ready[0] - killed_ns) * 1e-9 if ready else None
 
 
 def _lost(info: dict[str, Any], problems: list[str]) -> list[str]:
@@ -772,16 +766,19 @@ def _lost(info: dict[str, Any], problems: list[str]) -> list[str]:
     return lost
 
 
-def _launch_injected(args: argparse.Namespace, spec: FaultSpec, inj: Injector,
+def _launch_injected(args: LaunchOptions, spec: FaultSpec, inj: Injector,
                      logs_dir: Path | None = None) -> dict[str, Any] | str:
-    """``dem-ros launch`` with the injector running and the row's kill hook: the launch facts, or why the run
-    was cut short (the injector is closed either way)."""
+    """``dem-ros launch`` with the injector running and the row's kill hook: the launch facts (with the run's
+    verdict), or why the run did not start or was cut short (the injector is closed either way)."""
     from ..bag import BagError
     from .launcher import GraphError, launch
 
     hook = _kill_hook(spec, inj) if spec.kill else None
     try:
-        return launch(args, quiet=True, supervise=hook, logs_dir=logs_dir)[1]
+        metrics, info = launch(args, quiet=True, supervise=hook, logs_dir=logs_dir)
+        if info.get("cut_short"):
+            return f"run cut short: {info['cut_short']}"
+        return info | {"verdict": metrics.verdict, "verdict_reasons": metrics.verdict_reasons}
     except GraphError as exc:
         return f"run cut short: {exc}"
     except BagError as exc:  # the run ended, but its summary could not read the bag: judge it here
@@ -808,11 +805,12 @@ def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duratio
     logs = json.loads((bag / "summary.json").read_text()).get("logs", {}) if (bag / "summary.json").exists() else {}
     logdir = logdir or bag.parent / (bag.name + "_logs")
     logs = {p.stem: str(p) for p in logdir.glob("*.log")} if logdir.is_dir() else logs
-    end = _plant_end(logs)
+    info["events"] = run_events(info, logdir)
+    end = _plant_end(info)
     if disk is not None and j["outcome"] == "levitating" and not end.startswith("finished"):
-        # the bag stops where the disk filled: the plant's log says how the run ended
+        # the bag stops where the disk filled: the plant's own last word says how the run ended
         j["outcome"] = "landed safely" if end.startswith("landed") else "failed"
-        j["detail"] = f"the plant: {end or 'no last word in its log'}"
+        j["detail"] = f"the plant: {end or 'no last word from it'}"
     levels = _log_levels(logs, j["fault_ns"] - 10**9)
     exits = info.get("exits") or []  # node processes the launcher saw die (reported on its stderr at once)
     # heard live but not in the bag (a full disk stops the recording before the recorder's own ERROR)
@@ -836,14 +834,14 @@ def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duratio
     ok = j["outcome"] in spec.allowed and (bool(told) or bool(levels))
     sent = [f"{v} {k}" for k, v in inj.counts.items()]
     if spec.kill and spec.restart_after is not None:  # what the outage was, against the board's hold
-        down = _outage_s(logs, spec.kill, inj.killed_ns)
+        down = _outage_s(info, spec.kill, inj.killed_ns)
         hold = (f"lockstep_timeout {cfg['plant_sim']['lockstep_timeout']:g} s" if cfg["plant_sim"]["lockstep"]
                 else f"hold_timeout {cfg['plant_sim']['hold_timeout'] * 1e3:g} ms")
         sent.append(f"down {down:.1f} s (SIGKILL to the restarted node's 'ready'; {hold})" if down is not None
                     else f"the restarted node was not ready again before the run ended ({hold})")
     detail = "; ".join([*inj.events, *sent, j.get("detail", "")]).strip("; ")
     return Row(spec.name, how, j["outcome"], j["min_gap_mm"], j.get("max_error_um"), reported, data_lost, ok, detail,
-               j["diagnostics"])
+               j["diagnostics"], verdict=_verdict_text(info))
 
 
 HW_SETS = ("controller.command_delay=2",)  # the README's hardware runs: a loaded host keeps the loop in time
@@ -902,7 +900,14 @@ def _run_hw_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, dura
     detail = "; ".join(x for x in [early, *inj.events, *sent, j.get("detail", "")] if x)
     return Row(spec.name, how, j["outcome"], j["min_gap_mm"], j.get("max_error_um"), reported,
                "; ".join(lost) or "none", ok, detail, j["diagnostics"], counted, counts,
-               (rig or {}).get("land_speed_max_mm_s"))
+               (rig or {}).get("land_speed_max_mm_s"), _verdict_text(info))
+
+
+def _verdict_text(info: dict[str, Any]) -> str:
+    """The run's verdict in a row: ``failed: landed before the planned end ...`` ("" when launch gave none)."""
+    v = info.get("verdict", "")
+    reasons = info.get("verdict_reasons") or []
+    return v + (f": {'; '.join(reasons)}" if reasons and v else "")
 
 
 # -- the command -------------------------------------------------------------------------------------------

@@ -2,15 +2,23 @@
 
 Writes the run's full configuration as a ROS 2 params file, starts recorder,
 reference, estimator, controller and plant_sim (last, so it starts its clock
-once the others have matched), shows the plant's status line live, stops every
-process cleanly at the end or on Ctrl-C / SIGTERM (recorder last, so the bag
-is complete), and prints a summary read back from the bag: tracking metrics
-(e = true gap - y_m, matched by stamp), loop statistics and CPU per node.
+once the others are set up; on hardware the driver first, so that a link with no
+board behind it ends the start-up in seconds), shows the plant's status line live,
+stops every process cleanly at the end or on Ctrl-C / SIGTERM (recorder last, so
+the bag is complete), and prints a summary read back from the bag: the run's
+verdict first (:mod:`.verdict`), tracking metrics (e = true gap - y_m, matched by
+stamp), loop statistics and CPU per node.
+
+Three steps (:class:`_Graph`): start, run, stop. What the launcher waits for comes from
+the nodes' run-state events (:mod:`dem_ros.runstate`: set up, board answered, t = 0,
+driver fault, finished), never from their log text; the progress line names it.
+Options are typed (:class:`LaunchOptions`).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import io
 import json
 import os
@@ -22,11 +30,12 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Collection, Sequence
+from dataclasses import dataclass, field, fields
 from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from .. import __version__
+from .. import __version__, runstate
 from ..core.params import SCHEMA, with_board_limit
 from ..core.scenarios import Scenario
 from .common import (
@@ -46,8 +55,9 @@ from .common import (
 )
 from .progress import Progress
 from .runmetrics import RunMetrics
+from .verdict import FAILED, INTERRUPTED_EXIT, OK, Verdict, judge
 
-__all__ = ["GraphError", "StartupError", "cmd_launch", "launch", "run_graph", "write_params_file"]
+__all__ = ["GraphError", "LaunchOptions", "StartupError", "cmd_launch", "launch", "run_graph", "write_params_file"]
 
 NODES = ("recorder", "reference", "estimator", "controller", "plant_sim")
 
@@ -74,26 +84,6 @@ def write_params_file(cfg: dict[str, dict[str, Any]], path: Path) -> Path:
     return path
 
 
-def _wait_ready(logs: dict, procs: dict, timeout: float) -> None:
-    """Block until every log says 'ready' (kernels loaded, subscriptions made)."""
-    end = time.monotonic() + timeout
-    pending = dict(logs)
-    while pending and time.monotonic() < end:
-        for n, path in list(pending.items()):
-            if procs[n].poll() is not None:
-                why = _last_line(path)
-                raise StartupError(f"node {n} exited during start-up (code {procs[n].returncode})"
-                                 + (f": {why}" if why else "") + f"; see {path}")
-            try:
-                if "ready" in path.read_text(errors="replace"):
-                    del pending[n]
-            except OSError:
-                pass
-        time.sleep(0.05)
-    if pending:
-        raise StartupError(f"nodes not ready after {timeout:.0f} s: {', '.join(pending)}")
-
-
 def _last_line(path: Path) -> str:
     """The last non-empty line of a node's log (its error, when it exits during start-up)."""
     try:
@@ -116,110 +106,233 @@ def _node_cmd(name: str, transport: str, params: Path, extra: list[str]) -> list
             "--ros-args", "--params-file", str(params)]
 
 
-def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, meta: dict,
-              domain_id: int | None = None, status: bool = True, workdir: Path | None = None,
-              compose: bool = False, hardware: str | None = None, faults: Sequence[str] = (),
-              supervise: Supervise | None = None) -> dict:
-    """Start the graph, wait for the plant to finish ``duration`` s, stop everything; return raw facts.
+#: s: start-up bounds. A node must be set up (its "ready" event) within READY_S of its start; the board must
+#: answer the driver's hello within BOARD_S of the driver's "ready"; t = 0 must come within T0_S of the last
+#: node's "ready" (the plant's pre-roll, or the driver's arming and pre-roll)
+#: the run's run-state events (JSON lines, dem_ros.runstate), beside the node logs
+RUN_STATE_FILE = "run_state.jsonl"
+READY_S = 120.0
+BOARD_S = 10.0
+T0_S = 60.0
 
-    ``compose``: all nodes in one ``container`` process (intra-process topics)
-    instead of one process per node. ``hardware``: ``hw_driver`` in place of
-    ``plant_sim``, on the link ``udp://HOST:PORT`` or ``serial:///dev/...``; ``rig``
-    (UDP on loopback) or ``rig-serial`` (a pty pair) also start the emulator
-    ``dem-ros rig`` with ``faults`` (see :mod:`dem_ros.hardware.rig`).
 
-    ``supervise(t, procs, restart)`` (``dem-ros faults``) is called every 0.1 s with the wall time
-    since t = 0 (None before), the node processes by name (it may kill them) and ``restart(name)``
-    (starts that node again, its log appended); it returns the names that may be down now. Any
-    other node that exits ends the run with a :class:`GraphError` (the run was cut short).
-    """
-    workdir = workdir or Path(tempfile.mkdtemp(prefix="dem_ros_launch_"))
-    workdir.mkdir(parents=True, exist_ok=True)
-    cfg = {g: dict(v) for g, v in cfg.items()}
-    cfg["plant_sim"]["duration"] = float(duration)
-    rig = None
-    if hardware is not None:
-        cfg["hw_driver"]["duration"] = float(duration)
-        cfg["hw_driver"]["auto_arm"] = True  # the launcher's run is the operator's arm
-        if hardware not in ("rig", "rig-serial"):
-            cfg["hw_driver"]["url"] = hardware
-    params = write_params_file(cfg, workdir / "params.yaml")
-    env = dict(os.environ)
-    if domain_id is None:
-        domain_id = env_domain_id() or 0  # the ROS 2 default (what `ros2 topic list` in another shell sees)
-    env["ROS_DOMAIN_ID"] = str(domain_id)
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    env["PYTHONUNBUFFERED"] = "1"
-    meta_file = workdir / "run_info.json"
-    meta_file.write_text(json.dumps(meta))
-    procs: dict[str, subprocess.Popen] = {}
-    logs: dict[str, Path] = {}
-    started = {}
-    cpu: dict[str, float] = {}
-    interrupted = False
-    cpu_start: dict[str, float] | None = None  # CPU seconds of each process when t = 0 was reached
-    exits: list[dict[str, Any]] = []  # node processes that exited before the end (reported at once, see _report_exit)
-    seen_exits: set[int] = set()  # their pids
+class _Graph:
+    """One run of the graph in three steps: :meth:`start` (every process up, the board answering, t = 0 reached
+    or why not), :meth:`run` (until the plant ends the run), :meth:`stop` (every process stopped, the recorder
+    last). Each node says what it is doing through the run-state pipe (:mod:`dem_ros.runstate`), never
+    through its log text. ``not_started`` / ``cut_short`` say why the run did not start or ended early."""
 
-    def on_signal(signum, frame):
-        nonlocal interrupted
-        interrupted = True
+    def __init__(self, cfg: dict, *, duration: float, transport: str, bag: Path | None, meta: dict,
+                 domain_id: int | None, status: bool, workdir: Path | None, compose: bool, hardware: str | None,
+                 faults: Sequence[str], supervise: Supervise | None):
+        self.workdir = workdir or Path(tempfile.mkdtemp(prefix="dem_ros_launch_"))
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        cfg = {g: dict(v) for g, v in cfg.items()}
+        cfg["plant_sim"]["duration"] = float(duration)
+        if hardware is not None:
+            cfg["hw_driver"]["duration"] = float(duration)
+            cfg["hw_driver"]["auto_arm"] = True  # the launcher's run is the operator's arm
+            if hardware not in ("rig", "rig-serial"):
+                cfg["hw_driver"]["url"] = hardware
+        self.cfg, self.duration, self.transport, self.bag = cfg, duration, transport, bag
+        self.status, self.compose, self.hardware, self.faults, self.supervise = status, compose, hardware, faults, supervise
+        self.params = write_params_file(cfg, self.workdir / "params.yaml")
+        env = dict(os.environ)
+        if domain_id is None:
+            domain_id = env_domain_id() or 0  # the ROS 2 default (what `ros2 topic list` in another shell sees)
+        self.domain_id = domain_id
+        env["ROS_DOMAIN_ID"] = str(domain_id)
+        env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        env["PYTHONUNBUFFERED"] = "1"
+        self.state_r, self.state_w = os.pipe()  # the nodes' run-state events (dem_ros.runstate)
+        os.set_blocking(self.state_r, False)
+        env[runstate.ENV] = str(self.state_w)
+        self.env = env
+        self.meta_file = self.workdir / "run_info.json"
+        self.meta_file.write_text(json.dumps(meta))
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.logs: dict[str, Path] = {}
+        self.started: dict[str, float] = {}
+        self.interrupted = False
+        self.cpu_start: dict[str, float] | None = None  # CPU seconds of each process when t = 0 was reached
+        self.exits: list[dict[str, Any]] = []  # node processes that exited before the end (see _report_exit)
+        self.seen_exits: set[int] = set()
+        self.ready: set[str] = set()
+        self.events: list[dict[str, Any]] = []  # every run-state event, in order (dem_ros.runstate)
+        self.board: dict[str, Any] | None = None  # the driver's "board" event: the board answered
+        self.t_zero: float | None = None
+        self.finished: dict[str, Any] | None = None
+        self.not_started: str | None = None
+        self.cut_short: str | None = None
+        self.rig: subprocess.Popen | None = None
+        self.rig_summary: dict | None = None
+        self.plant_node = "plant_sim" if hardware is None else "hw_driver"
+        # the lead: its exit ends the run, its stdout has the status lines
+        self.lead = "container" if compose and hardware is None else self.plant_node
+        names = ["container"] if compose else [n if n != "plant_sim" else self.plant_node for n in NODES
+                                               if n != "recorder" or bag is not None]
+        if compose and hardware is not None:  # the loop's nodes composed, the driver beside them (it owns the link)
+            names = ["container", "hw_driver"]
+        if hardware is not None:  # the driver first: the board answers (or not) while the others start; the
+            # controller last, once they are set up: its first commands arm the loop (the driver waits armed)
+            names = ["hw_driver", *(n for n in names if n != "hw_driver")]
+        self.names = names
+        self._buf = ""
+        self.t0 = time.monotonic()
+        self.wall = 0.0
+        self.cpu: dict[str, float] = {}
 
-    old = {}
-    if threading.current_thread() is threading.main_thread():  # Ctrl-C / SIGTERM stop the graph cleanly
-        old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    plant_node = "plant_sim" if hardware is None else "hw_driver"
-    lead = "container" if compose and hardware is None else plant_node  # its exit ends the run; its stdout has the status lines
-    names = ["container"] if compose else [n if n != "plant_sim" else plant_node for n in NODES if n != "recorder" or bag is not None]
-    if compose and hardware is not None:  # the loop's nodes composed, the driver beside them (it owns the link)
-        names = ["container", "hw_driver"]
-    boot = Progress("dem-ros launch", None, enabled=status)  # never silent while the nodes start (a first run: minutes)
-    boot.stage(f"starting {', '.join(names)}; the plant starts the clock once all are ready")
-    t0 = time.monotonic()
-    try:
-        for name in names:
-            bag_args = ["--bag", str(bag), "--meta", str(meta_file)] if bag is not None else []
+    # -- events -------------------------------------------------------------------------------------------
+    def _events(self) -> None:
+        """Read the nodes' run-state events (non-blocking) into the graph's state."""
+        while True:
+            try:
+                chunk = os.read(self.state_r, 65536)
+            except BlockingIOError:
+                return
+            if not chunk:
+                return
+            events, self._buf = runstate.parse(self._buf + chunk.decode(errors="replace"))
+            for ev in events:
+                self._on_event(ev)
+
+    def _on_event(self, ev: dict[str, Any]) -> None:
+        self.events.append(ev)
+        with contextlib.suppress(OSError), open(self.workdir / RUN_STATE_FILE, "a") as out:  # kept with the logs
+            out.write(json.dumps(ev) + "\n")
+        kind, node = ev.get("event"), str(ev.get("node", ""))
+        if kind == "ready":
+            self.ready.add(node)
+        elif kind == "board":
+            self.board = ev
+        elif kind == "t0" and self.t_zero is None:
+            self.t_zero = time.monotonic()
+            self.cpu_start = {n: _cpu_seconds(p.pid) for n, p in self.procs.items()}
+            self.started = {n: time.monotonic() for n in self.procs}
+        elif kind == "fault" and self.t_zero is None and self.not_started is None:
+            # a driver fault before t = 0: the run ends at once, naming it (a fault during the run is the bag's)
+            self.not_started = f"driver fault before t = 0: {ev.get('reason') or 'fault'}"
+        elif kind == "finished":
+            self.finished = ev
+
+    # -- start -------------------------------------------------------------------------------------------
+    def _popen(self, name: str, params: Path, extra: list[str], append: bool = False) -> None:
+        with open(self.logs[name], "ab" if append else "wb") as log_file:  # the child writes through its own fd
+            lead = name == self.lead and not append
+            self.procs[name] = subprocess.Popen(
+                _node_cmd(name, self.transport, params, extra), env=self.env,
+                stdout=subprocess.PIPE if lead else log_file, stderr=subprocess.STDOUT, start_new_session=True,
+                text=lead, pass_fds=(self.state_w,))
+        self.started[name] = time.monotonic()
+
+    def _check_exits(self, boot: bool) -> None:
+        """A node that exited while the graph starts: StartupError naming it and its last log line."""
+        for n, p in self.procs.items():
+            if p.poll() is not None and boot:
+                why = _last_line(self.logs[n])
+                raise StartupError(f"node {n} exited during start-up (code {p.returncode})"
+                                   + (f": {why}" if why else "") + f"; see {self.logs[n]}")
+
+    def _wait(self, done: Callable[[], bool], timeout: float, what: Callable[[], str] | str, boot: Progress) -> bool:
+        """Wait until ``done()`` (events read, exits checked), saying ``what()`` it waits for; False on timeout."""
+        end = time.monotonic() + timeout
+        t_start = time.monotonic()
+        while time.monotonic() < end and not self.interrupted:
+            self._events()
+            if done() or self.not_started:
+                return True
+            self._check_exits(boot=True)
+            boot.stage(f"waiting for {what if isinstance(what, str) else what()} ({time.monotonic() - t_start:.0f} s)")
+            time.sleep(0.05)
+        return done()
+
+    def start(self, boot: Progress) -> None:
+        """Every process started; returns once the run is under way (t = 0 may follow: the plant's pre-roll).
+
+        Raises:
+            StartupError: a node exited or was not ready, no board answered (hardware), the driver faulted.
+        """
+        url = self.cfg["hw_driver"]["url"]
+        for name in self.names:
+            bag_args = ["--bag", str(self.bag), "--meta", str(self.meta_file)] if self.bag is not None else []
             extra = bag_args if name in ("recorder", "container") else []
-            if name == "container" and hardware is not None:
+            if name == "container" and self.hardware is not None:
                 extra = [*extra, "--nodes", "estimator,controller,reference"]
-            logs[name] = workdir / f"{name}.log"
-            node_params = params
-            if name == "hw_driver" and hardware in ("rig", "rig-serial"):  # the emulator starts last, with the driver
-                rig, cfg["hw_driver"]["url"] = _start_rig(cfg, hardware, faults, workdir)
-                node_params = write_params_file(cfg, workdir / "hw_driver_params.yaml")
-            with open(logs[name], "wb") as log_file:  # the child writes through its own descriptor
-                procs[name] = subprocess.Popen(_node_cmd(name, transport, node_params, extra), env=env,
-                                               stdout=subprocess.PIPE if name == lead else log_file,
-                                               stderr=subprocess.STDOUT, start_new_session=True,
-                                               text=(name == lead))
-            started[name] = time.monotonic()
-            if name == "controller" or (name == "container" and hardware is not None):  # wait for their "ready"
-                _wait_ready({n: logs[n] for n in procs if n != plant_node}, procs, timeout=120.0)
-        plant = procs[lead]
-        assert plant.stdout is not None  # a pipe (stdout=PIPE above)
+            self.logs[name] = self.workdir / f"{name}.log"
+            node_params = self.params
+            if name == "hw_driver" and self.hardware in ("rig", "rig-serial"):  # the emulator first, then its driver
+                self.rig, url = _start_rig(self.cfg, self.hardware, self.faults, self.workdir)
+                self.cfg["hw_driver"]["url"] = url
+                node_params = write_params_file(self.cfg, self.workdir / "hw_driver_params.yaml")
+            if name == "plant_sim":  # last, once the others are set up: it starts its clock at once
+                self._wait_nodes(boot)
+            if name == "controller" and self.hardware is not None:  # its commands start the loop: last
+                self._wait_nodes(boot, [n for n in self.started if n not in ("hw_driver", "container")])
+            self._popen(name, node_params, extra)
+            if name == "hw_driver":  # the link first: no board, no run (and no waiting for the other nodes)
+                if not self._wait(lambda: "hw_driver" in self.ready, READY_S, "hw_driver", boot):
+                    raise StartupError(f"node hw_driver not ready after {READY_S:.0f} s; see {self.logs['hw_driver']}")
+                if not self._wait(lambda: self.board is not None, BOARD_S, f"the board at {url}", boot):
+                    raise StartupError(_no_board(url, BOARD_S))
+        self._wait_nodes(boot)
+        if self.not_started:
+            raise StartupError(self.not_started)
+
+    def _wait_nodes(self, boot: Progress, names: Sequence[str] | None = None) -> None:
+        """Until every node of ``names`` said "ready" (default: all but the plant; composed, the loop's nodes
+        in the container)."""
+        if names is not None:
+            waiting = list(names)
+        elif self.compose:
+            waiting = ["reference", "estimator", "controller"] if self.hardware is not None else []
+        else:
+            waiting = [n for n in self.names if n != self.plant_node]
+        if not self._wait(lambda: all(n in self.ready for n in waiting), READY_S,
+                          lambda: ", ".join(n for n in waiting if n not in self.ready), boot):
+            raise StartupError(f"nodes not ready after {READY_S:.0f} s: "
+                               + ", ".join(n for n in waiting if n not in self.ready))
+
+    # -- run ---------------------------------------------------------------------------------------------
+    def restart(self, name: str) -> None:
+        """``supervise``'s restart: ``name`` started again, its log appended."""
+        self._popen(name, self.params, [], append=True)
+
+    def run(self, boot: Progress) -> None:
+        """Until the plant's process ends the run (or Ctrl-C, a node's unexpected exit, a fault before t = 0)."""
+        plant = self.procs[self.lead]
+        assert plant.stdout is not None  # a pipe (stdout=PIPE in _popen)
         plant_out = plant.stdout
-        with open(logs[lead], "w") as plant_log:
-            limit = time.monotonic() + 60.0 + 10.0 * (duration + cfg["plant_sim"]["preroll"])  # lockstep may run below real time
-            os.set_blocking(plant_out.fileno(), False)
-            buf = ""
-            tty = sys.stderr.isatty()
-            last_status = 0.0
-            t_zero: float | None = None
-
-            def restart(name: str) -> None:
-                with open(logs[name], "ab") as out:
-                    procs[name] = subprocess.Popen(_node_cmd(name, transport, params, []), env=env, stdout=out,
-                                                   stderr=subprocess.STDOUT, start_new_session=True)
-
-            while plant.poll() is None and not interrupted and time.monotonic() < limit:
-                may_be_down = supervise(None if t_zero is None else time.monotonic() - t_zero, procs, restart) \
-                    if supervise is not None else ()
-                for name, p in procs.items():
-                    if name == lead or p.poll() is None:
+        limit = time.monotonic() + 60.0 + 10.0 * (self.duration + self.cfg["plant_sim"]["preroll"])
+        t0_limit = time.monotonic() + T0_S
+        os.set_blocking(plant_out.fileno(), False)
+        buf = ""
+        tty = sys.stderr.isatty()
+        last_status = 0.0
+        with open(self.logs[self.lead], "w") as plant_log:
+            while plant.poll() is None and not self.interrupted and time.monotonic() < limit:
+                was_zero = self.t_zero
+                self._events()
+                if self.t_zero is not None and was_zero is None:
+                    boot.close(f"dem-ros launch: the run began (t = 0) {boot.elapsed:.0f} s after the start")
+                if self.not_started:
+                    break  # a driver fault before t = 0
+                if self.t_zero is None:
+                    boot.stage("waiting for t = 0 (" + ("the driver's arming and pre-roll" if self.hardware
+                                                          else "the plant's pre-roll") + ")")
+                    if time.monotonic() > t0_limit:
+                        self.not_started = f"never reached t = 0 within {T0_S:.0f} s of start-up; see {self.logs[self.lead]}"
+                        break
+                t = None if self.t_zero is None else time.monotonic() - self.t_zero
+                may_be_down = self.supervise(t, self.procs, self.restart) if self.supervise is not None else ()
+                for name, p in self.procs.items():
+                    if name == self.lead or p.poll() is None:
                         continue
-                    _report_exit(exits, seen_exits, name, p, t_zero, logs[name])
-                    if name not in may_be_down and name != "recorder":  # a dead recorder costs the recording, not the plate
-                        raise GraphError(f"node {name} exited early with code {p.returncode}; see {logs[name]}")
+                    _report_exit(self.exits, self.seen_exits, name, p, self.t_zero, self.logs[name])
+                    if name not in may_be_down and name != "recorder" and self.cut_short is None:
+                        # a dead recorder costs the recording, not the plate
+                        self.cut_short = f"node {name} exited early with code {p.returncode}; see {self.logs[name]}"
+                if self.cut_short is not None:
+                    break
                 time.sleep(0.1)
                 try:
                     chunk = plant_out.read()
@@ -231,61 +344,124 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
                     buf += chunk
                     lines = buf.split("\n")
                     buf = lines[-1]
-                    for line in lines[:-1]:
-                        if line.startswith("t =") and cpu_start is None:  # the run (t >= 0) has begun
-                            t_zero = time.monotonic()
-                            boot.close(f"dem-ros launch: the nodes were ready in {boot.elapsed:.0f} s")
-                            cpu_start = {n: _cpu_seconds(p.pid) for n, p in procs.items()}
-                            started = {n: time.monotonic() for n in procs}
-                        if status and line.startswith("t ="):
+                    for line in lines[:-1]:  # the status lines, for people (the run's state comes as events)
+                        if self.status and line.startswith("t ="):
                             if tty:  # redrawn in place on a terminal; a log gets a line every 5 s
                                 print("\r  " + line.strip(), end="", file=sys.stderr, flush=True)
                             elif time.monotonic() - last_status >= 5.0:
                                 print("  " + line.strip(), file=sys.stderr, flush=True)
                                 last_status = time.monotonic()
-            if status and tty:
+            if self.status and tty:
                 print(file=sys.stderr)
+            self._events()
+            if plant.poll() is not None and self.t_zero is None and not self.not_started and not self.interrupted:
+                why = _last_line(self.logs[self.lead])
+                self.not_started = (f"{self.lead} exited before t = 0 (code {plant.returncode})"
+                                    + (f": {why}" if why else ""))
             rest = plant_out.read() if plant.poll() is not None else None
             if rest:
                 plant_log.write(rest)
-    finally:
-        boot.close()
-        wall = time.monotonic() - t0
-        for name, p in procs.items():
-            cpu[name] = _cpu_seconds(p.pid)
-        halt = Progress("dem-ros launch", None, enabled=status)
+
+    # -- stop --------------------------------------------------------------------------------------------
+    def stop(self) -> None:
+        """Stop every process: the plant (if still running) and controllers first, the recorder last (so the
+        bag is complete). On hardware the driver goes first: stopped, it lands the plate before it lets go
+        of the link (nodes/hw_driver.py), while the controller still runs; stopping the controller first
+        would leave the board without commands, and its watchdog landing would end the run as a failure."""
+        self.wall = time.monotonic() - self.t0
+        for name, p in self.procs.items():
+            self.cpu[name] = _cpu_seconds(p.pid)
+        halt = Progress("dem-ros launch", None, enabled=self.status)
         halt.stage("stopping the nodes (the recorder last, so the bag is complete)")
-        # stop: plant (if still running) and controllers first, recorder last. On hardware the driver goes first:
-        # stopped, it lands the plate before it lets go of the link (nodes/hw_driver.py), while the controller
-        # still runs; stopping the controller first would leave the board without commands, and its watchdog
-        # landing would end the run as a failure
-        order: tuple[str, ...] = ("container", "plant_sim", "hw_driver", "controller", "estimator", "reference", "recorder")
-        if hardware is not None:
+        order: tuple[str, ...] = ("container", "plant_sim", "hw_driver", "controller", "estimator", "reference",
+                                  "recorder")
+        if self.hardware is not None:
             order = ("hw_driver", *(n for n in order if n != "hw_driver"))
         for name in order:
-            proc = procs.get(name)
+            proc = self.procs.get(name)
             if proc is None or proc.poll() is not None:
                 continue
             if name == "recorder":
                 time.sleep(0.3)  # last samples in flight
             _interrupt(proc)
-        rig_summary = _stop_rig(rig)
+        self.rig_summary = _stop_rig(self.rig)
         halt.close()
+        for fd in (self.state_r, self.state_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+    def facts(self) -> dict[str, Any]:
+        """The raw facts of the run (see :func:`run_graph`)."""
+        elapsed = {n: (time.monotonic() - self.started[n]) for n in self.procs}
+        base = self.cpu_start or {}
+        cpu = {n: c - base.get(n, 0.0) for n, c in self.cpu.items()}
+        cpu_pct = {n: round(100.0 * cpu[n] / max(elapsed[n], 1e-9), 1) for n in self.procs if cpu[n] == cpu[n]}
+        recorder_counts = None
+        rec_log = self.logs.get("container" if self.compose else "recorder")
+        if self.bag is not None and rec_log is not None and rec_log.exists():
+            for line in rec_log.read_text(errors="replace").splitlines():
+                if line.startswith("RECORDER "):
+                    recorder_counts = json.loads(line[len("RECORDER "):])
+        return {"interrupted": self.interrupted, "wall_s": self.wall, "cpu_percent": cpu_pct,
+                "returncodes": {n: p.returncode for n, p in self.procs.items()},
+                "logs": {n: str(p) for n, p in self.logs.items()}, "recorder": recorder_counts,
+                "domain_id": self.domain_id, "workdir": str(self.workdir), "rig": self.rig_summary,
+                "exits": self.exits, "cut_short": self.cut_short, "reached_t0": self.t_zero is not None,
+                "events": self.events}
+
+
+def _no_board(url: str, waited: float) -> str:
+    """The one line for a link on which no board answered the driver's hello, with what to check."""
+    check = ("the board is powered and its firmware runs the dem_ros link on that port; nothing else holds the"
+             " port; a firewall lets UDP through" if url.startswith("udp:")
+             else "the cable, the device path and the baud rate; the board is powered and runs the dem_ros link")
+    return f"no board answered at {url} within {waited:g} s; check that {check}"
+
+
+def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, meta: dict,
+              domain_id: int | None = None, status: bool = True, workdir: Path | None = None,
+              compose: bool = False, hardware: str | None = None, faults: Sequence[str] = (),
+              supervise: Supervise | None = None) -> dict:
+    """Start the graph, wait for the plant to finish ``duration`` s, stop everything; return raw facts.
+
+    ``compose``: all nodes in one ``container`` process (intra-process topics)
+    instead of one process per node. ``hardware``: ``hw_driver`` in place of
+    ``plant_sim``, on the link ``udp://HOST:PORT`` or ``serial:///dev/...``; ``rig``
+    (UDP on loopback) or ``rig-serial`` (a pty pair) also start the emulator
+    ``dem-ros rig`` with ``faults`` (see :mod:`dem_ros.hardware.rig`). With hardware the driver starts
+    first; no board answering its hello within :data:`BOARD_S` s ends the start-up.
+
+    ``supervise(t, procs, restart)`` (``dem-ros faults``) is called every 0.1 s with the wall time
+    since t = 0 (None before), the node processes by name (it may kill them) and ``restart(name)``
+    (starts that node again, its log appended); it returns the names that may be down now. Any
+    other node that exits ends the run: ``cut_short`` in the facts says which (the run failed).
+
+    Raises:
+        StartupError: the run never started (a node exited or was not ready, no board answered, a driver fault
+            before t = 0, no t = 0 within :data:`T0_S` s); every process is stopped first.
+    """
+    g = _Graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id, status=status,
+               workdir=workdir, compose=compose, hardware=hardware, faults=faults, supervise=supervise)
+
+    def on_signal(signum, frame):
+        g.interrupted = True
+
+    old = {}
+    if threading.current_thread() is threading.main_thread():  # Ctrl-C / SIGTERM stop the graph cleanly
+        old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    boot = Progress("dem-ros launch", None, enabled=status)  # never silent while the nodes start (a first run: minutes)
+    boot.stage(f"starting {', '.join(g.names)}")
+    try:
+        g.start(boot)
+        g.run(boot)
+    finally:
+        boot.close()
+        g.stop()
         for s, h in old.items():
             signal.signal(s, h)
-    elapsed = {n: (time.monotonic() - started[n]) for n in procs}
-    base = cpu_start or {}
-    cpu = {n: c - base.get(n, 0.0) for n, c in cpu.items()}
-    cpu_pct = {n: round(100.0 * cpu[n] / max(elapsed[n], 1e-9), 1) for n in procs if cpu[n] == cpu[n]}
-    recorder_counts = None
-    rec_log = logs.get("container" if compose else "recorder")
-    if bag is not None and rec_log is not None and rec_log.exists():
-        for line in rec_log.read_text(errors="replace").splitlines():
-            if line.startswith("RECORDER "):
-                recorder_counts = json.loads(line[len("RECORDER "):])
-    return {"interrupted": interrupted, "wall_s": wall, "cpu_percent": cpu_pct, "returncodes": {n: p.returncode for n, p in procs.items()},
-            "logs": {n: str(p) for n, p in logs.items()}, "recorder": recorder_counts, "domain_id": domain_id, "workdir": str(workdir),
-            "rig": rig_summary, "exits": exits}
+    if g.not_started and not g.interrupted:
+        raise StartupError(g.not_started)
+    return g.facts()
 
 
 def _report_exit(exits: list[dict[str, Any]], seen: set[int], name: str, proc: subprocess.Popen,
@@ -368,19 +544,99 @@ def _resolve_transport(transport: str) -> str:
     return ("rclpy" if rclpy_available() else "dds") if transport == "auto" else transport
 
 
-def _config_from_args(args: Any) -> tuple[dict[str, dict[str, Any]], Scenario, float]:
-    cfg, sc = load_config(args)
-    if args.controller:
-        cfg["controller"]["type"] = args.controller
-    if args.estimator:
-        cfg["estimator"]["type"] = args.estimator
-    if getattr(args, "free_run", False):
+@dataclass
+class LaunchOptions:
+    """The options of one ``dem-ros launch`` run (the command line's, typed; ``dem-ros faults`` and ``bench``
+    build them directly). See :func:`add_arguments` for each."""
+
+    scenario: str = "S1"
+    controller: str | None = None
+    estimator: str | None = None
+    duration: float | None = None  # s; None: the scenario's
+    transport: str = "auto"
+    compose: bool = False
+    free_run: bool = False
+    params: str | None = None
+    set: list[str] = field(default_factory=list)
+    bag_dir: str = "bags"
+    no_record: bool = False
+    json: str | None = None
+    domain_id: int | None = None
+    hardware: str | None = None
+    fault: list[str] = field(default_factory=list)
+
+    @classmethod
+    def from_namespace(cls, ns: argparse.Namespace) -> LaunchOptions:
+        """From the parsed command line (its unknown keys, e.g. the sub-command's, left out)."""
+        known = {f.name for f in fields(cls)}
+        given = {k: v for k, v in vars(ns).items() if k in known}
+        for k in ("set", "fault"):
+            given[k] = list(given.get(k) or [])
+        return cls(**given)
+
+
+#: controller.command_delay of a run on the emulated rig (``--hardware rig`` / ``rig-serial``: the launcher
+#: configures the emulated board too), unless the configuration sets it. With a process per node a measurement
+#: crosses three processes (driver -> estimator -> controller -> driver) over DDS, p50 0.8 ms, p99 1.8-2.6 ms
+#: on a loaded 2-core host: with 1 sample half the commands came too late (the board held, then landed); 3
+#: samples leave the loop's tail room, composed as well (the law predicts over it; offline simulates it). A
+#: real board applies commands at its firmware's delay (its hello says which; the driver refuses another):
+#: there the configuration must name it.
+RIG_COMMAND_DELAY = 3
+
+
+def _options(args: LaunchOptions | argparse.Namespace) -> LaunchOptions:
+    return args if isinstance(args, LaunchOptions) else LaunchOptions.from_namespace(args)
+
+
+def _delay_is_set(opts: LaunchOptions) -> bool:
+    """The run's configuration names controller.command_delay (--set or --params): the user's, kept."""
+    if any(s.split("=", 1)[0].strip() == "controller.command_delay" for s in opts.set):
+        return True
+    if opts.params:
+        from .common import load_params_file
+
+        return "command_delay" in (load_params_file(opts.params).get("controller") or {})
+    return False
+
+
+def _config_from_args(args: LaunchOptions | argparse.Namespace) -> tuple[dict[str, dict[str, Any]], Scenario, float]:
+    opts = _options(args)
+    cfg, sc = load_config(opts)  # type: ignore[arg-type]  # reads scenario, params, set
+    if opts.controller:
+        cfg["controller"]["type"] = opts.controller
+    if opts.estimator:
+        cfg["estimator"]["type"] = opts.estimator
+    if opts.free_run:
         cfg["plant_sim"]["lockstep"] = False
-    duration = args.duration if args.duration is not None else sc.duration
+    if opts.hardware in ("rig", "rig-serial") and not _delay_is_set(opts):
+        d = RIG_COMMAND_DELAY
+        cfg["controller"]["command_delay"] = d
+        cfg["controller"]["max_age"] = max(cfg["controller"]["max_age"], (d + 1) * cfg["plant_sim"]["dt"])
+    duration = opts.duration if opts.duration is not None else sc.duration
     return cfg, sc, duration
 
 
-def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None,
+def _check_hardware(opts: LaunchOptions) -> None:
+    """--hardware and --fault checked before anything starts: a malformed or unreachable link is one line."""
+    hw = opts.hardware
+    if opts.fault and hw not in ("rig", "rig-serial"):
+        raise UsageError("--fault needs --hardware rig or rig-serial (faults are injected by the emulated rig)")
+    if hw is None or hw in ("rig", "rig-serial"):
+        return
+    from urllib.parse import urlsplit
+
+    from ..hardware.channel import ChannelError, check_link
+
+    if urlsplit(hw).scheme not in ("udp", "serial"):
+        raise UsageError(f"--hardware: got {hw!r}, expected udp://HOST:PORT, serial:///dev/PATH, rig or rig-serial")
+    try:
+        check_link(hw)
+    except ChannelError as exc:
+        raise UsageError(f"--hardware: {exc}") from None
+
+
+def launch(args: LaunchOptions | argparse.Namespace, *, quiet: bool = False, supervise: Supervise | None = None,
            logs_dir: Path | None = None) -> tuple[RunMetrics, dict[str, Any]]:
     """Run the graph as ``dem-ros launch`` does: (metrics read back from the bag, launch facts).
 
@@ -389,21 +645,20 @@ def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None
 
     The facts: ``composed``, ``offline_rms_error_um`` (the same configuration
     simulated offline), ``bag`` (None without recording), ``recorder`` (per-topic
-    counts), ``interrupted``.
+    counts), ``interrupted``, ``cut_short``. The metrics carry the run's verdict (:mod:`.verdict`).
+
+    Raises:
+        UsageError: a bad option or link (nothing started, nothing written).
+        StartupError: the run never started (no bag is kept): the verdict is failed, the message says why.
     """
-    cfg, sc, duration = _config_from_args(args)
+    opts = _options(args)
+    cfg, sc, duration = _config_from_args(opts)
     # every check before anything starts or is written
     # the ROS 2 default, as `ros2 topic echo` in another shell uses it: --domain-id, else ROS_DOMAIN_ID, else 0
-    domain_id = args.domain_id if args.domain_id is not None else (env_domain_id() or 0)
-    hardware = getattr(args, "hardware", None)
-    if hardware is not None and hardware not in ("rig", "rig-serial"):
-        from urllib.parse import urlsplit
-
-        if urlsplit(hardware).scheme not in ("udp", "serial"):
-            raise UsageError(f"--hardware: got {hardware!r}, expected udp://HOST:PORT, serial:///dev/PATH, rig or rig-serial")
-    if getattr(args, "fault", None) and hardware not in ("rig", "rig-serial"):
-        raise UsageError("--fault needs --hardware rig or rig-serial (faults are injected by the emulated rig)")
-    transport = _resolve_transport(args.transport)
+    domain_id = opts.domain_id if opts.domain_id is not None else (env_domain_id() or 0)
+    hardware = opts.hardware
+    _check_hardware(opts)
+    transport = _resolve_transport(opts.transport)
     cfg = with_board_limit(cfg, "plant_sim" if hardware is None else "hw_driver")  # the law clips where the board does
     if not quiet:
         print(f"dem-ros launch: {sc.name} ({sc.description}), controller {cfg['controller']['type']},"
@@ -416,9 +671,9 @@ def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None
     from ..core.simulate import simulate  # numba: loaded (or compiled) above, under the progress line
 
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    bag_root = Path(args.bag_dir)
+    bag_root = Path(opts.bag_dir)
     bag_root.mkdir(parents=True, exist_ok=True)
-    record = not args.no_record
+    record = not opts.no_record
     tmp = None
     if record:
         bag = bag_root / f"{stamp}_{sc.name}_{cfg['controller']['type']}"
@@ -428,7 +683,7 @@ def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None
     meta = {"scenario": sc.name, "scenario_description": sc.description, "controller": cfg["controller"]["type"],
             "estimator": cfg["estimator"]["type"], "transport": transport, "duration_s": duration,
             "dem_ros_version": __version__, "config": cfg, "started": datetime.now().isoformat(timespec="seconds")}
-    compose = bool(getattr(args, "compose", False))
+    compose = opts.compose
     meta["composed"] = compose
     if hardware is not None:  # a rig measures no gap rates: the offline comparison neither
         cfg["plant_sim"]["measure_velocity"] = False
@@ -439,12 +694,14 @@ def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None
     try:
         facts = run_graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id,
                           status=not quiet, workdir=logs_dir or ((bag.parent / (bag.name + "_logs")) if record else None),
-                          compose=compose, hardware=hardware, faults=getattr(args, "fault", None) or (),
+                          compose=compose, hardware=hardware, faults=opts.fault,
                           supervise=supervise)
+        if facts["interrupted"] and not facts["reached_t0"]:  # Ctrl-C while starting: no run, no bag (exit 130)
+            raise KeyboardInterrupt
         with Progress("dem-ros launch", None, enabled=not quiet) as bar:
             bar.stage(f"reading the bag for the metrics ({bag.name})")
             metrics = RunMetrics.from_bag(bag)
-    except StartupError:
+    except (StartupError, KeyboardInterrupt):
         if record:  # nothing ran: no partial bag (the node logs stay, the error names them)
             shutil.rmtree(bag, ignore_errors=True)
         raise
@@ -470,14 +727,27 @@ def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None
         offline = simulate(cfg, controller=cfg["controller"]["type"], estimator=cfg["estimator"]["type"], duration=ran,
                            scenario=sc.name).metrics() if ran > 0 else {"rms_error_um": None}
     info = {"composed": compose, "offline_rms_error_um": offline["rms_error_um"], "offline_duration_s": ran, "bag": str(bag) if record else None,
-            "hardware": hardware, "rig": facts.get("rig"),
+            "hardware": hardware, "rig": facts.get("rig"), "cut_short": facts["cut_short"], "events": facts["events"],
             "recorder": facts["recorder"], "interrupted": facts["interrupted"], "exits": facts["exits"]}
+    _judge(metrics, facts)
     if record and bag.is_dir():  # the run-time summary travels with the bag (replay compares against it)
         try:
             write_json(bag / "summary.json", metrics.to_dict() | info)
         except OSError as exc:  # a full disk (the recorder reported it): the summary is still printed
             metrics.problems.append(f"summary.json not written beside the bag: {exc.strerror or exc}")
+            _judge(metrics, facts)
     return metrics, info
+
+
+def _judge(metrics: RunMetrics, facts: dict[str, Any]) -> None:
+    """The run's verdict from the bag's facts and the launcher's own (a node that cut the run short, the
+    problems added here): the one rule of :func:`dem_ros.tools.verdict.judge`."""
+    f = metrics.facts
+    if f is None:  # pragma: no cover - from_bag always sets them
+        return
+    f.problems = metrics.problems
+    f.cut_short = facts["cut_short"]
+    metrics.set_verdict(judge(f))
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -508,8 +778,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --hardware rig: inject a rig fault, e.g. linkloss@10+0.05 (dem-ros rig --help-faults)")
 
 
-def cmd_launch(args: Any) -> int:
-    metrics, info = launch(args)
+def cmd_launch(args: argparse.Namespace) -> int:
+    opts = LaunchOptions.from_namespace(args)
+    try:
+        metrics, info = launch(opts)
+    except StartupError as exc:  # the run never started: failed, one line (and the JSON says the same)
+        v = Verdict(FAILED, (str(exc),))
+        print(f"dem-ros launch: {v.line().replace('verdict  ', '', 1)}", file=sys.stderr)
+        if opts.json:
+            write_json(opts.json, v.to_dict())
+        return v.exit_code
     how = "one process (composed)" if info["composed"] else "a process per node"
     extra = [("processes", how)]
     if info["offline_rms_error_um"] is not None:
@@ -531,13 +809,9 @@ def cmd_launch(args: Any) -> int:
     if info["bag"]:
         extra.append(("bag", info["bag"]))
     metrics.print(extra=extra)
-    if args.json:
-        write_json(args.json, metrics.to_dict() | info)
-        print(f"  summary written to {args.json}")
-    if info["interrupted"]:
-        return 130
-    if metrics.failed or metrics.problems:
-        why = (["the run failed"] if metrics.failed else []) + metrics.problems
-        print(f"dem-ros launch: degraded run: {'; '.join(why)}", file=sys.stderr)
-        return 1
-    return 0
+    if opts.json:
+        write_json(opts.json, metrics.to_dict() | info)
+        print(f"  summary written to {opts.json}")
+    if metrics.verdict != OK:
+        print(f"dem-ros launch: {metrics.verdict_line().replace('verdict  ', '', 1)}", file=sys.stderr)
+    return INTERRUPTED_EXIT if info["interrupted"] else metrics.exit_code

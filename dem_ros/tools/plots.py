@@ -66,7 +66,7 @@ class RunSignals:
         current: (N, 2) coil currents i1, i2 [A], or None.
         est_t, est: (L,) s and (L, 3) estimates m_hat [kg], R_hat [ohm], K_hat [N m^2/A^2], or None.
         mass: (N,) true mass of the plate [kg], or None.
-        latency_t, latency_us: (K,) s and (K,) measurement stamp -> command recorded [µs], or None.
+        latency_t, latency_us: (K,) s and (K,) measurement recorded -> command recorded [µs], or None.
         loop_t, loop_misses: (P,) s and (P,) cumulative samples the plant waited for (lockstep) or
             missed (free-running), or None.
         lockstep: the plant waited for late commands (``loop_misses`` are waits, not misses).
@@ -273,7 +273,7 @@ def _plot_signals(sig: RunSignals, out: Path) -> list[Path]:
         else:
             ax[1].text(0.5, 0.5, "no loop status recorded", transform=ax[1].transAxes, ha="center", va="center")
         ax[1].set_ylabel(f"plant {what}" if sig.lockstep else what)
-        note = ("latency: measurement stamp -> command recorded (includes the recorder's delivery). "
+        note = ("latency: the recorder had the sample's measurement -> its command (the recorder's clock). "
                 + ("Lockstep: the plant waits for each late command, so waits cost time, not samples."
                    if sig.lockstep else "Free-running: a missed command is held by the board (at most hold_timeout)."))
         files.append(_finish(fig, ax, sig, "loop timing", out / "loop.png", note))

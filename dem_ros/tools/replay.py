@@ -25,6 +25,7 @@ from .. import contract
 from .common import write_json
 from .progress import Progress
 from .runmetrics import RunMetrics, load_run
+from .verdict import OK
 
 if TYPE_CHECKING:
     from .plots import RunSignals
@@ -58,7 +59,8 @@ def replay_signals(series: dict[str, Any], m: RunMetrics) -> RunSignals:
         keep = tt >= 0.0
         return (tt[keep], *(np.asarray(series[k])[keep] if series.get(k) is not None else None for k in keys))
 
-    u_t, u, lat = after0("cmd_t", "cmd", "cmd_latency_us")
+    u_t, u = after0("cmd_t", "cmd")
+    lat_t, lat = after0("cmd_latency_t", "cmd_latency_us")
     est_t, est = after0("est_t", "est")
     events = []
     if m.failed and m.fail_time_s is not None:
@@ -73,7 +75,7 @@ def replay_signals(series: dict[str, Any], m: RunMetrics) -> RunSignals:
         title=f"{title or 'run'} (recorded)", t=series["t"], gaps=series["gaps"], ref=series["ref"],
         gap_source="measured" if m.error_source == "measurement" else "true",
         u_t=u_t, u=u, current=series.get("current"), est_t=est_t, est=est, mass=series.get("mass"),
-        latency_t=u_t, latency_us=lat,
+        latency_t=lat_t, latency_us=lat,
         loop_t=np.array([x[0] for x in loop], float) if loop else None,
         loop_misses=np.array([x[1] for x in loop], float) if loop else None,
         lockstep=lockstep, events=events, notes=[CLOCK_NOTE],
@@ -288,18 +290,15 @@ def cmd_replay(args: Any) -> int:
         bar.stage(f"reading {bag}")
         m, series = analyse(bag)
     files = plot_replay(series, m, Path(args.plot)) if args.plot else []
-    print(f"replay of {bag}:")
-    m.print()
+    m.print(extra=[("bag", str(bag))])  # the verdict first (dem_ros.tools.verdict)
     if args.json:
         write_json(args.json, m.to_dict())
         print(f"  metrics written to {args.json}")
     if args.plot:
         print(f"  {len(files)} figures written to {args.plot}")
-    if m.failed or m.problems:
-        why = (["the run failed"] if m.failed else []) + m.problems
-        print(f"replay: degraded run: {'; '.join(why)}", file=sys.stderr)
-        return 1
-    return 0
+    if m.verdict != OK:
+        print(f"replay: {m.verdict_line().replace('verdict  ', '', 1)}", file=sys.stderr)
+    return m.exit_code
 
 
 def cmd_bag(args) -> int:

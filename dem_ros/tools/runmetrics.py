@@ -25,6 +25,7 @@ import numpy as np
 from .. import contract
 from ..core.metrics import error_metrics
 from .common import fmt_pair
+from .verdict import OK, RunFacts, Verdict, judge
 
 __all__ = ["LoopStats", "RunMetrics", "load_run", "tracking_text"]
 
@@ -112,19 +113,40 @@ class RunMetrics:
     peak_current_a: float | None = None
     final_estimates: dict[str, float] | None = None  # m_kg, R_ohm, K (N m^2/A^2)
     duration_s: float | None = None  # of the experiment (s)
-    command_latency_at_recorder_us: dict[str, float] | None = None  # p50, p99, max of stamp -> recorder log time
+    #: p50, p99, max [us] of the recorder's receipt of a sample's measurement -> of its command (one clock)
+    command_latency_at_recorder_us: dict[str, float] | None = None
     wall_time_s: float | None = None
     loop: LoopStats | None = None
     controllers_used: list[str] | None = None  # the laws in the order they ran (a live switch adds one)
     #: what makes a recorded run incomplete or degraded (truncated bag, samples without a reference,
-    #: shorter than planned, recording failed); replay and launch exit non-zero when there is any
+    #: recording failed): the verdict's reasons when there is no worse one
     problems: list[str] = dataclasses.field(default_factory=list)
+    #: ok / degraded / failed (dem_ros.tools.verdict: the one place that decides) and why
+    verdict: str = OK
+    verdict_reasons: list[str] = dataclasses.field(default_factory=list)
+    planned_samples: int | None = None  # experiment samples the run was planned for (duration / dt)
+    #: a failed run's figures cover only its samples before the failure (or landing): up to this time [s]
+    metrics_until_s: float | None = None
+    #: what the verdict was made of (not in the JSON: the verdict and its reasons are)
+    facts: RunFacts | None = dataclasses.field(default=None, repr=False, compare=False)
+
+    def set_verdict(self, v: Verdict) -> None:
+        """Take ``v`` as this run's verdict (``failed`` follows it)."""
+        self.verdict, self.verdict_reasons = v.status, list(v.reasons)
+        self.failed = v.failed
+
+    @property
+    def exit_code(self) -> int:
+        return Verdict(self.verdict, tuple(self.verdict_reasons)).exit_code
+
+    def verdict_line(self) -> str:
+        return Verdict(self.verdict, tuple(self.verdict_reasons)).line()
 
     @classmethod
     def from_sim(cls, res: Any) -> RunMetrics:
         """From an offline :class:`~dem_ros.core.simulate.SimResult` (its ``metrics()``)."""
         m = res.metrics()
-        return cls(
+        out = cls(
             scenario=m["scenario"], controller=m["controller"], estimator=m["estimator"], transport="offline",
             error_source="simulation", samples=int(res.t.size), failed=m["failed"], fail_time_s=m["fail_time_s"],
             rms_error_um=m["rms_error_um"], max_error_um=m["max_error_um"],
@@ -132,6 +154,11 @@ class RunMetrics:
             peak_current_a=m["peak_current_a"], final_estimates=m["final_estimates"], duration_s=m["duration_s"],
             wall_time_s=m["wall_time_s"],
         )
+        fail = (m["fail_time_s"], "a gap left its range (rail contact or drop) or the state went non-finite")
+        out.set_verdict(judge(RunFacts(failure=fail if m["failed"] else None, samples=int(res.t.size))))
+        if out.failed:
+            out.metrics_until_s = m["fail_time_s"]
+        return out
 
     @classmethod
     def from_bag(cls, bag: Path) -> RunMetrics:
@@ -139,23 +166,29 @@ class RunMetrics:
         return load_run(bag)[0]
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        out = dataclasses.asdict(self)
+        out.pop("facts", None)
+        return out
 
     def rows(self) -> list[tuple[str, str]]:
         """(label, value) rows of the printed table."""
         laws = " -> ".join(self.controllers_used) if self.controllers_used else self.controller
+        made = self.facts.samples if self.facts is not None else None
+        planned = (f"; the plant made {made} of the {self.planned_samples} planned" if made is not None
+                   and self.planned_samples is not None else "")
         rows = [
+            ("verdict", Verdict(self.verdict, tuple(self.verdict_reasons)).line().split("  ", 1)[1]),
             ("scenario / controller / estimator", f"{self.scenario} / {laws} / {self.estimator} ({self.transport})"),
-            ("samples", f"{self.samples} (e = {self.error_source} gap - y_m)"),
-            ("failed", f"yes, at t = {self.fail_time_s:.3f} s" if self.failed and self.fail_time_s is not None
-             else ("yes" if self.failed else "no")),
+            ("samples", f"{self.samples} with gap and reference (e = {self.error_source} gap - y_m){planned}"),
         ]
         # a figure that does not apply is left out, never printed as nan: no sample from t = 0 (a plate that
-        # landed in the pre-roll) has no error, a run shorter than 40 s no error after 40 s
+        # landed in the pre-roll) has no error, a run shorter than 40 s no error after 40 s; a failed run's
+        # figures cover its samples before the failure, and say so
+        span = f", t < {self.metrics_until_s:.3f} s (before the failure)" if self.metrics_until_s is not None else ""
         for label, v in (("RMS error e1 / e2 [um]", self.rms_error_um), ("max error e1 / e2 [um]", self.max_error_um),
                          ("RMS error after 40 s [um]", self.rms_error_after_40s_um)):
             if _finite(v):
-                rows.append((label, fmt_pair(v)))
+                rows.append((label.replace(" [um]", f" [um{span}]"), fmt_pair(v)))
         if self.peak_voltage_v is not None and math.isfinite(self.peak_voltage_v):
             rows.append(("peak |u| [V]", f"{self.peak_voltage_v:.2f}"))
         if self.peak_current_a is not None and math.isfinite(self.peak_current_a):
@@ -175,7 +208,7 @@ class RunMetrics:
         return rows
 
     def format(self, extra: Iterable[tuple[str, str]] = ()) -> str:
-        """The table: one ``label  value`` line per row, ``extra`` rows appended."""
+        """The table: one ``label  value`` line per row (the verdict first), ``extra`` rows appended."""
         rows = self.rows() + list(extra) + [("PROBLEM", p) for p in self.problems]
         w = max(len(k) for k, _ in rows)
         return "\n".join(f"  {k:<{w}}  {v}" for k, v in rows)
@@ -287,10 +320,17 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
         m.peak_voltage_v = float(np.nanmax(np.abs(cmd["effort"])))
         series["cmd_t"] = (cmd["stamp_ns"] - t0) * 1e-9
         series["cmd"] = cmd["effort"][:, :2]
-        lat = (cmd["log_time_ns"] - cmd["stamp_ns"]) * 1e-3
-        series["cmd_latency_us"] = lat
-        m.command_latency_at_recorder_us = {"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
-                                            "max": float(lat.max())}
+        if meas is not None:  # one clock, the recorder's: it had the sample's measurement, then its command
+            _, ic, im = np.intersect1d(cmd["stamp_ns"], meas["stamp_ns"], return_indices=True)
+            # A stamp is on the plant's experiment clock (lockstep: behind or ahead of wall time), the log time
+            # on the recorder's: their difference is no latency (it was negative). Received together (the
+            # recorder read the command's topic first) is 0, never negative
+            lat = np.maximum(cmd["log_time_ns"][ic] - meas["log_time_ns"][im], 0) * 1e-3
+            if lat.size:
+                series["cmd_latency_t"] = (cmd["stamp_ns"][ic] - t0) * 1e-9
+                series["cmd_latency_us"] = lat
+                m.command_latency_at_recorder_us = {"p50": float(np.percentile(lat, 50)),
+                                                    "p99": float(np.percentile(lat, 99)), "max": float(lat.max())}
     if truth is not None:
         series["current"] = truth["effort"][i_s, :2]
         series["mass"] = truth["position"][i_s, 2] if truth["position"].shape[1] > 2 else None
@@ -313,7 +353,84 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     m.problems = run_problems(r, src["stamp_ns"], ref["stamp_ns"], epoch, ts, m.duration_s, had_ref)
     m.problems += [f"{n} message(s) on {topic} left out: not the topic's JointState layout (a foreign or corrupt"
                    " writer)" for topic, n in skipped.items()]
+    status = ((r.metadata_yaml or {}).get("custom_data") or {}).get("dem_ros.status")
+    facts = run_facts(src["stamp_ns"], epoch, run, loop_hist, m.problems,
+                      record_incomplete=r.truncated is not None or status == "failed")
+    m.facts = facts
+    m.set_verdict(judge(facts))
+    m.planned_samples = facts.planned_samples
+    cut = facts.cut_time()
+    if m.failed and m.fail_time_s is None:
+        m.fail_time_s = cut if cut is not None else (facts.samples * facts.dt if facts.reached_t0 else None)
+    if m.failed and cut is not None and t.size:  # the figures of the samples before the failure, never after
+        keep = t < cut
+        em = error_metrics(t[keep], e[keep])
+        m.rms_error_um, m.max_error_um = em["rms_error_um"], em["max_error_um"]
+        m.rms_error_after_40s_um = em["rms_error_after_40s_um"]
+        m.metrics_until_s = cut
     return m, series
+
+
+_END_OF_RUN = "end of the run"  # how the hardware driver's loop status names the landing that ends a good run
+
+
+def _float(v: str | None) -> float | None:
+    try:
+        x = float(v) if v is not None else math.nan
+    except ValueError:
+        return None
+    return x if math.isfinite(x) else None
+
+
+def run_facts(src_ns: np.ndarray, epoch_ns: int | None, run: Mapping[str, Any],
+              loop_hist: list[tuple[int, dict[str, str]]], problems: list[str],
+              record_incomplete: bool = False) -> RunFacts:
+    """The facts of a recorded run for its verdict (:func:`dem_ros.tools.verdict.judge`).
+
+    Args:
+        src_ns: (N,) stamps [ns] of every plant sample in the bag (true or measured gaps), pre-roll included.
+        epoch_ns: t = 0 of the experiment (the plant's ``epoch_ns``), None when the bag has no loop status.
+        run: the run's metadata (``duration_s``, ``config``).
+        loop_hist: (log time, values) of every loop status of the plant (or hardware driver), in order.
+        problems: what qualifies the record (degraded); extended here by a recorder that stopped before the
+            plant's last samples.
+        record_incomplete: the bag says its recording stopped early (truncated, or the recorder's failure):
+            samples missing at its end are the record's loss, not a short run (degraded, not failed).
+
+    Samples are counted on the plant's stamp grid (t = 0 to its last stamp in the bag, dt apart), not from
+    the recorder's counters: a sample the recorder lost inside the run still counts (a problem of the
+    record, reported by :func:`run_problems`), a run the plant ended early does not.
+    """
+    cfg = run.get("config") or {}
+    dt = float((cfg.get("plant_sim") or {}).get("dt") or 1e-3)
+    dt_ns = round(dt * 1e9)
+    duration = run.get("duration_s")
+    planned = round(float(duration) / dt) if duration else None
+    exp = src_ns if epoch_ns is None else src_ns[src_ns >= epoch_ns]
+    origin = epoch_ns if epoch_ns is not None else (int(exp.min()) if exp.size else 0)
+    samples = round((int(exp.max()) - origin) / dt_ns) + 1 if exp.size else 0
+    if planned is not None:  # plant_sim stamps t = 0 .. duration (planned + 1 samples), a driver t < duration
+        samples = min(samples, planned)
+    last = loop_hist[-1][1] if loop_hist else {}
+    cycles = int(last.get("cycles", 0) or 0)
+    if planned is not None and samples < planned and (planned <= cycles or record_incomplete):
+        # the plant made them (its last status says so) or the bag cannot tell (its recording stopped): the
+        # record is short, not (as far as the bag knows) the run
+        problems.append(f"the bag ends {planned - samples} sample(s) before the planned end (at t = {samples * dt:.3f}"
+                        f" of {planned * dt:g} s): the recording stopped early - the metrics cover the recorded"
+                        " samples" + ("" if planned <= cycles else "; what happened after is not in the bag"))
+        samples = planned
+    f = RunFacts(planned_samples=planned, samples=samples, reached_t0=exp.size > 0, dt=dt, problems=problems)
+    if last.get("failed") == "True":
+        f.failure = (_float(last.get("fail_time_s", last.get("t_sim_s"))), last.get("fault") or "plant failure")
+    landing = next((v for _, v in loop_hist if v.get("landing") == "True"
+                    and not v.get("landing_reason", "").startswith(_END_OF_RUN)), None)
+    if landing is not None:
+        t_land = _float(landing.get("landing_t_s", landing.get("t_sim_s")))
+        f.landing = (t_land, landing.get("landing_reason") or "the board landed the plate")
+    if "board_run_samples" in last:  # hardware: did the board ever apply a controller command in the experiment?
+        f.board_ran = int(last["board_run_samples"]) > 0
+    return f
 
 
 def _stretches(idx: np.ndarray) -> tuple[int, int, int]:
@@ -375,11 +492,5 @@ def run_problems(r: Any, src_ns: np.ndarray, ref_ns: np.ndarray, epoch_ns: int |
         out.append(f"{int(missing.sum())} sample(s) without a reference in {n} stretch(es); longest "
                    f"{longest} samples from t = {(exp[start] - exp[0]) * 1e-9:.3f} s"
                    " (reference node down?) - not in the metrics")
-    if duration_s and ts.size > 1:
-        dt = float(np.median(np.diff(ts))) * 1e-9
-        covered = float(ts[-1] - ts[0]) * 1e-9
-        if covered < duration_s - 1.5 * dt:
-            out.append(f"run covers {covered:.3f} s of the {duration_s:g} s planned (stopped early)")
-    elif duration_s and ts.size <= 1:
-        out.append(f"run has {ts.size} sample(s) with gap and reference of the {duration_s:g} s planned")
+    # a run shorter than planned is not a problem of the record but a failed run: the verdict's (run_facts)
     return out

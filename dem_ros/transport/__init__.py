@@ -235,6 +235,9 @@ def run_nodes(
                 if node.is_shutdown:
                     return 0  # stopped (Ctrl-C / SIGTERM) while setting up: not an error
                 raise
+            from ..runstate import announce
+
+            announce("ready", name)  # set up (subscriptions made): to the launcher, not by log text
         # Set-up is done: freeze what it allocated (out of the collector's reach), then the
         # process's real-time settings (SCHED_FIFO, mlockall, timer slack; see dem_ros.realtime).
         from ..realtime import enter_loop

@@ -207,13 +207,34 @@ def test_late_commands_are_not_forwarded_but_keep_the_watchdog_fed():
     assert d.counters["commands_stale"] == 39
 
 
-def test_a_silent_link_trips_on_the_steady_clock():
-    d, k = synced({"link_timeout": 0.05})
+def test_a_silent_link_trips_an_active_driver_on_the_steady_clock():
+    d, k = synced({"link_timeout": 0.05, "hold_timeout": 1.0})
     d.arm()
+    s, _ = feed(d, k)
+    d.command(s.stamp_ns, [50.0, 50.0], k * MS)
+    assert d.state == DriverState.ACTIVE
     d.check(k * MS + 40 * MS)
-    assert d.state == DriverState.ARMED
+    assert d.state == DriverState.ACTIVE
     d.check(k * MS + 60 * MS)
     assert d.state == DriverState.FAULT and "link lost" in d.reason
+
+
+def test_an_armed_driver_rides_through_a_host_stall_handshakes_again_and_counts_it():
+    """Armed, not yet active: the board levitates nothing for the driver yet. A 52 ms stall of the host (no frame
+    read) is no fault: the driver asks for a hello again, counts the stall and its length, and becomes active
+    as usual once the board answers and the controller's commands come in time."""
+    d, k = synced({"link_timeout": 0.05})
+    d.arm()
+    feed(d, k)
+    d.check(k * MS + 52 * MS)  # the reader's timeout check, 52 ms after the last frame (the host stalled)
+    assert d.state == DriverState.ARMED and d.reason == ""
+    assert d.counters["stalls"] == 1 and d.counters["link_loss"] == 0
+    assert d.status()["longest_stall_ms"] == pytest.approx(52.0)
+    assert d.hello is None  # the node sends hello requests until the board answers again
+    d.on_bytes(encode(Hello(1, 7, 1000, 16, 10.0, 20)), 0, k * MS + 53 * MS)
+    s, _ = feed(d, k + 54)
+    assert decode(d.command(s.stamp_ns, [50.0, 50.0], (k + 54) * MS)).mode == Mode.RUN
+    assert d.state == DriverState.ACTIVE
 
 
 def test_current_and_gap_trip_after_trip_samples_but_a_single_spike_only_counts():

@@ -13,8 +13,7 @@ the lift-off: a LAND while the plate rises at up to the lift-off's 5 mm/s is out
 law bounds (measured once: 10.43 mm/s descent, landing_speed 10; docs/manual/board.md documents 0.94-1.17x).
 
 What is asserted is what the design guarantees whatever the load: the board's true-plant figures
-(rail contact, smallest gap, fastest descent while landing) and the sequence of states, once the host
-keeps the free-running loop in time (it is a timing property: run with ``DEM_ROS_HIL=1``; the same
+(rail contact, smallest gap, fastest descent while landing) and the sequence of states (the same
 sequence tick by tick, with no clock, is tests/graph/test_restart.py). The command
 delay is 4 samples so a loaded machine keeps the loop in time (the controller predicts over it), and
 the driver's own watchdogs (``hw_driver.hold_timeout``, ``link_timeout``) are 0.3 s: a host stall of
@@ -26,17 +25,14 @@ command for 50 ms): the script then re-arms (the same restart path), at most ``R
 from __future__ import annotations
 
 import json
-import os
 import signal
 import time
 from pathlib import Path
 
-import pytest
-
 from dem_ros import contract
 from dem_ros.bag import BagReader
 from dem_ros.core.scenarios import get_scenario
-from dem_ros.nodes.hw_driver import request
+from dem_ros.nodes.hw_driver import HwClient
 from dem_ros.tools.launcher import run_graph
 
 DELAY = 4
@@ -69,12 +65,14 @@ class Script:
         self.rearms = 0
         self.landings_at_arm = 0
         self.liftoffs_at_arm = 0  # the controller's 'lift-off done' lines when the driver was (re-)armed
+        self.client = HwClient(domain)  # discovered while the graph starts
 
     def arm(self) -> None:
-        """``dem-ros hw arm`` (its function, in this process: a CLI process takes 10-100 s to start at load 15-25)."""
+        """``dem-ros hw arm`` (its client, made before the run: a CLI process, or a client made now, would pay
+        start-up and discovery, tens of seconds on a loaded host, at the moment the arm is needed)."""
         self.liftoffs_at_arm = self._log().count("lift-off done")
         self.t.pop("lifted", None)  # a lift-off the board ended by landing the plate does not count
-        self.arm_out = str(request("arm", domain_id=self.domain, timeout_s=30.0))
+        self.arm_out = str(self.client.request("arm", timeout_s=30.0))
         self.t["armed"] = time.monotonic()  # confirmed by the driver (discovery alone takes 20 s at load 15)
 
     def _log(self) -> str:
@@ -111,13 +109,6 @@ class Script:
         return {"controller"}
 
 
-@pytest.mark.skipif(os.environ.get("DEM_ROS_HIL") != "1", reason=(
-    "free-running hardware in the loop: whether the 1 kHz loop holds the plate through a lift-off depends on the "
-    "host keeping it in time; a timing property, measured on demand (DEM_ROS_HIL=1), not a suite test. On the "
-    "shared 2-core VM (2026-11-25/26): 1 of 1 quiet, 3 of 3 at load 2.1-2.6 (two busy yes), passed inside a "
-    "fresh-clone CI run at load 2.2-3.1, failed inside another at load 3.1-4.4 (the lift-off given up after its "
-    "re-arms); 8 of 9 at load 9-17, 0 of 7 at load 17-26 (the board lands at each lift-off after 50-90 ms runnable "
-    "stalls beside other graphs' FIFO processes)"))
 def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path, domain_id):
     cfg = get_scenario("S1").config()
     cfg["plant_sim"]["measure_velocity"] = False  # a rig has no gap-rate sensors
@@ -129,8 +120,12 @@ def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path
     workdir = tmp_path / "run"
     script = Script(workdir, domain_id, support_mm)
     bag = tmp_path / "bag"
-    facts = run_graph(cfg, duration=2 * LIMIT_S, transport="dds", bag=bag, meta={"scenario": "S1", "duration_s": LIMIT_S},
-                      domain_id=domain_id, status=False, workdir=workdir, hardware="rig", supervise=script)
+    try:
+        facts = run_graph(cfg, duration=2 * LIMIT_S, transport="dds", bag=bag,
+                          meta={"scenario": "S1", "duration_s": LIMIT_S}, domain_id=domain_id, status=False,
+                          workdir=workdir, hardware="rig", supervise=script)
+    finally:
+        script.client.close()
     rig = facts["rig"]
     logs = {n: Path(p).read_text(errors="replace")[-3000:] for n, p in facts["logs"].items()}
     assert script.phase == "stop", (script.phase, script.t, _rig_status(workdir), logs)

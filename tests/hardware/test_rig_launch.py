@@ -27,7 +27,7 @@ def test_launch_hardware_rig_runs_records_and_summarises(tmp_path, domain_id):
                         "--scenario", "S1", "--duration", "3", "--transport", "dds", "--bag-dir", str(tmp_path / "bags"),
                         "--set", "controller.command_delay=2", "--json", str(out)],
                        cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
-    assert p.returncode in (0, 1), p.stderr[-3000:]  # 1: the plate was lost (a load-dependent outcome)
+    assert p.returncode in (0, 1, 3), p.stderr[-3000:]  # 1: the plate was lost, 3: samples lost (load-dependent)
     assert "Traceback" not in p.stderr
     s = json.loads(out.read_text())
     assert s["hardware"] == "rig" and s["rig"]["ticks"] > 3000 and s["rig"]["hellos"] >= 1

@@ -53,18 +53,21 @@ def test_the_catalogue_covers_the_issue():
             "kill-recorder", "future-applied", "disk-full"} <= names
 
 
-def test_the_plants_last_word_and_a_restart_outage_are_read_from_the_node_logs(tmp_path):
-    from dem_ros.tools.faults import _outage_s, _plant_end
+def test_the_plants_last_word_and_a_restart_outage_are_read_from_the_run_state_events(tmp_path):
+    """Structured (dem_ros.runstate events, as the launcher keeps them beside the logs), never log text."""
+    from dem_ros.tools.faults import _outage_s, _plant_end, run_events
+    from dem_ros.tools.launcher import RUN_STATE_FILE
 
-    plant = tmp_path / "plant_sim.log"
-    plant.write_text("[INFO] [100.0] [plant_sim]: levitating at 8.000 mm\nt =     1.0 s  gaps\n"
-                     "[WARN] [104.5] [plant_sim]: landed safely at t = 2.1 s\n")
-    est = tmp_path / "estimator.log"
-    est.write_text("[INFO] [90.0] [estimator]: ready\n[INFO] [106.25] [estimator]: ready\n")
-    logs = {"plant_sim": str(plant), "estimator": str(est)}
-    assert _plant_end(logs) == "landed safely at t = 2.1 s"
-    assert _outage_s(logs, "estimator", 102_000_000_000) == 4.25  # SIGKILL at 102 s, 'ready' again at 106.25 s
-    assert _outage_s(logs, "estimator", None) is None and _plant_end({}) == ""
+    events = [{"event": "ready", "node": "estimator", "time_ns": 90 * 10**9},
+              {"event": "t0", "node": "plant_sim", "time_ns": 101 * 10**9},
+              {"event": "finished", "node": "plant_sim", "time_ns": 104_500_000_000, "message": "landed safely at t = 2.1 s"},
+              {"event": "ready", "node": "estimator", "time_ns": 106_250_000_000}]
+    (tmp_path / RUN_STATE_FILE).write_text("".join(json.dumps(e) + "\n" for e in events))
+    info = {"events": run_events({}, tmp_path)}  # a run whose summary failed: the events from the file
+    assert info["events"] == events
+    assert _plant_end(info) == "landed safely at t = 2.1 s"
+    assert _outage_s(info, "estimator", 102_000_000_000) == 4.25  # SIGKILL at 102 s, ready again at 106.25 s
+    assert _outage_s(info, "estimator", None) is None and _plant_end({}) == ""
 
 
 def test_a_reference_step_and_stale_stamps_leave_the_plate_levitating_and_are_reported(tmp_path, domain_id):

@@ -1,8 +1,8 @@
 """Truncated launches, for real: ``dem-ros launch`` as a process, one of its nodes SIGKILLed mid-run.
 
 A run cut short must exit non-zero and say why: a node other than the plant dying ends the run at once
-("node ... exited early"); the plant dying leaves a bag that covers less than the planned duration
-("run covers ... of the ... s planned"). The process killed is found by its command line, which names
+("node ... exited early": failed, cut short); the plant dying leaves a bag with fewer samples than planned
+(failed: "N of M planned samples"). The process killed is found by its command line, which names
 this test's own params file: nothing else on the machine can match.
 """
 
@@ -56,13 +56,16 @@ def _launch_and_kill(tmp_path: Path, node: str, domain_id: int) -> subprocess.Co
     return subprocess.CompletedProcess(p.args, p.returncode, out, err)
 
 
-def test_a_launch_whose_estimator_dies_exits_non_zero_naming_it(tmp_path, domain_id):
+def test_a_launch_whose_estimator_dies_is_failed_exit_1_naming_it(tmp_path, domain_id):
     r = _launch_and_kill(tmp_path, "estimator", domain_id)
-    assert r.returncode != 0
+    assert r.returncode == 1, r.stderr[-2000:]
     assert "node estimator exited early with code -9" in r.stderr, r.stderr[-2000:]
+    first = r.stdout.splitlines()[0]
+    assert first.split()[:2] == ["verdict", "failed:"] and "cut short: node estimator exited early" in first, r.stdout
 
 
-def test_a_launch_whose_plant_dies_before_the_duration_exits_non_zero_saying_so(tmp_path, domain_id):
+def test_a_launch_whose_plant_dies_before_the_duration_is_failed_exit_1_saying_so(tmp_path, domain_id):
     r = _launch_and_kill(tmp_path, "plant_sim", domain_id)
-    assert r.returncode == 1
-    assert "degraded run" in r.stderr and "of the 8 s planned (stopped early)" in r.stderr, r.stderr[-2000:]
+    assert r.returncode == 1, r.stderr[-2000:]
+    assert "dem-ros launch: failed:" in r.stderr and "of 8000 planned samples" in r.stderr, r.stderr[-2000:]
+    assert r.stdout.splitlines()[0].split()[:2] == ["verdict", "failed:"], r.stdout

@@ -84,7 +84,7 @@ def test_the_next_command_and_its_node_processes_load_the_shared_cache(cold_cach
     rc, lines, out = _timed_run(["launch", "--scenario", "S1", "--duration", "0.5", "--no-record",
                                  "--domain-id", str(domain_id)], env, 600.0)
     text = [x for _, x in lines]
-    assert rc in (0, 1), text  # 1: a degraded run (samples lost on a loaded machine), not this test's subject
+    assert rc in (0, 3), text  # 3: a degraded run (samples lost on a loaded machine), not this test's subject
     assert "dem-ros launch: error" not in "\n".join(text), text
     assert not [x for x in text if "compiling" in x], text
     after = {p: p.stat().st_mtime_ns for p in cache.rglob("*") if p.is_file()}

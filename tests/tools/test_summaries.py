@@ -10,6 +10,7 @@ from dem_ros.core.scenarios import get_scenario
 from dem_ros.core.simulate import simulate
 from dem_ros.tools.common import json_safe, json_text, write_json
 from dem_ros.tools.runmetrics import LoopStats, RunMetrics, tracking_text
+from dem_ros.tools.verdict import RunFacts, judge
 
 
 def _strict_loads(text: str):
@@ -44,10 +45,12 @@ def test_a_run_without_a_sample_from_t0_has_no_error_figures_not_nan():
                    rms_error_after_40s_um=nan2, peak_voltage_v=math.nan,
                    loop=LoopStats(cycles=111, deadline_misses=40, latency_us={"p50": 900.0, "p99": 5e3, "max": 9e3},
                                   landing=True, landing_reason="command lost"))
+    m.set_verdict(judge(RunFacts(planned_samples=3000, samples=0, reached_t0=False, landing=(-0.889, "command lost"))))
     text = m.format()
     assert "nan" not in text.lower(), text
     assert "RMS error" not in text and "max error" not in text and "peak |u|" not in text
-    assert "landing: yes (command lost)" in text and "failed" in text
+    assert "landing: yes (command lost)" in text
+    assert text.splitlines()[0].split(None, 2)[:2] == ["verdict", "failed:"] and "never reached t = 0" in text
     assert tracking_text(nan2, [1.0, 2.0]) is None
     assert tracking_text([1.234, 5.0], nan2) == "1.23 / 5.00"
     assert tracking_text([1.234, 5.0], [1.0, 2.0]) == "1.23 / 5.00 (offline, same timing: 1.00 / 2.00)"

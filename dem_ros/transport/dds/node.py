@@ -47,10 +47,11 @@ from ..api import (
     node_fqn,
 )
 from ..logger import NodeLogger
+from ..loop import LocalSubscription, SourcedLocalSubscription, deliver_local
 from ..parameters import ParameterStore
 from ..rosargs import RosArgs, initial_parameters, parse_ros_args
 from . import fastcdr, msgs, srvs, wire
-from .executor import ANY_SAMPLE, DdsExecutor, DdsTimer, LocalSubscription
+from .executor import ANY_SAMPLE, DdsExecutor, DdsTimer
 
 __all__ = ["QOS_SERVICES", "DdsExecutor", "DdsNode", "DdsPublisher", "DdsTimer", "Participant"]
 #: rmw_qos_profile_services_default
@@ -246,17 +247,7 @@ class DdsPublisher:
         if local is None:
             data = self._cdr(msg)
         else:
-            data = None
-            queue = self._queue
-            for sub in local:
-                if sub.raw:
-                    if data is None:
-                        data = self._cdr(msg)
-                    queue.append((sub, data))
-                elif sub.__class__ is SourcedLocalSubscription:
-                    queue.append((sub, (msg, self.gid)))
-                else:
-                    queue.append((sub, msg))
+            data = deliver_local(local, self._queue, msg, self.gid, self._cdr)
             if not self._remote_subscribers():
                 return
             if data is None:
@@ -276,12 +267,6 @@ class DdsPublisher:
     def subscription_count(self) -> int:
         """Matched subscriptions: remote ones plus those of the same executor (intra-process)."""
         return len(self._writer.get_matched_subscriptions()) + len(self._local or ())
-
-
-class SourcedLocalSubscription(LocalSubscription):
-    """An intra-process subscription whose callback takes ``(msg, writer_gid)`` as one tuple."""
-
-    __slots__ = ()
 
 
 class DdsNode:

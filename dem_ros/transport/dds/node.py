@@ -244,15 +244,12 @@ class DdsPublisher:
 
     def publish(self, msg: Any) -> None:
         local = self._local
-        if local is None:
-            data = self._cdr(msg)
-        else:
+        data: bytes | None = None
+        if local is not None:
             data = deliver_local(local, self._queue, msg, self.gid, self._cdr)
             if not self._remote_subscribers():
                 return
-            if data is None:
-                data = self._cdr(msg)
-        ret = ddspy_write(self._ref, data)
+        ret = ddspy_write(self._ref, data if data is not None else self._cdr(msg))
         if ret < 0:
             raise TransportError(f"DDS write failed on {self._writer.topic.name} (code {ret})")
 

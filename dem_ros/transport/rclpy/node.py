@@ -25,6 +25,7 @@ Only importable where ``import rclpy`` works.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import time
 from collections.abc import Callable, Mapping
@@ -37,7 +38,16 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from ...contract import QoS, Topic
 from ...core.params import SCHEMA
 from .. import paramvalue as pv
-from ..api import CallbackGuard, OnChange, RawCallback, ServiceCallback, SourcedCallback, TransportError, gid16, node_fqn
+from ..api import (
+    CallbackGuard,
+    OnChange,
+    RawCallback,
+    ServiceCallback,
+    SourcedCallback,
+    TransportError,
+    gid16,
+    node_fqn,
+)
 from ..dds import fastcdr, msgs
 from ..loop import LocalSubscription, LoopTimer, SourcedLocalSubscription, deliver_local
 from ..parameters import ParameterStore
@@ -114,7 +124,7 @@ class RclpyPublisher:
 
     def _cdr(self, msg: Any) -> bytes:
         if type(msg) is self._cls:
-            return self._encode(msg) if self._encode is not None else bytes(msg.serialize())
+            return self._encode(msg) if self._encode is not None else bytes(msg.serialize())  # type: ignore[attr-defined]
         from rclpy.serialization import serialize_message  # a rosidl message (e.g. a stock node's)
 
         return bytes(serialize_message(msg))
@@ -382,10 +392,8 @@ class RclpyNode:
         if self._destroyed:
             return
         self._destroyed = True
-        try:
+        with contextlib.suppress(Exception):  # the context may be gone (shut down by the user's code)
             self._node.destroy_node()
-        except Exception:
-            pass
         if self._ex.stopped:
             self._ex.close()
 

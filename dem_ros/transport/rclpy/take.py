@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import ctypes
 import os
+
 from ..api import TransportError, gid16
 
 __all__ = ["SerializedTake", "gid_storage_size"]

@@ -21,7 +21,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -119,7 +119,7 @@ def _node_cmd(name: str, transport: str, params: Path, extra: list[str]) -> list
 def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, meta: dict,
               domain_id: int | None = None, status: bool = True, workdir: Path | None = None,
               compose: bool = False, hardware: str | None = None, faults: Sequence[str] = (),
-              supervise: Supervise | None = None) -> dict:
+              supervise: Supervise | None = None, node_transports: Mapping[str, str] | None = None) -> dict:
     """Start the graph, wait for the plant to finish ``duration`` s, stop everything; return raw facts.
 
     ``compose``: all nodes in one ``container`` process (intra-process topics)
@@ -132,7 +132,12 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     since t = 0 (None before), the node processes by name (it may kill them) and ``restart(name)``
     (starts that node again, its log appended); it returns the names that may be down now. Any
     other node that exits ends the run with a :class:`GraphError` (the run was cut short).
+    ``node_transports``: a node's own transport instead of ``transport`` (e.g. the controller on
+    rclpy/Fast DDS, the rest on dds/Cyclone).
     """
+    def transport_of(name: str) -> str:
+        return (node_transports or {}).get(name, transport)
+
     workdir = workdir or Path(tempfile.mkdtemp(prefix="dem_ros_launch_"))
     workdir.mkdir(parents=True, exist_ok=True)
     cfg = {g: dict(v) for g, v in cfg.items()}
@@ -188,7 +193,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
                 rig, cfg["hw_driver"]["url"] = _start_rig(cfg, hardware, faults, workdir)
                 node_params = write_params_file(cfg, workdir / "hw_driver_params.yaml")
             with open(logs[name], "wb") as log_file:  # the child writes through its own descriptor
-                procs[name] = subprocess.Popen(_node_cmd(name, transport, node_params, extra), env=env,
+                procs[name] = subprocess.Popen(_node_cmd(name, transport_of(name), node_params, extra), env=env,
                                                stdout=subprocess.PIPE if name == lead else log_file,
                                                stderr=subprocess.STDOUT, start_new_session=True,
                                                text=(name == lead))
@@ -208,7 +213,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
 
             def restart(name: str) -> None:
                 with open(logs[name], "ab") as out:
-                    procs[name] = subprocess.Popen(_node_cmd(name, transport, params, []), env=env, stdout=out,
+                    procs[name] = subprocess.Popen(_node_cmd(name, transport_of(name), params, []), env=env, stdout=out,
                                                    stderr=subprocess.STDOUT, start_new_session=True)
 
             while plant.poll() is None and not interrupted and time.monotonic() < limit:

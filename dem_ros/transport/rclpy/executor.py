@@ -17,8 +17,9 @@ not re-add tens of service handles to the wait set.
 Inside a container (``intra_process``) the rcl endpoints are ordinary ones (rclpy cannot ask
 for ``ignore_local_publications``): a publisher writes to the middleware only while a
 subscriber outside the container is matched, and a subscription of the container drops the
-samples whose writer is of this process (the GID's participant prefix), which it already got
-through the executor's queue.
+samples of the container's publishers (by their GIDs), which it already got through the
+executor's queue; rclpy's own writers of the process (``/parameter_events``, ``/rosout``) come
+through rcl as from any other process.
 """
 
 from __future__ import annotations
@@ -45,8 +46,6 @@ SERVICE_POLL_NS = 10_000_000
 #: variables by which a user configures Fast DDS (then :func:`fastdds_transport` leaves it alone)
 _FASTDDS_CONFIG = ("FASTDDS_BUILTIN_TRANSPORTS", "FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE",
                    "RMW_FASTRTPS_USE_QOS_FROM_XML")
-#: the GUID prefix of a GID: the participant (one per rclpy context, i.e. per process)
-PREFIX = 12
 
 
 def fastdds_transport(env: dict[str, str] | os._Environ[str] = os.environ) -> None:
@@ -92,8 +91,8 @@ class RclpyExecutor(LoopExecutor):
         self._ws: Any = None  # rebuilt when the subscriptions change
         self._next_services = 0
         self._ready: list[int] | None = None  # the subscriptions the last wait found ready (None: all)
-        #: the participant prefix of this process's writers (set by the first publisher)
-        self.own_prefix = b""
+        #: GIDs of the writers that deliver within this executor (their samples also come through rcl)
+        self.local_writers: set[bytes] = set()
 
     def add_subscription(self, sub: Any, handler: Callable[[bytes, bytes], None], node: Member) -> None:
         self.subscriptions.append((sub, int(sub.handle.pointer), handler, node))
@@ -147,9 +146,9 @@ class RclpyExecutor(LoopExecutor):
                     if serve is not None:
                         serve()
 
-    def is_own(self, gid: bytes) -> bool:
-        """True for a writer of this process (its participant)."""
-        return bool(self.own_prefix) and gid[:PREFIX] == self.own_prefix
+    def is_local(self, gid: bytes) -> bool:
+        """True for a writer whose samples this executor delivers in memory (drop its rcl copy)."""
+        return gid in self.local_writers
 
     def close(self) -> None:
         """Release the wait set and buffers; shut rclpy's context down if this executor started it."""

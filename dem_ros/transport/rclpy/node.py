@@ -52,7 +52,7 @@ from ..dds import fastcdr, msgs
 from ..loop import LocalSubscription, LoopTimer, SourcedLocalSubscription, deliver_local
 from ..parameters import ParameterStore
 from ..rosargs import initial_parameters, parse_ros_args
-from .executor import PREFIX, RclpyExecutor
+from .executor import RclpyExecutor
 
 __all__ = ["RclpyNode", "RclpyPublisher", "ros_type", "to_qos_profile"]
 
@@ -209,10 +209,11 @@ class RclpyNode:
         pub = self._node.create_publisher(ros_type(topic.type), topic.name, to_qos_profile(topic.qos.for_writer()))
         new = self._own_writers(resolved) - before
         gid = next(iter(new)) if len(new) == 1 else b""
-        if gid and not self._ex.own_prefix:
-            self._ex.own_prefix = gid[:PREFIX]
         cls = msgs.message_class(topic.type)
         if self._ex.intra_process:
+            if not gid:
+                raise TransportError(f"{self.fully_qualified_name}: the new writer on {resolved} is not on the graph")
+            self._ex.local_writers.add(gid)
             return RclpyPublisher(pub, cls, self._ex.local_subscriptions(resolved), self._ex.queue, gid)
         return RclpyPublisher(pub, cls, gid=gid)
 
@@ -224,17 +225,17 @@ class RclpyNode:
     def _subscribe(self, topic: Topic, handler: Callable[[bytes, bytes], object],
                    local: LocalSubscription | None) -> None:
         """A raw rclpy subscription whose samples go to ``handler(cdr, writer_gid)``; inside a
-        container also ``local`` (and the samples of this process's writers are dropped)."""
+        container also ``local`` (and the rcl copies of the container's publishers' samples are dropped)."""
         resolved = self._resolve(topic)
         what = f"subscription {resolved}"
         ex = self._ex
         guarded = self._guard.wrap(what, handler)
         if local is not None and ex.intra_process:
             ex.local_subscriptions(resolved).append(local)
-            is_own = ex.is_own
+            is_local = ex.is_local
 
             def remote_only(data: bytes, gid: bytes) -> None:
-                if not is_own(gid):
+                if not is_local(gid):
                     guarded(data, gid)
 
             deliver = remote_only

@@ -492,9 +492,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--estimator", default=None, choices=ESTIMATOR_TYPES, help="state estimator (default: config, 'kf')")
     p.add_argument("--duration", type=seconds, default=None, help="seconds (default: the scenario's)")
     p.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"],
-                   help="auto (rclpy when it imports, else dds) | rclpy | dds (no ROS install needed)")
+                   help="auto (rclpy when it imports, else dds) | rclpy (ROS 2 Jazzy sourced, or pip install "
+                        "-e '.[ros]'; on Fast DDS the one whose parameters and services `ros2` reaches) | dds (no "
+                        "ROS install; rmw_cyclonedds' wire: topics reach any vendor, services only Cyclone); "
+                        "docs/manual/transports.md")
     p.add_argument("--compose", action="store_true",
-                   help="all nodes in one process on one executor, topics between them in memory (dds); "
+                   help="all nodes in one process on one executor, topics between them in memory; "
                         "the real-time configuration")
     p.add_argument("--free-run", action="store_true",
                    help="free-running plant (plant_sim.lockstep false): hardware-like timing, a late command is held "

@@ -52,9 +52,10 @@ def fastdds_transport(env: dict[str, str] | os._Environ[str] = os.environ) -> No
     """Fast DDS on UDP only (``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``) unless the user configures Fast DDS
     (that variable, a profiles file) or picks another RMW.
 
-    Fast DDS's default shared-memory transport gave the 1 kHz chain between processes tails of 50-125 ms
-    (samples waiting for a repair; the loop thread runnable but not running for 50 ms); over UDP on
-    loopback, with the real-time settings, the same 3-process chain held p99 < 1 ms (docs/manual/transports.md).
+    Fast DDS's default shared-memory transport gave the 1 kHz chain between processes tails of 50-125 ms;
+    over UDP, with the real-time settings, the same 3-process chain held p99 < 1 ms (docs/manual/transports.md).
+    With ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (what ``dem-ros launch`` sets by default) rmw_fastrtps
+    configures the transports itself (UDP on 127.0.0.1 and shared memory) and this variable has no effect.
     """
     rmw = env.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     if rmw != "rmw_fastrtps_cpp" or any(k in env for k in _FASTDDS_CONFIG):

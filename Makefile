@@ -34,7 +34,21 @@ demo: $(STAMP)
 	if { [ $$rc -le 1 ] || [ $$rc -eq 3 ]; } && [ -n "$$bag" ]; then echo "make: figures of this run: $(VENV)/bin/dem-ros replay $$bag --plot figs/"; fi; \
 	exit $$rc
 
-test: $(STAMP)
+# the `ros` extra (ROS 2 Jazzy's rclpy on Fast DDS from the package index) so the rclpy tests run: the wheels
+# are cp311 manylinux x86_64. The stamp keeps what happened (installed, or why not) until setup.py changes;
+# where the wheels cannot be had the rclpy tests skip, and every `make test` says so in one line
+ROS_STAMP := $(VENV)/.ros-stamp
+$(ROS_STAMP): $(STAMP) setup.py
+	@if $(PY) -c "import sys, platform; sys.exit(0 if sys.version_info[:2] == (3, 11) and sys.platform == 'linux' and platform.machine() == 'x86_64' else 1)"; then \
+	  echo "make: $(PY) -m pip install -qq -e '.[ros]' (rclpy for the rclpy transport's tests)"; \
+	  if $(PY) -m pip install -qq -e '.[ros]' 2>$(VENV)/.ros-pip.log; then echo installed > $@; \
+	  else echo "unavailable: pip install -e '.[ros]' failed (see $(VENV)/.ros-pip.log)" > $@; fi; \
+	else \
+	  echo "unavailable: the ROS 2 Jazzy wheels are cp311 linux x86_64, this is $$($(PY) -c "import sys, platform; print(f'cp{sys.version_info[0]}{sys.version_info[1]} {sys.platform} {platform.machine()}')")" > $@; \
+	fi
+
+test: $(STAMP) $(ROS_STAMP)
+	@grep -q '^installed' $(ROS_STAMP) || echo "make: no rclpy, the rclpy tests skip: $$(cat $(ROS_STAMP))"
 	$(PY) -m pytest -q tests
 
 bench: $(STAMP)

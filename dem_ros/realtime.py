@@ -121,11 +121,14 @@ ENV = {"enabled": "DEM_ROS_RT", "priority": "DEM_ROS_RT_PRIORITY", "lock_memory"
 
 _PR_SET_TIMERSLACK = 29
 _MCL_CURRENT, _MCL_FUTURE, _MCL_ONFAULT = 1, 2, 4
-#: cyclonedds threads on the sample path: receive (``recv``, ``recvUC``, ``recvMC``) and delivery (``dq.*``)
-_DDS_PATH_THREADS = ("recv", "dq.")
-#: cyclonedds's timed events (heartbeats, acknowledgements, discovery) and its garbage collector: starved
-#: at normal priority on a loaded machine, remote peers (``dem-ros param``) cannot find the node in time
+#: DDS threads on the sample path: cyclonedds's receive (``recv``, ``recvUC``, ``recvMC``) and delivery
+#: (``dq.*``); Fast DDS's (the rclpy transport) UDP and shared-memory receive (``dds.udp.*``, ``dds.shm.*``)
+_DDS_PATH_THREADS = ("recv", "dq.", "dds.udp", "dds.shm")
+#: cyclonedds's timed events (heartbeats, acknowledgements, discovery) and its garbage collector, Fast DDS's
+#: events and asynchronous writer: starved at normal priority on a loaded machine, remote peers
+#: (``dem-ros param``) cannot find the node in time
 _DDS_SERVICE_THREADS = ("tev", "gc")
+_FASTDDS_SERVICE_THREADS = ("dds.ev", "dds.asyn")
 #: start of the line that reports what a process was granted (JSON follows; the launcher reads it)
 REPORT_PREFIX = "REALTIME "
 #: start of the line with the loop's stall summary, printed at exit (JSON follows)
@@ -273,7 +276,8 @@ def _loop_threads(priority: int) -> list[tuple[int, str, int]]:
     out = [(me, _thread_name(me), priority)]
     os_threads = [(t, n) for t, n in _threads() if t != me]
     out += [(t, n, priority) for t, n in os_threads if n.startswith(_DDS_PATH_THREADS)]
-    out += [(t, n, max(1, priority - 1)) for t, n in os_threads if n in _DDS_SERVICE_THREADS]
+    out += [(t, n, max(1, priority - 1)) for t, n in os_threads
+            if n in _DDS_SERVICE_THREADS or n.startswith(_FASTDDS_SERVICE_THREADS)]
     out += [(t.native_id, t.name, max(1, priority - 1)) for t in threading.enumerate()
             if t.native_id is not None and t.native_id != me and t.is_alive()]
     return out

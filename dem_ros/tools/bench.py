@@ -395,13 +395,36 @@ def _stall_text(st: dict[str, Any]) -> str:
     return text + f"; steal across them {st['steal_ms']:.0f} ms"
 
 
+def _print_side_by_side(dds: dict[str, Any], rclpy: dict[str, Any]) -> None:
+    """The two transports' runs in columns, with rclpy / dds."""
+    def row(label: str, a: float, b: float, fmt: str) -> None:
+        ratio = f"{b / a:.2f}x" if np.isfinite(a) and np.isfinite(b) and a > 0 else "-"
+        print(f"    {label:<26}{format(a, fmt):>10}{format(b, fmt):>10}{ratio:>12}")
+
+    def num(x: Any) -> float:
+        return float(x) if isinstance(x, (int, float)) else float("nan")
+
+    print(f"    {'side by side':<26}{'dds':>10}{'rclpy':>10}{'rclpy/dds':>12}")
+    la, lb = dds["loop"]["latency_us"], rclpy["loop"]["latency_us"]
+    for k in ("p50", "p99", "max"):
+        row(f"latency {k} [us]", num(la.get(k)), num(lb.get(k)), ".0f")
+    for r in (dds, rclpy):
+        r["_miss"] = 100.0 * r["loop"]["deadline_misses"] / max(r["loop"]["cycles"], 1)
+        r["_cpu"] = sum(r["loop"]["cpu_percent"].values())
+    row("deadline misses [%]", dds.pop("_miss"), rclpy.pop("_miss"), ".3f")
+    row("CPU, all nodes [% core]", dds.pop("_cpu"), rclpy.pop("_cpu"), ".1f")
+    land = {k: ("n/a" if r["landing"] is None else "YES" if r["landing"] else "no") for k, r in (("d", dds), ("r", rclpy))}
+    print(f"    {'landing':<26}{land['d']:>10}{land['r']:>10}")
+
+
 def bench_loop(args: argparse.Namespace) -> dict[str, Any]:
     """``bench loop [--compose] [--free-run] [--load N] [--rt/--no-rt]``: the graph's loop, measured.
 
     ``--load N`` runs N busy processes for the whole benchmark (floor and run), as a neighbour
     would; the machine floor (a bare 1 kHz sleep loop with the nodes' real-time settings) is
-    measured under that load just before the run. With ``--transport dds`` and rclpy
-    importable, the same graph also runs on rclpy as the peer and the ratio is printed.
+    measured under that load just before the run. The same graph then also runs on the other
+    transport (rclpy after dds, dds after rclpy; rclpy where it imports: the ``ros`` extra), and
+    both are printed side by side with the ratio rclpy / dds.
     """
     duration = args.duration or 60.0
     compose = bool(getattr(args, "compose", False))
@@ -417,13 +440,14 @@ def bench_loop(args: argparse.Namespace) -> dict[str, Any]:
         floor = _floor_child(FLOOR_S, dict(os.environ))
         before = cpu_times()
         up_before = os.getloadavg()
-        ours = _one_loop(args.transport, compose, free_run, duration)
+        transport = args.transport if args.transport != "auto" else ("dds" if _rclpy_missing() else "rclpy")
+        ours = _one_loop(transport, compose, free_run, duration)
         steal = steal_percent(before, cpu_times())
         up_after = os.getloadavg()
-        peer: dict[str, Any] | None = None
-        if args.transport == "dds":
-            why = _rclpy_missing()
-            peer = {"transport": "rclpy", "skipped": why} if why else {"transport": "rclpy", **_one_loop("rclpy", compose, free_run, duration)}
+        other = "rclpy" if transport == "dds" else "dds"
+        why = _rclpy_missing() if other == "rclpy" else None
+        peer: dict[str, Any] = ({"transport": other, "skipped": why} if why
+                                else {"transport": other, **_one_loop(other, compose, free_run, duration)})
     finally:
         _stop(busy)
         if saved is None:
@@ -437,15 +461,13 @@ def bench_loop(args: argparse.Namespace) -> dict[str, Any]:
     print(f"dem-ros bench loop on {m['cpu']} ({m['cores']} cores), transport {args.transport}, {how}, {timing},"
           f" {duration:g} s of S1, real time {'on' if rt else 'off'}, {load} busy processes beside it")
     print(f"  load average (1 min) {up_before[0]:.2f} before, {up_after[0]:.2f} after the run")
-    _print_loop(ours, args.transport)
-    if peer is not None:
-        if peer.get("skipped"):
-            print(f"  [rclpy] peer skipped: {peer['skipped']}")
-        else:
-            _print_loop(peer, "rclpy")
-            p50 = peer["loop"]["latency_us"]["p50"] / max(ours["loop"]["latency_us"]["p50"], 1e-9)
-            if np.isfinite(p50):  # both runs measured a latency
-                print(f"  latency p50 rclpy / {args.transport}: {p50:.1f}x")
+    _print_loop(ours, transport)
+    if peer.get("skipped"):
+        print(f"  [{other}] peer skipped: {peer['skipped']}")
+    else:
+        _print_loop(peer, other)
+        by = {transport: ours, other: peer}
+        _print_side_by_side(by["dds"], by["rclpy"])
     if steal is not None:  # a VM whose host is busy loses whole milliseconds: say so next to the figures
         print(f"  CPU stolen by the hypervisor during the run: {steal:.1f} % of this VM's time")
     print(f"  machine floor (a bare 1 kHz sleep loop with the same real-time settings, {FLOOR_S:g} s before the run):"
@@ -453,7 +475,7 @@ def bench_loop(args: argparse.Namespace) -> dict[str, Any]:
           f" max {floor['max_us']:.0f} us; {floor['over_1ms_percent']:.3f} % of wake-ups > 1 ms late;"
           f" deadline misses it alone would cause (command_delay {floor['command_delay']}): {floor['misses_percent']:.3f} %")
     print(f"  machine floor stalls: {_stall_text(floor['stalls'])}")
-    return {**ours, "machine": m, "transport": args.transport, "composed": compose, "free_run": free_run,
+    return {**ours, "machine": m, "transport": transport, "composed": compose, "free_run": free_run,
             "duration_s": duration, "load_processes": load, "load_average": {"before": up_before[0], "after": up_after[0]},
             "hypervisor_steal_percent": steal, "timer_floor": floor, "peer": peer}
 

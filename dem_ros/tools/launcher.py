@@ -29,7 +29,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from datetime import datetime
 from pathlib import Path
@@ -124,7 +124,8 @@ class _Graph:
 
     def __init__(self, cfg: dict, *, duration: float, transport: str, bag: Path | None, meta: dict,
                  domain_id: int | None, status: bool, workdir: Path | None, compose: bool, hardware: str | None,
-                 faults: Sequence[str], supervise: Supervise | None):
+                 faults: Sequence[str], supervise: Supervise | None,
+                 node_transports: Mapping[str, str] | None = None):
         self.workdir = workdir or Path(tempfile.mkdtemp(prefix="dem_ros_launch_"))
         self.workdir.mkdir(parents=True, exist_ok=True)
         cfg = {g: dict(v) for g, v in cfg.items()}
@@ -136,6 +137,7 @@ class _Graph:
                 cfg["hw_driver"]["url"] = hardware
         self.cfg, self.duration, self.transport, self.bag = cfg, duration, transport, bag
         self.status, self.compose, self.hardware, self.faults, self.supervise = status, compose, hardware, faults, supervise
+        self.node_transports = dict(node_transports or {})  # a node's own transport (e.g. the controller on rclpy)
         self.params = write_params_file(cfg, self.workdir / "params.yaml")
         env = dict(os.environ)
         if domain_id is None:
@@ -220,7 +222,7 @@ class _Graph:
         with open(self.logs[name], "ab" if append else "wb") as log_file:  # the child writes through its own fd
             lead = name == self.lead and not append
             self.procs[name] = subprocess.Popen(
-                _node_cmd(name, self.transport, params, extra), env=self.env,
+                _node_cmd(name, self.node_transports.get(name, self.transport), params, extra), env=self.env,
                 stdout=subprocess.PIPE if lead else log_file, stderr=subprocess.STDOUT, start_new_session=True,
                 text=lead, pass_fds=(self.state_w,))
         self.started[name] = time.monotonic()
@@ -421,7 +423,7 @@ def _no_board(url: str, waited: float) -> str:
 def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, meta: dict,
               domain_id: int | None = None, status: bool = True, workdir: Path | None = None,
               compose: bool = False, hardware: str | None = None, faults: Sequence[str] = (),
-              supervise: Supervise | None = None) -> dict:
+              supervise: Supervise | None = None, node_transports: Mapping[str, str] | None = None) -> dict:
     """Start the graph, wait for the plant to finish ``duration`` s, stop everything; return raw facts.
 
     ``compose``: all nodes in one ``container`` process (intra-process topics)
@@ -435,13 +437,16 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     since t = 0 (None before), the node processes by name (it may kill them) and ``restart(name)``
     (starts that node again, its log appended); it returns the names that may be down now. Any
     other node that exits ends the run: ``cut_short`` in the facts says which (the run failed).
+    ``node_transports``: a node's own transport instead of ``transport`` (e.g. the controller on
+    rclpy/Fast DDS, the rest on dds/Cyclone).
 
     Raises:
         StartupError: the run never started (a node exited or was not ready, no board answered, a driver fault
             before t = 0, no t = 0 within :data:`T0_S` s); every process is stopped first.
     """
     g = _Graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id, status=status,
-               workdir=workdir, compose=compose, hardware=hardware, faults=faults, supervise=supervise)
+               workdir=workdir, compose=compose, hardware=hardware, faults=faults, supervise=supervise,
+               node_transports=node_transports)
 
     def on_signal(signum, frame):
         g.interrupted = True
@@ -758,9 +763,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--estimator", default=None, choices=ESTIMATOR_TYPES, help="state estimator (default: config, 'kf')")
     p.add_argument("--duration", type=seconds, default=None, help="seconds (default: the scenario's)")
     p.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"],
-                   help="auto (rclpy when it imports, else dds) | rclpy | dds (no ROS install needed)")
+                   help="auto (rclpy when it imports, else dds) | rclpy (ROS 2 Jazzy sourced, or pip install "
+                        "-e '.[ros]'; on Fast DDS the one whose parameters and services `ros2` reaches) | dds (no "
+                        "ROS install; rmw_cyclonedds' wire: topics reach any vendor, services only Cyclone); "
+                        "docs/manual/transports.md")
     p.add_argument("--compose", action="store_true",
-                   help="all nodes in one process on one executor, topics between them in memory (dds); "
+                   help="all nodes in one process on one executor, topics between them in memory; "
                         "the real-time configuration")
     p.add_argument("--free-run", action="store_true",
                    help="free-running plant (plant_sim.lockstep false): hardware-like timing, a late command is held "

@@ -16,10 +16,12 @@ Node logic is written once against :class:`~dem_ros.transport.api.Node`::
         return run_node("controller", setup, args=args)
 
 Transports:
-    ``"rclpy"``  thin wrapper over rclpy (needs a sourced ROS 2 Humble/Jazzy);
+    ``"rclpy"``  rclpy nodes (ROS 2 Jazzy sourced, or ``pip install -e '.[ros]'``) with the
+                 project's messages, CDR codec and executor (:mod:`dem_ros.transport.rclpy`);
     ``"dds"``    Cyclone DDS from PyPI, wire-compatible with rmw_cyclonedds
                  (topics, services, ``ros_discovery_info``), no ROS install;
-    ``"auto"``   rclpy if ``import rclpy`` works, else dds.
+    ``"auto"``   rclpy if ``import rclpy`` works, else dds (docs/manual/transports.md: which
+                 transport with which ROS 2 install).
     (:mod:`dem_ros.transport.memory`: one process, no middleware, a manual
     clock; for unit tests of node logic, made with ``MemoryBus().node(name)``.)
 
@@ -83,7 +85,7 @@ SWITCH_INTERVAL_S = 1e-4
 
 
 def rclpy_available() -> bool:
-    """True when ``import rclpy`` works (a ROS 2 environment is sourced)."""
+    """True when ``import rclpy`` works (a ROS 2 environment is sourced, or the ``ros`` extra is installed)."""
     try:
         import rclpy  # noqa: F401
     except Exception:
@@ -129,8 +131,9 @@ def make_node(name: str, *, transport: str = "auto", args: Sequence[str] | None 
         args = sys.argv[1:]
     if kind == "rclpy":
         if not rclpy_available():
-            raise TransportError("transport 'rclpy' needs a sourced ROS 2 (import rclpy failed); use 'dds'")
-        from .rclpy_node import RclpyNode
+            raise TransportError("transport 'rclpy' needs rclpy (import rclpy failed): source a ROS 2 Jazzy, "
+                                 "or pip install -e '.[ros]'; or use 'dds'")
+        from .rclpy import RclpyNode
 
         return RclpyNode(name, list(args), executor=executor, ignore_undeclared=composed)  # type: ignore[return-value]
     from .dds.node import DdsNode
@@ -181,15 +184,13 @@ def run_nodes(
 
     Each ``(name, setup)`` gets its own node (own name, parameters and
     services) created with the process's ``args`` and set up in order; then one
-    thread spins them all. With the dds transport and ``intra_process`` (the
-    default), topics between these nodes are delivered in memory (see
-    :mod:`dem_ros.transport.dds.executor`) and reach DDS only for remote
-    subscribers; with rclpy the nodes share a SingleThreadedExecutor and the
-    middleware delivers within the process. ``stop_with``: when that node
+    thread spins them all. With ``intra_process`` (the default), topics between these nodes
+    are delivered in memory (see :mod:`dem_ros.transport.loop`; both transports) and reach the
+    middleware only for remote subscribers. ``stop_with``: when that node
     shuts itself down (e.g. the plant at the end of its run), all do.
-    ``background``: nodes whose callbacks run after all the others' in each round on the dds
-    executor (the recorder: best-effort, never ahead of the loop's chain; see
-    :meth:`~dem_ros.transport.dds.executor.DdsExecutor.set_background`).
+    ``background``: nodes whose callbacks run after all the others' in each round
+    (the recorder: best-effort, never ahead of the loop's chain; see
+    :meth:`~dem_ros.transport.loop.LoopExecutor.set_background`).
     Errors and signals are handled as in :func:`run_node`.
     """
     made: list[Node] = []
@@ -215,19 +216,19 @@ def run_nodes(
             from .dds.node import Participant
 
             executor = DdsExecutor(Participant.get(), intra_process=intra_process)
-        elif kind == "rclpy" and composed:
-            from .rclpy_node import shared_executor
+        elif kind == "rclpy":
+            from .rclpy import RclpyExecutor
 
-            executor = shared_executor(list(args))
-        # rclpy handles SIGINT itself (shuts its context down); we add SIGTERM
-        sigs = (signal.SIGTERM,) if kind == "rclpy" else (signal.SIGINT, signal.SIGTERM)
-        for sig in sigs:
+            executor = RclpyExecutor(list(args), intra_process=intra_process and composed)
+        # SIGINT (what ros2 launch sends) and SIGTERM: every node shuts down, the spin returns, exit 0
+        # (the rclpy context is initialised without rclpy's own signal handlers)
+        for sig in (signal.SIGINT, signal.SIGTERM):
             with contextlib.suppress(ValueError):  # not the main thread: the caller handles signals
                 previous[sig] = signal.signal(sig, stop)
         for name, setup in nodes:
             node = make_node(name, transport=kind, args=args, executor=executor, composed=composed)
             made.append(node)
-            if name in background and kind == "dds" and executor is not None:
+            if name in background and executor is not None:
                 executor.set_background(node)
             try:
                 setup(node)
@@ -295,12 +296,10 @@ def serialize(msg: Any) -> bytes:
 
 
 def deserialize(type_name: str, data: bytes, *, transport: str = "auto") -> Any:
-    """Message of ROS type ``type_name`` from CDR bytes (with encapsulation header)."""
-    if _pick(transport) == "rclpy":
-        from rclpy.serialization import deserialize_message
-        from rosidl_runtime_py.utilities import get_message
-
-        return deserialize_message(bytes(data), get_message(type_name))
+    """Message of ROS type ``type_name`` from CDR bytes (with encapsulation header): an instance of
+    the project's message class, which node code gets on every transport (``transport`` is checked,
+    nothing more)."""
+    _pick(transport)
     from .dds.fastcdr import decoder
     from .dds.msgs import message_class
 

@@ -1,7 +1,7 @@
 """The node interface dem_ros nodes are written against.
 
 Three implementations honour it: :mod:`dem_ros.transport.dds` (Cyclone DDS,
-no ROS install), :mod:`dem_ros.transport.rclpy_node` (a thin rclpy wrapper)
+no ROS install), :mod:`dem_ros.transport.rclpy` (rclpy nodes)
 and :mod:`dem_ros.transport.memory` (one process, no middleware: node logic
 under test). Node logic only uses what is declared here; if a node needs to
 look behind these Protocols, the Protocol is missing a member.

@@ -45,6 +45,10 @@ def test_bench_loop_composed_free_run_under_load_reports_what_it_ran(tmp_path):
     assert set(res["rt"]) == {"container"} and res["rt"]["container"]["requested"]
     if res["peer"].get("skipped"):
         assert "rclpy" in res["peer"]["skipped"]
+    else:  # the same graph on rclpy, side by side with dds
+        assert res["peer"]["transport"] == "rclpy" and res["peer"]["loop"]["cycles"] == 2000, res["peer"]
+        assert set(res["peer"]["rt"]) == {"container"}
+        assert "side by side" in r.stdout and "rclpy/dds" in r.stdout and "[rclpy] latency" in r.stdout, r.stdout
     assert "machine floor" in r.stdout and "busy processes beside it" in r.stdout
     assert _busy_pids() <= before, "the --load processes outlived the benchmark"
 

@@ -47,10 +47,11 @@ from ..api import (
     node_fqn,
 )
 from ..logger import NodeLogger
+from ..loop import LocalSubscription, SourcedLocalSubscription, deliver_local
 from ..parameters import ParameterStore
 from ..rosargs import RosArgs, initial_parameters, parse_ros_args
 from . import fastcdr, msgs, srvs, wire
-from .executor import ANY_SAMPLE, DdsExecutor, DdsTimer, LocalSubscription
+from .executor import ANY_SAMPLE, DdsExecutor, DdsTimer
 
 __all__ = ["QOS_SERVICES", "DdsExecutor", "DdsNode", "DdsPublisher", "DdsTimer", "Participant"]
 #: rmw_qos_profile_services_default
@@ -254,25 +255,12 @@ class DdsPublisher:
 
     def publish(self, msg: Any) -> None:
         local = self._local
-        if local is None:
-            data = self._cdr(msg)
-        else:
-            data = None
-            queue = self._queue
-            for sub in local:
-                if sub.raw:
-                    if data is None:
-                        data = self._cdr(msg)
-                    queue.append((sub, data))
-                elif sub.__class__ is SourcedLocalSubscription:
-                    queue.append((sub, (msg, self.gid)))
-                else:
-                    queue.append((sub, msg))
+        data: bytes | None = None
+        if local is not None:
+            data = deliver_local(local, self._queue, msg, self.gid, self._cdr)
             if not self._remote_subscribers():
                 return
-            if data is None:
-                data = self._cdr(msg)
-        ret = ddspy_write(self._ref, data)
+        ret = ddspy_write(self._ref, data if data is not None else self._cdr(msg))
         if ret < 0:
             raise TransportError(f"DDS write failed on {self._writer.topic.name} (code {ret})")
 
@@ -287,12 +275,6 @@ class DdsPublisher:
     def subscription_count(self) -> int:
         """Matched subscriptions: remote ones plus those of the same executor (intra-process)."""
         return len(self._writer.get_matched_subscriptions()) + len(self._local or ())
-
-
-class SourcedLocalSubscription(LocalSubscription):
-    """An intra-process subscription whose callback takes ``(msg, writer_gid)`` as one tuple."""
-
-    __slots__ = ()
 
 
 class DdsNode:

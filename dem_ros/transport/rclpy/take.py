@@ -1,0 +1,102 @@
+"""Take a serialized sample and its writer's GID from an rcl subscription (``rcl_take_serialized_message``).
+
+rclpy's own take (``_rclpy.Subscription.take_message``) hands over a ``MessageInfo`` dict with
+time stamps and sequence numbers but drops ``rmw_message_info_t.publisher_gid``: with it a
+subscription can only attribute a sample when exactly one writer is matched. rcl itself fills
+the GID of every sample (rmw_fastrtps: the writer's GUID, what ``get_publishers_info_by_topic``
+lists as ``endpoint_gid``), so this module calls ``rcl_take_serialized_message`` through ctypes
+on the rcl subscription rclpy made (``Subscription.handle.pointer``), from the ``librcl`` and
+``librcutils`` rclpy has loaded. The structs are rcl's (``rcutils_uint8_array_t``,
+``rmw_message_info_t``); ``rmw_gid_t`` holds 24 bytes before Iron and 16 since.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+
+from ..api import TransportError, gid16
+
+__all__ = ["SerializedTake", "gid_storage_size"]
+
+#: rcl's "no sample to take" (RCL_RET_SUBSCRIPTION_TAKE_FAILED)
+TAKE_FAILED = 401
+_OLD_DISTROS = ("foxy", "galactic", "humble")
+
+
+def gid_storage_size() -> int:
+    """``RMW_GID_STORAGE_SIZE`` of the sourced distro: 24 up to Humble, 16 from Iron (Jazzy) on."""
+    return 24 if os.environ.get("ROS_DISTRO", "").lower() in _OLD_DISTROS else 16
+
+
+def _loaded(name: str) -> str:
+    """Path of the shared library ``name`` as this process has it mapped (rclpy loaded it)."""
+    with open("/proc/self/maps") as f:
+        for line in f:
+            path = line.rstrip().split(" ")[-1]
+            if os.path.basename(path) == name:
+                return path
+    return name  # not mapped yet: the loader's search path
+
+
+class _Alloc(ctypes.Structure):
+    _fields_ = [("allocate", ctypes.c_void_p), ("deallocate", ctypes.c_void_p), ("reallocate", ctypes.c_void_p),
+                ("zero_allocate", ctypes.c_void_p), ("state", ctypes.c_void_p)]
+
+
+class _Bytes(ctypes.Structure):  # rcutils_uint8_array_t = rcl_serialized_message_t
+    _fields_ = [("buffer", ctypes.POINTER(ctypes.c_uint8)), ("buffer_length", ctypes.c_size_t),
+                ("buffer_capacity", ctypes.c_size_t), ("allocator", _Alloc)]
+
+
+def _info_struct(gid_size: int) -> type[ctypes.Structure]:
+    class Gid(ctypes.Structure):
+        _fields_ = [("implementation_identifier", ctypes.c_char_p), ("data", ctypes.c_uint8 * gid_size)]
+
+    class Info(ctypes.Structure):  # rmw_message_info_t
+        _fields_ = [("source_timestamp", ctypes.c_int64), ("received_timestamp", ctypes.c_int64),
+                    ("publication_sequence_number", ctypes.c_uint64), ("reception_sequence_number", ctypes.c_uint64),
+                    ("publisher_gid", Gid), ("from_intra_process", ctypes.c_bool)]
+
+    return Info
+
+
+class SerializedTake:
+    """One reusable buffer and message info: :meth:`take` a subscription's next sample (one thread only)."""
+
+    def __init__(self, capacity: int = 4096) -> None:
+        try:
+            rcl = ctypes.CDLL(_loaded("librcl.so"))
+            rcutils = ctypes.CDLL(_loaded("librcutils.so"))
+        except OSError as exc:
+            raise TransportError(f"cannot load rcl for serialized takes: {exc}") from None
+        rcutils.rcutils_get_default_allocator.restype = _Alloc
+        rcutils.rcutils_uint8_array_init.argtypes = [ctypes.POINTER(_Bytes), ctypes.c_size_t, ctypes.POINTER(_Alloc)]
+        self._alloc = rcutils.rcutils_get_default_allocator()
+        self._buf = _Bytes()
+        if rcutils.rcutils_uint8_array_init(ctypes.byref(self._buf), capacity, ctypes.byref(self._alloc)) != 0:
+            raise TransportError("cannot allocate the serialized-message buffer")
+        self._fini = rcutils.rcutils_uint8_array_fini
+        self._fini.argtypes = [ctypes.POINTER(_Bytes)]
+        self._info = _info_struct(gid_storage_size())()
+        self._fn = rcl.rcl_take_serialized_message
+        self._fn.argtypes = [ctypes.c_void_p, ctypes.POINTER(_Bytes), ctypes.c_void_p, ctypes.c_void_p]
+        self._fn.restype = ctypes.c_int
+        self._buf_ref = ctypes.byref(self._buf)
+        self._info_ref = ctypes.byref(self._info)
+        self._gid = self._info.publisher_gid
+
+    def take(self, pointer: int) -> tuple[bytes, bytes] | None:
+        """``(cdr, writer_gid)`` of the next sample of the rcl subscription at ``pointer``
+        (``_rclpy.Subscription.pointer``), or None when there is none."""
+        rc = self._fn(pointer, self._buf_ref, self._info_ref, None)
+        if rc != 0:
+            if rc == TAKE_FAILED:
+                return None
+            raise TransportError(f"rcl_take_serialized_message failed (code {rc})")
+        buf = self._buf
+        return ctypes.string_at(buf.buffer, buf.buffer_length), gid16(bytes(self._gid.data))
+
+    def close(self) -> None:
+        if self._buf.buffer:
+            self._fini(self._buf_ref)

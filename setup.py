@@ -58,7 +58,10 @@ setup(
     ],
     # mcap: an independent MCAP reader/writer the bag tests check our files against;
     # ruff and mypy: tests/tools/test_lint.py runs them
-    extras_require={"test": ["pytest>=7", "sympy>=1.12", "hypothesis>=6", "mcap>=1.1", "ruff>=0.5", "mypy>=1.10", "types-PyYAML"]},
+    # view: dem-ros view (a Foxglove WebSocket server; websockets for its --check client); the tests run it
+    extras_require={"test": ["pytest>=7", "sympy>=1.12", "hypothesis>=6", "mcap>=1.1", "ruff>=0.5", "mypy>=1.10", "types-PyYAML",
+                             "foxglove-sdk>=0.30", "websockets>=12"],
+                    "view": ["foxglove-sdk>=0.30", "websockets>=12"]},
     zip_safe=True,
     maintainer="dem_ros maintainers",
     maintainer_email="dem-ros@example.com",

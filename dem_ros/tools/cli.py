@@ -14,6 +14,7 @@
     dem-ros config    print the parameter schema or the default params file
     dem-ros study     robustness over plant truth x controllers, on Dask distributed
     dem-ros faults    the fault catalogue (#12) injected into the real graph: outcome per fault
+    dem-ros view      the running graph live in Foxglove (a WebSocket server)
 
 Bad input ends with a one-line error and exit status 2, never a traceback.
 """
@@ -33,10 +34,10 @@ from .progress import Progress
 # where that takes seconds, never shows a silent start. Each command imports what it runs (numba,
 # scipy, cyclonedds) itself, under its own progress.
 
-__all__ = ["build_parser", "main"]
+__all__ = ["build_parser", "check_param_value", "main"]
 
 #: commands that join a DDS domain (and so read ROS_DOMAIN_ID)
-_DDS_COMMANDS = ("launch", "node", "param", "hw", "bench", "replay", "faults")
+_DDS_COMMANDS = ("launch", "node", "param", "hw", "bench", "replay", "faults", "view")
 _TRANSPORTS = ("auto", "rclpy", "dds")
 
 
@@ -155,7 +156,7 @@ def cmd_param(args: argparse.Namespace) -> int:
     from .common import UsageError
 
     if args.action == "set" and args.value is not None:
-        _check_param_value(args.node, args.name, args.value)
+        check_param_value(args.node, args.name, args.value)
     if args.action == "get":
         print(param_get(args.node, args.name, domain_id=args.domain_id, timeout_s=args.timeout))
         return 0
@@ -169,7 +170,7 @@ def cmd_param(args: argparse.Namespace) -> int:
     return 1
 
 
-def _check_param_value(node: str, name: str, text: str) -> None:
+def check_param_value(node: str, name: str, text: str) -> None:
     """A malformed value for one of our nodes' parameters is a usage error, found before the node is asked."""
     import yaml
 
@@ -345,6 +346,13 @@ def _add_param(pm: argparse.ArgumentParser) -> None:
     pm.set_defaults(func=cmd_param)
 
 
+def _add_view(vw: argparse.ArgumentParser) -> None:
+    from . import view
+
+    view.add_arguments(vw)
+    vw.set_defaults(func=view.cmd_view)
+
+
 def _add_study(sy: argparse.ArgumentParser) -> None:
     from . import study
 
@@ -366,6 +374,7 @@ _COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
     "faults": ("inject the fault catalogue into the real graph; a table of outcomes", _add_faults),
     "bag": ("inspect bags", _add_bag),
     "param": ("get or set a parameter of a running node (DDS parameter services)", _add_param),
+    "view": ("watch the running graph live in Foxglove (a WebSocket server; docs/manual/live-view.md)", _add_view),
     "study": ("robustness study: plant truth (grid or Monte Carlo) x controllers on Dask distributed", _add_study),
 }
 

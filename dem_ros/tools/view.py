@@ -1,0 +1,224 @@
+"""``dem-ros view``: watch the running graph live in Foxglove (docs/manual/live-view.md).
+
+    dem-ros view [--port 8765] [--host 127.0.0.1] [--domain-id N] [--transport dds]
+        serve the graph on ws://HOST:PORT (the Foxglove app: Open connection -> Foxglove WebSocket);
+        layout: config/foxglove/dem_ros.json
+    dem-ros view --check SECONDS [--port ...] [--host ...]
+        connect to a running view as a client, subscribe to everything, count for SECONDS and say whether
+        /dem/measurement arrived in full (>= 95 % of the samples its stamps say were sent; exit 1 if not)
+
+The server runs until Ctrl-C / SIGTERM; it then prints one line ``VIEW {...}`` (JSON: the samples
+forwarded per topic). At start it prints ``VIEW {"listening": URL, "port": P}`` once it serves.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import ipaddress
+import json
+import os
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from .common import UsageError, domain_id
+
+__all__ = ["ViewOptions", "add_arguments", "check", "cmd_view", "main", "serve"]
+
+#: the share of /dem/measurement a check must receive
+CHECK_MIN_FRACTION = 0.95
+#: the line prefix of the view's structured output (listening, summary)
+PREFIX = "VIEW "
+
+
+@dataclass(frozen=True)
+class ViewOptions:
+    host: str = "127.0.0.1"
+    port: int = 8765
+    domain_id: int | None = None
+    transport: str = "auto"
+    timeout_s: float = 2.0
+    check_s: float | None = None
+
+
+def _port(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        v = -1
+    if not 0 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"got {text!r}, expected a TCP port in [0, 65535] (0: any free port)")
+    return v
+
+
+def _seconds(text: str) -> float:
+    from .common import seconds
+
+    return seconds(text)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--port", type=_port, default=8765, help="TCP port of the WebSocket server (default 8765; 0: any free)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default 127.0.0.1, this machine only; another address lets anyone who "
+                        "reaches it set parameters and arm / e-stop a rig)")
+    p.add_argument("--domain-id", type=domain_id, default=None, help="ROS_DOMAIN_ID of the graph (default: the environment's)")
+    p.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"],
+                   help="how to join the graph (default auto: rclpy when it imports, else dds); parameters and "
+                        "services need dds, as dem-ros param does")
+    p.add_argument("--timeout", type=_seconds, default=2.0, help="seconds a node has to answer a parameter or service call")
+    p.add_argument("--check", type=_seconds, default=None, metavar="SECONDS",
+                   help="be a client instead: count what a running view at --host/--port sends for SECONDS")
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    opts = ViewOptions(host=args.host, port=args.port, domain_id=args.domain_id, transport=args.transport,
+                       timeout_s=args.timeout, check_s=args.check)
+    if opts.check_s is not None:
+        return _print_check(asyncio.run(check(f"ws://{_url_host(opts.host)}:{opts.port}", opts.check_s)))
+    return serve(opts)
+
+
+def _url_host(host: str) -> str:
+    return f"[{host}]" if ":" in host else host
+
+
+def _loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def serve(opts: ViewOptions, *, stop: threading.Event | None = None) -> int:
+    """Run the view until SIGINT / SIGTERM (or ``stop``); 0, or UsageError for what cannot start."""
+    try:
+        from ..view.server import ViewServer
+    except ImportError as exc:
+        raise UsageError(f"dem-ros view needs the 'view' extra (pip install 'dem_ros[view]'): {exc}") from None
+    from ..nodes import NODES
+    from ..transport import TransportError, make_node
+    from ..view.graph import GraphAccess
+
+    if opts.domain_id is not None:
+        os.environ["ROS_DOMAIN_ID"] = str(opts.domain_id)
+    stop = stop or threading.Event()
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    node = graph = view = None
+    try:
+        node = make_node("view", transport=opts.transport, args=[])
+        if node.transport == "dds":
+            graph = GraphAccess(["/" + n for n in NODES if n != "container"], timeout_s=opts.timeout_s)
+        view = ViewServer(node, host=opts.host, port=opts.port, graph=graph)
+        if graph is not None:
+            graph.start()
+        url = f"ws://{_url_host(opts.host)}:{view.port}"
+        print(f"dem-ros view: serving the graph (ROS_DOMAIN_ID {os.environ.get('ROS_DOMAIN_ID', '0')}, "
+              f"transport {node.transport}) on {url}; in Foxglove: Open connection -> Foxglove WebSocket -> {url}, "
+              "layout config/foxglove/dem_ros.json", file=sys.stderr, flush=True)
+        if not _loopback(opts.host):
+            print(f"dem-ros view: WARNING: listening on {opts.host}, not on this machine only: anyone who reaches "
+                  f"{url} can watch the run, set the nodes' parameters and arm, disarm or e-stop the hardware",
+                  file=sys.stderr, flush=True)
+        if graph is None:
+            print(f"dem-ros view: on the {node.transport} transport the view forwards the topics only: parameters "
+                  "and hw_driver's services go through the dds transport's clients (--transport dds)",
+                  file=sys.stderr, flush=True)
+        print(PREFIX + json.dumps({"listening": url, "port": view.port}), flush=True)
+        while not stop.is_set() and not node.is_shutdown:
+            node.spin_once(0.2)
+    except TransportError as exc:
+        raise UsageError(str(exc)) from None
+    finally:
+        if view is not None:
+            view.stop()
+        if graph is not None:
+            graph.stop()
+        if node is not None:
+            node.shutdown()
+        for s, h in previous.items():
+            signal.signal(s, h)
+    print(PREFIX + json.dumps({"forwarded": view.counts if view is not None else {}}), flush=True)
+    return 0
+
+
+async def check(url: str, seconds: float, *, timeout_s: float = 10.0) -> dict[str, Any]:
+    """Subscribe to every channel of the view at ``url`` for ``seconds``: counts per topic and the
+    /dem/measurement coverage (samples received / samples sent in their stamps' span, dt from the stamps)."""
+    from .. import contract, typestore
+    from ..view.client import FoxgloveClient
+
+    store = typestore.typestore()
+    counts: dict[str, int] = {}
+    stamps: list[int] = []
+    last_gaps: list[float] = []
+    async with FoxgloveClient(url, timeout_s=timeout_s) as c:
+        await c.wait_channels({contract.MEASUREMENT.name})
+        await c.subscribe(list(c.channels.values()))
+        end = time.monotonic() + seconds
+        while (left := end - time.monotonic()) > 0:
+            s = await c.next_sample(left)
+            if s is None:
+                break
+            counts[s.topic] = counts.get(s.topic, 0) + 1
+            if s.topic == contract.MEASUREMENT.name:
+                m = store.deserialize_cdr(s.data, contract.MEASUREMENT.type)
+                stamps.append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec)
+                last_gaps = [float(x) for x in m.position]
+    out: dict[str, Any] = {"url": url, "seconds": seconds, "counts": counts, "measurement": None}
+    if len(stamps) >= 2:
+        uniq = sorted(set(stamps))
+        dt = min(b - a for a, b in zip(uniq, uniq[1:], strict=False))
+        sent = (uniq[-1] - uniq[0]) // max(dt, 1) + 1
+        out["measurement"] = {"received": len(stamps), "sent": int(sent), "fraction": len(uniq) / sent,
+                              "dt_ns": int(dt), "last_gaps_m": last_gaps}
+    return out
+
+
+def _print_check(r: dict[str, Any]) -> int:
+    print(f"dem-ros view --check: {r['url']}, {r['seconds']:g} s")
+    for topic, n in sorted(r["counts"].items()):
+        print(f"  {topic:<28} {n:>7} samples  {n / r['seconds']:8.1f} /s")
+    m = r["measurement"]
+    if m is None:
+        print("dem-ros view --check: FAILED: fewer than two /dem/measurement samples arrived (is the graph running?)",
+              file=sys.stderr)
+        return 1
+    gaps = " / ".join(f"{g * 1e3:.3f}" for g in m["last_gaps_m"])
+    print(f"  /dem/measurement: {m['received']} of {m['sent']} samples sent in the span of their stamps "
+          f"({100 * m['fraction']:.2f} %), last gaps {gaps} mm")
+    if m["fraction"] < CHECK_MIN_FRACTION:
+        print(f"dem-ros view --check: FAILED: {100 * m['fraction']:.2f} % of /dem/measurement < "
+              f"{100 * CHECK_MIN_FRACTION:g} %", file=sys.stderr)
+        return 1
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m dem_ros.tools.view`` (what ``dem-ros launch --view`` starts)."""
+    from ..core.params import ConfigError
+
+    p = argparse.ArgumentParser(prog="dem-ros view", description=__doc__.split("\n")[0])
+    add_arguments(p)
+    args = p.parse_args(argv)
+    try:
+        return cmd_view(args)
+    except (UsageError, ConfigError) as exc:
+        print(f"dem-ros view: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    with contextlib.suppress(BrokenPipeError):
+        sys.exit(main())

@@ -46,6 +46,7 @@ from .common import (
 )
 from .progress import Progress
 from .runmetrics import RunMetrics
+from .view import port as view_port
 
 __all__ = ["GraphError", "StartupError", "cmd_launch", "launch", "run_graph", "write_params_file"]
 
@@ -119,7 +120,7 @@ def _node_cmd(name: str, transport: str, params: Path, extra: list[str]) -> list
 def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, meta: dict,
               domain_id: int | None = None, status: bool = True, workdir: Path | None = None,
               compose: bool = False, hardware: str | None = None, faults: Sequence[str] = (),
-              supervise: Supervise | None = None) -> dict:
+              supervise: Supervise | None = None, view_port: int | None = None) -> dict:
     """Start the graph, wait for the plant to finish ``duration`` s, stop everything; return raw facts.
 
     ``compose``: all nodes in one ``container`` process (intra-process topics)
@@ -132,6 +133,9 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     since t = 0 (None before), the node processes by name (it may kill them) and ``restart(name)``
     (starts that node again, its log appended); it returns the names that may be down now. Any
     other node that exits ends the run with a :class:`GraphError` (the run was cut short).
+
+    ``view_port``: also run ``dem-ros view`` on that port (the live view, :mod:`.view`), started first
+    and stopped first; its log is ``view.log``; it never ends the run.
     """
     workdir = workdir or Path(tempfile.mkdtemp(prefix="dem_ros_launch_"))
     workdir.mkdir(parents=True, exist_ok=True)
@@ -176,7 +180,16 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     boot = Progress("dem-ros launch", None, enabled=status)  # never silent while the nodes start (a first run: minutes)
     boot.stage(f"starting {', '.join(names)}; the plant starts the clock once all are ready")
     t0 = time.monotonic()
+    viewer = None
     try:
+        if view_port is not None:  # first: subscribed before the plant starts its clock
+            with open(workdir / "view.log", "wb") as view_log:
+                viewer = subprocess.Popen([sys.executable, "-m", "dem_ros.tools.view", "--port", str(view_port),
+                                           "--transport", transport], env=env, stdout=view_log,
+                                          stderr=subprocess.STDOUT, start_new_session=True)
+            where = f"ws://127.0.0.1:{view_port}" if view_port else "the port in its log"
+            print(f"dem-ros launch: live view on {where} (Foxglove; log {workdir / 'view.log'})",
+                  file=sys.stderr, flush=True)
         for name in names:
             bag_args = ["--bag", str(bag), "--meta", str(meta_file)] if bag is not None else []
             extra = bag_args if name in ("recorder", "container") else []
@@ -255,6 +268,11 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
             cpu[name] = _cpu_seconds(p.pid)
         halt = Progress("dem-ros launch", None, enabled=status)
         halt.stage("stopping the nodes (the recorder last, so the bag is complete)")
+        if viewer is not None:
+            if viewer.poll() is not None:
+                print(f"dem-ros launch: the live view exited early (code {viewer.returncode}); see "
+                      f"{workdir / 'view.log'}", file=sys.stderr, flush=True)
+            _interrupt(viewer)
         # stop: plant (if still running) and controllers first, recorder last. On hardware the driver goes first:
         # stopped, it lands the plate before it lets go of the link (nodes/hw_driver.py), while the controller
         # still runs; stopping the controller first would leave the board without commands, and its watchdog
@@ -439,7 +457,7 @@ def launch(args: Any, *, quiet: bool = False, supervise: Supervise | None = None
         facts = run_graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id,
                           status=not quiet, workdir=logs_dir or ((bag.parent / (bag.name + "_logs")) if record else None),
                           compose=compose, hardware=hardware, faults=getattr(args, "fault", None) or (),
-                          supervise=supervise)
+                          supervise=supervise, view_port=getattr(args, "view", None))
         with Progress("dem-ros launch", None, enabled=not quiet) as bar:
             bar.stage(f"reading the bag for the metrics ({bag.name})")
             metrics = RunMetrics.from_bag(bag)
@@ -503,6 +521,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hardware", default=None, metavar="LINK",
                    help="hw_driver instead of plant_sim, on udp://HOST:PORT or serial:///dev/PATH; 'rig' (UDP) or "
                         "'rig-serial' (a pty pair) also start the emulator 'dem-ros rig'")
+    p.add_argument("--view", type=view_port, nargs="?", const=8765, default=None, metavar="PORT",
+                   help="also serve the run live to Foxglove on ws://127.0.0.1:PORT (default 8765; dem-ros view)")
     p.add_argument("--fault", action="append", default=None, metavar="SPEC",
                    help="with --hardware rig: inject a rig fault, e.g. linkloss@10+0.05 (dem-ros rig --help-faults)")
 

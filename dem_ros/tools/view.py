@@ -17,6 +17,7 @@ import argparse
 import asyncio
 import contextlib
 import ipaddress
+import itertools
 import json
 import os
 import signal
@@ -28,7 +29,7 @@ from typing import Any
 
 from .common import UsageError, domain_id
 
-__all__ = ["ViewOptions", "add_arguments", "check", "cmd_view", "main", "serve"]
+__all__ = ["ViewOptions", "add_arguments", "check", "cmd_view", "main", "port", "serve"]
 
 #: the share of /dem/measurement a check must receive
 CHECK_MIN_FRACTION = 0.95
@@ -46,7 +47,8 @@ class ViewOptions:
     check_s: float | None = None
 
 
-def _port(text: str) -> int:
+def port(text: str) -> int:
+    """A TCP port for the server (argparse type)."""
     try:
         v = int(text)
     except ValueError:
@@ -63,7 +65,7 @@ def _seconds(text: str) -> float:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--port", type=_port, default=8765, help="TCP port of the WebSocket server (default 8765; 0: any free)")
+    p.add_argument("--port", type=port, default=8765, help="TCP port of the WebSocket server (default 8765; 0: any free)")
     p.add_argument("--host", default="127.0.0.1",
                    help="address to listen on (default 127.0.0.1, this machine only; another address lets anyone who "
                         "reaches it set parameters and arm / e-stop a rig)")
@@ -171,13 +173,13 @@ async def check(url: str, seconds: float, *, timeout_s: float = 10.0) -> dict[st
                 break
             counts[s.topic] = counts.get(s.topic, 0) + 1
             if s.topic == contract.MEASUREMENT.name:
-                m = store.deserialize_cdr(s.data, contract.MEASUREMENT.type)
+                m: Any = store.deserialize_cdr(s.data, contract.MEASUREMENT.type)
                 stamps.append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec)
                 last_gaps = [float(x) for x in m.position]
     out: dict[str, Any] = {"url": url, "seconds": seconds, "counts": counts, "measurement": None}
     if len(stamps) >= 2:
         uniq = sorted(set(stamps))
-        dt = min(b - a for a, b in zip(uniq, uniq[1:], strict=False))
+        dt = min(b - a for a, b in itertools.pairwise(uniq))
         sent = (uniq[-1] - uniq[0]) // max(dt, 1) + 1
         out["measurement"] = {"received": len(stamps), "sent": int(sent), "fraction": len(uniq) / sent,
                               "dt_ns": int(dt), "last_gaps_m": last_gaps}

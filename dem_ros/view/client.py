@@ -77,8 +77,10 @@ class FoxgloveClient:
 
     async def __aenter__(self) -> FoxgloveClient:
         import websockets
+        from websockets.typing import Subprotocol
 
-        self._ws = await asyncio.wait_for(websockets.connect(self.url, subprotocols=[SUBPROTOCOL], max_size=None),
+        self._ws = await asyncio.wait_for(websockets.connect(self.url, subprotocols=[Subprotocol(SUBPROTOCOL)],
+                                                             max_size=None),
                                           self.timeout_s)
         self.subprotocol = self._ws.subprotocol
         self._queue = asyncio.Queue()

@@ -43,7 +43,7 @@ class ViewOptions:
     port: int = 8765
     domain_id: int | None = None
     transport: str = "auto"
-    timeout_s: float = 2.0
+    timeout_s: float = 5.0
     check_s: float | None = None
 
 
@@ -73,7 +73,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"],
                    help="how to join the graph (default auto: rclpy when it imports, else dds); parameters and "
                         "services need dds, as dem-ros param does")
-    p.add_argument("--timeout", type=_seconds, default=2.0, help="seconds a node has to answer a parameter or service call")
+    p.add_argument("--timeout", type=_seconds, default=5.0,
+                   help="seconds a node has to answer a parameter or service call (default 5, as dem-ros param)")
     p.add_argument("--check", type=_seconds, default=None, metavar="SECONDS",
                    help="be a client instead: count what a running view at --host/--port sends for SECONDS")
 
@@ -137,7 +138,7 @@ def serve(opts: ViewOptions, *, stop: threading.Event | None = None) -> int:
                   file=sys.stderr, flush=True)
         print(PREFIX + json.dumps({"listening": url, "port": view.port}), flush=True)
         while not stop.is_set() and not node.is_shutdown:
-            node.spin_once(0.2)
+            view.spin_once(0.05)
     except TransportError as exc:
         raise UsageError(str(exc)) from None
     finally:

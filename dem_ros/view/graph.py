@@ -53,7 +53,7 @@ class GraphAccess:
     ``nodes``: the fully qualified names to look for; ``timeout_s``: per call.
     """
 
-    def __init__(self, nodes: Iterable[str], *, timeout_s: float = 2.0, probe_timeout_s: float = 0.5):
+    def __init__(self, nodes: Iterable[str], *, timeout_s: float = 5.0, probe_timeout_s: float = 0.5):
         self.candidates = tuple(nodes)
         self.timeout_s = timeout_s
         self.probe_timeout_s = probe_timeout_s

@@ -15,13 +15,17 @@ What a client (the Foxglove app, ``@foxglove/ws-protocol``, :mod:`.client`) gets
   and response in CDR): forwarded to hw_driver's services; a driver that does not answer fails the call
   with the reason.
 
-The samples arrive on the node's executor thread (the caller spins the node); foxglove-sdk sends them to
-each client from its own threads, at most ``backlog`` samples queued per client (the oldest dropped
-beyond).
+A topic is subscribed on the graph when a client first subscribes to its channel (as foxglove_bridge
+does), and stays subscribed: a topic nobody watches costs neither the view nor the graph anything (on
+the dds transport a composed graph serialises a topic for DDS only while a remote reader is matched).
+The subscriptions are made, and the samples arrive, on the thread that spins the node (the caller's
+loop: :meth:`ViewServer.spin_once`); foxglove-sdk sends them to each client from its own threads, at most
+``backlog`` samples queued per client (the oldest dropped beyond).
 """
 
 from __future__ import annotations
 
+import queue
 import threading
 from typing import Any
 
@@ -78,6 +82,8 @@ class ViewServer:
         services = [self._service(v) for v in HW_SERVICES] if graph is not None else []
         self._subscribed_params: set[str] = set()
         self._lock = threading.Lock()
+        self._wanted: queue.SimpleQueue[str] = queue.SimpleQueue()  # topics a client asked for, not yet subscribed
+        self.subscribed: set[str] = set()  # topics subscribed on the graph
         try:
             self.server: WebSocketServer = foxglove.start_server(
                 name="dem_ros", host=host, port=port, capabilities=caps, server_listener=_Listener(self),
@@ -86,8 +92,6 @@ class ViewServer:
             for ch in self._channels.values():
                 ch.close()
             raise TransportError(f"cannot listen on {host}:{port}: {exc}") from None
-        for t in FORWARDED:
-            node.subscribe_raw(t, self._forward(t.name))
         if graph is not None:
             node.subscribe(contract.PARAMETER_EVENTS, self._on_parameter_event)
 
@@ -95,6 +99,23 @@ class ViewServer:
     def port(self) -> int:
         """The port the server listens on (the one asked for, or the one the system chose for 0)."""
         return int(self.server.port)
+
+    def want(self, topic: str) -> None:
+        """A client subscribed to ``topic`` (any thread): subscribe it on the graph in the next :meth:`spin_once`."""
+        self._wanted.put(topic)
+
+    def spin_once(self, timeout_s: float) -> None:
+        """Subscribe what clients asked for, then spin the node once (the thread that owns the node)."""
+        while True:
+            try:
+                name = self._wanted.get_nowait()
+            except queue.Empty:
+                break
+            topic = next((t for t in FORWARDED if t.name == name), None)
+            if topic is not None and name not in self.subscribed:
+                self.node.subscribe_raw(topic, self._forward(name))
+                self.subscribed.add(name)
+        self.node.spin_once(timeout_s)
 
     def _forward(self, name: str) -> Any:
         log = self._channels[name].log
@@ -169,6 +190,9 @@ class _Listener(ServerListener):
 
     def __init__(self, view: ViewServer):
         self.view = view
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        self.view.want(channel.topic)
 
     def on_get_parameters(self, client: Any, param_names: list[str], request_id: str | None = None) -> list[Parameter]:
         return self.view.get_parameters(param_names)

@@ -154,9 +154,11 @@ def serve(opts: ViewOptions, *, stop: threading.Event | None = None) -> int:
     return 0
 
 
-async def check(url: str, seconds: float, *, timeout_s: float = 10.0) -> dict[str, Any]:
-    """Subscribe to every channel of the view at ``url`` for ``seconds``: counts per topic and the
-    /dem/measurement coverage (samples received / samples sent in their stamps' span, dt from the stamps)."""
+async def check(url: str, seconds: float, *, timeout_s: float = 10.0, wait_s: float = 300.0) -> dict[str, Any]:
+    """Subscribe to every channel of the view at ``url`` and count for ``seconds`` from the first
+    /dem/measurement sample (waited for up to ``wait_s``: a check may start with the graph): counts per
+    topic and the /dem/measurement coverage (samples received / samples sent in their stamps' span, dt
+    from the stamps)."""
     from .. import contract, typestore
     from ..view.client import FoxgloveClient
 
@@ -164,12 +166,30 @@ async def check(url: str, seconds: float, *, timeout_s: float = 10.0) -> dict[st
     counts: dict[str, int] = {}
     stamps: list[int] = []
     last_gaps: list[float] = []
-    async with FoxgloveClient(url, timeout_s=timeout_s) as c:
+    client = None
+    give_up = time.monotonic() + wait_s
+    while client is None:  # a check may start before the view listens (dem-ros launch --view starts it)
+        try:
+            client = await FoxgloveClient(url, timeout_s=timeout_s).__aenter__()
+        except OSError as exc:
+            if time.monotonic() > give_up:
+                raise UsageError(f"no view at {url} within {wait_s:g} s: {exc}") from None
+            await asyncio.sleep(0.2)
+    async with contextlib.AsyncExitStack() as stack:
+        c = client
+        stack.push_async_exit(c.__aexit__)
         await c.wait_channels({contract.MEASUREMENT.name})
         await c.subscribe(list(c.channels.values()))
+        end = time.monotonic() + wait_s
+        first = None
+        while (left := end - time.monotonic()) > 0:  # the first sample starts the window
+            first = await c.next_sample(left)
+            if first is not None and first.topic == contract.MEASUREMENT.name:
+                break
         end = time.monotonic() + seconds
+        pending = [first] if first is not None else []
         while (left := end - time.monotonic()) > 0:
-            s = await c.next_sample(left)
+            s = pending.pop() if pending else await c.next_sample(left)
             if s is None:
                 break
             counts[s.topic] = counts.get(s.topic, 0) + 1

@@ -159,16 +159,16 @@ def _param_get(node: str, name: str, domain: int) -> str:
 
 def test_a_foxglove_client_watches_and_tunes_a_composed_free_running_graph(domain_id, tmp_path):
     port = _free_port()
-    proc = subprocess.Popen([*CLI, "launch", "--compose", "--free-run", "--no-record", "--duration", "30",
+    # long enough for every check on a loaded machine; stopped (Ctrl-C) once they are done
+    proc = subprocess.Popen([*CLI, "launch", "--compose", "--free-run", "--no-record", "--duration", "300",
                              "--domain-id", str(domain_id), "--view", str(port), "--bag-dir", str(tmp_path)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
         result = asyncio.run(_watch_and_tune(port, proc, domain_id))
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
+        proc.send_signal(signal.SIGINT)  # the graph stops cleanly (no bag is kept: --no-record)
         out, _ = proc.communicate(timeout=300)
-    assert proc.returncode == 0, out[-3000:]
+    assert proc.returncode == 130, out[-3000:]  # interrupted, as asked
     assert f"live view on ws://127.0.0.1:{port}" in out
 
     m = result["measurement"]

@@ -27,11 +27,11 @@ import pytest
 pytest.importorskip("foxglove", reason="foxglove-sdk is not installed (the 'view' extra: pip install -e '.[view]')")
 pytest.importorskip("websockets", reason="websockets is not installed (the 'view' extra: pip install -e '.[view]')")
 
-from dem_ros import contract, typestore  # noqa: E402
-from dem_ros.view import SUBPROTOCOL, layout  # noqa: E402
-from dem_ros.view.client import FoxgloveClient, ServiceFailure  # noqa: E402
-from dem_ros.view.graph import HW_SERVICES, split_name  # noqa: E402
-from dem_ros.view.server import FORWARDED  # noqa: E402
+from dem_ros import contract, typestore
+from dem_ros.view import SUBPROTOCOL, layout
+from dem_ros.view.client import FoxgloveClient, ServiceFailure
+from dem_ros.view.graph import HW_SERVICES, split_name
+from dem_ros.view.server import FORWARDED
 
 ROOT = Path(__file__).resolve().parents[2]
 CLI = [sys.executable, "-m", "dem_ros.tools.cli"]
@@ -94,7 +94,7 @@ def test_parameter_names_are_node_dot_name(full, parts):
 
 @pytest.mark.parametrize("bad", ["controller.w", "/controller", "/controller.", ".w"])
 def test_a_malformed_parameter_name_is_refused(bad):
-    with pytest.raises(ValueError, match="expected /NODE.NAME"):
+    with pytest.raises(ValueError, match=r"expected /NODE\.NAME"):
         split_name(bad)
 
 
@@ -258,7 +258,7 @@ async def _watch_and_tune(port: int, proc: subprocess.Popen, domain: int) -> dic
         assert set(c.services) == {f"/hw_driver/{v}" for v in HW_SERVICES}
         svc = c.services["/hw_driver/status"]
         assert svc["type"] == "std_srvs/srv/Trigger"
-        with pytest.raises(ServiceFailure, match="no service /hw_driver/status"):
+        with pytest.raises(ServiceFailure, match=r"no service /hw_driver/status"):
             await c.call_service("/hw_driver/status", b"\x00\x01\x00\x00\x00")
     return {"measurement": {"sent": int(sent), "received": len(stamps), "decoded": len(stamps),
                             "first_gaps": first_gaps, "gap_range": [lo, hi]}}

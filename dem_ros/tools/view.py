@@ -45,6 +45,7 @@ class ViewOptions:
     transport: str = "auto"
     timeout_s: float = 5.0
     check_s: float | None = None
+    topics: tuple[str, ...] = ()
 
 
 def port(text: str) -> int:
@@ -77,13 +78,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="seconds a node has to answer a parameter or service call (default 5, as dem-ros param)")
     p.add_argument("--check", type=_seconds, default=None, metavar="SECONDS",
                    help="be a client instead: count what a running view at --host/--port sends for SECONDS")
+    p.add_argument("--topics", default="", metavar="A,B",
+                   help="--check: subscribe to these topics only (and /dem/measurement; default: every channel)")
 
 
 def cmd_view(args: argparse.Namespace) -> int:
     opts = ViewOptions(host=args.host, port=args.port, domain_id=args.domain_id, transport=args.transport,
-                       timeout_s=args.timeout, check_s=args.check)
+                       timeout_s=args.timeout, check_s=args.check,
+                       topics=tuple(t.strip() for t in args.topics.split(",") if t.strip()))
     if opts.check_s is not None:
-        return _print_check(asyncio.run(check(f"ws://{_url_host(opts.host)}:{opts.port}", opts.check_s)))
+        url = f"ws://{_url_host(opts.host)}:{opts.port}"
+        return _print_check(asyncio.run(check(url, opts.check_s, topics=opts.topics)))
     return serve(opts)
 
 
@@ -154,11 +159,13 @@ def serve(opts: ViewOptions, *, stop: threading.Event | None = None) -> int:
     return 0
 
 
-async def check(url: str, seconds: float, *, timeout_s: float = 10.0, wait_s: float = 300.0) -> dict[str, Any]:
+async def check(url: str, seconds: float, *, topics: tuple[str, ...] = (), timeout_s: float = 10.0,
+                wait_s: float = 300.0) -> dict[str, Any]:
     """Subscribe to every channel of the view at ``url`` and count for ``seconds`` from the first
     /dem/measurement sample (waited for up to ``wait_s``: a check may start with the graph): counts per
-    topic and the /dem/measurement coverage (samples received / samples sent in their stamps' span, dt
-    from the stamps)."""
+    topic and the /dem/measurement coverage: samples received / samples sent over the window (or over the span
+    of the received stamps when longer: a backlog), dt from the stamps. ``topics``: subscribe to these only
+    (/dem/measurement always), default all."""
     from .. import contract, typestore
     from ..view.client import FoxgloveClient
 
@@ -178,8 +185,9 @@ async def check(url: str, seconds: float, *, timeout_s: float = 10.0, wait_s: fl
     async with contextlib.AsyncExitStack() as stack:
         c = client
         stack.push_async_exit(c.__aexit__)
-        await c.wait_channels({contract.MEASUREMENT.name})
-        await c.subscribe(list(c.channels.values()))
+        await c.wait_channels({contract.MEASUREMENT.name, *topics})
+        chosen = {contract.MEASUREMENT.name, *topics}
+        await c.subscribe([ch for ch in c.channels.values() if not topics or ch.topic in chosen])
         end = time.monotonic() + wait_s
         first = None
         while (left := end - time.monotonic()) > 0:  # the first sample starts the window
@@ -188,8 +196,13 @@ async def check(url: str, seconds: float, *, timeout_s: float = 10.0, wait_s: fl
                 break
         end = time.monotonic() + seconds
         pending = [first] if first is not None else []
+        closed = None
         while (left := end - time.monotonic()) > 0:
-            s = pending.pop() if pending else await c.next_sample(left)
+            try:
+                s = pending.pop() if pending else await c.next_sample(left)
+            except ConnectionError as exc:
+                closed = str(exc)
+                break
             if s is None:
                 break
             counts[s.topic] = counts.get(s.topic, 0) + 1
@@ -197,11 +210,11 @@ async def check(url: str, seconds: float, *, timeout_s: float = 10.0, wait_s: fl
                 m: Any = store.deserialize_cdr(s.data, contract.MEASUREMENT.type)
                 stamps.append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec)
                 last_gaps = [float(x) for x in m.position]
-    out: dict[str, Any] = {"url": url, "seconds": seconds, "counts": counts, "measurement": None}
+    out: dict[str, Any] = {"url": url, "seconds": seconds, "counts": counts, "measurement": None, "closed": closed}
     if len(stamps) >= 2:
         uniq = sorted(set(stamps))
         dt = min(b - a for a, b in itertools.pairwise(uniq))
-        sent = (uniq[-1] - uniq[0]) // max(dt, 1) + 1
+        sent = max((uniq[-1] - uniq[0]) // max(dt, 1) + 1, round(seconds * 1e9 / max(dt, 1)))
         out["measurement"] = {"received": len(stamps), "sent": int(sent), "fraction": len(uniq) / sent,
                               "dt_ns": int(dt), "last_gaps_m": last_gaps}
     return out
@@ -211,13 +224,17 @@ def _print_check(r: dict[str, Any]) -> int:
     print(f"dem-ros view --check: {r['url']}, {r['seconds']:g} s")
     for topic, n in sorted(r["counts"].items()):
         print(f"  {topic:<28} {n:>7} samples  {n / r['seconds']:8.1f} /s")
+    if r["closed"]:
+        print(f"dem-ros view --check: FAILED: {r['closed']} (a client slower than the streams it asked for)",
+              file=sys.stderr)
+        return 1
     m = r["measurement"]
     if m is None:
         print("dem-ros view --check: FAILED: fewer than two /dem/measurement samples arrived (is the graph running?)",
               file=sys.stderr)
         return 1
     gaps = " / ".join(f"{g * 1e3:.3f}" for g in m["last_gaps_m"])
-    print(f"  /dem/measurement: {m['received']} of {m['sent']} samples sent in the span of their stamps "
+    print(f"  /dem/measurement: {m['received']} of {m['sent']} samples sent in the window "
           f"({100 * m['fraction']:.2f} %), last gaps {gaps} mm")
     if m["fraction"] < CHECK_MIN_FRACTION:
         print(f"dem-ros view --check: FAILED: {100 * m['fraction']:.2f} % of /dem/measurement < "

@@ -74,6 +74,8 @@ class FoxgloveClient:
     _calls: dict[int, asyncio.Future] = field(default_factory=dict)
     _reader: asyncio.Task | None = None
     subprotocol: str | None = None
+    #: why the connection ended (the server closed it, e.g. a client too slow for its queue), None while open
+    closed: str | None = None
 
     async def __aenter__(self) -> FoxgloveClient:
         import websockets
@@ -94,6 +96,16 @@ class FoxgloveClient:
             await self._ws.close()
 
     async def _read(self) -> None:
+        import websockets
+
+        try:
+            await self._read_all()
+        except websockets.ConnectionClosed as exc:
+            self.closed = f"connection closed: {exc}"
+        else:
+            self.closed = "connection closed by the server"
+
+    async def _read_all(self) -> None:
         assert self._queue is not None
         async for m in self._ws:
             if isinstance(m, bytes):
@@ -156,11 +168,16 @@ class FoxgloveClient:
         await self._ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 
     async def next_sample(self, timeout_s: float) -> Sample | None:
-        """The next message received, or None after ``timeout_s``."""
+        """The next message received, or None after ``timeout_s``; ConnectionError once the connection
+        ended and every sample received before was taken."""
         assert self._queue is not None
+        if self.closed is not None and self._queue.empty():
+            raise ConnectionError(self.closed)
         try:
             return await asyncio.wait_for(self._queue.get(), timeout_s)
         except TimeoutError:
+            if self.closed is not None:
+                raise ConnectionError(self.closed) from None
             return None
 
     async def _ask(self, msg: dict[str, Any]) -> list[dict[str, Any]]:

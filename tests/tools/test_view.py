@@ -116,6 +116,32 @@ def test_a_taken_port_is_one_line_and_exit_2(domain_id):
     assert lines[-1].startswith("dem-ros view: error: cannot listen on 127.0.0.1:") and str(port) in lines[-1]
 
 
+@pytest.mark.parametrize(("host", "local"), [("127.0.0.1", True), ("localhost", True), ("::1", True),
+                                             ("127.0.0.2", True), ("0.0.0.0", False), ("192.168.1.20", False),
+                                             ("rig-pc.lan", False)])
+def test_only_a_loopback_address_is_this_machine_only(host, local):
+    from dem_ros.tools.view import _loopback
+
+    assert _loopback(host) is local
+
+
+def test_the_view_says_where_it_listens_and_stops_cleanly_on_ctrl_c(domain_id):
+    """No graph needed: the view starts, prints its structured line, and Ctrl-C ends it with exit 0 and its summary."""
+    proc = subprocess.Popen([*CLI, "view", "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        line = proc.stdout.readline()  # blocks until the view serves (or exits: "")
+        assert line.startswith("VIEW "), (line, proc.stderr.read() if proc.poll() is not None else "")
+        info = json.loads(line[5:])
+        assert info["listening"] == f"ws://127.0.0.1:{info['port']}" and info["port"] > 0
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    assert "WARNING" not in err and "Traceback" not in err
+    assert json.loads(out.strip().splitlines()[-1][5:])["forwarded"][contract.MEASUREMENT.name] == 0
+
+
 # -- graph tier ---------------------------------------------------------------------------------------------
 
 def _decoder(schema_name: str, text: str):

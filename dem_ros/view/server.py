@@ -15,6 +15,13 @@ What a client (the Foxglove app, ``@foxglove/ws-protocol``, :mod:`.client`) gets
   and response in CDR): forwarded to hw_driver's services; a driver that does not answer fails the call
   with the reason.
 
+The 1 kHz streams are subscribed best-effort (:func:`watched`): a reliable reader that falls behind (a view
+starved of CPU) holds the writers' unacknowledged samples, and past Cyclone's writer-history watermark the
+writer blocks in ``write`` for up to the reliability's blocking time: in a composed graph that writer is
+the loop. A best-effort reader is never waited for; on loopback it loses a sample only when the view
+itself cannot keep up (its socket overflows). The others (``/diagnostics``, the latched topics) keep
+the contract's QoS.
+
 A topic is subscribed on the graph when a client first subscribes to its channel (as foxglove_bridge
 does), and stays subscribed: a topic nobody watches costs neither the view nor the graph anything (on
 the dds transport a composed graph serialises a topic for DDS only while a remote reader is matched).
@@ -25,6 +32,7 @@ loop: :meth:`ViewServer.spin_once`); foxglove-sdk sends them to each client from
 
 from __future__ import annotations
 
+import dataclasses
 import queue
 import threading
 from typing import Any
@@ -38,11 +46,18 @@ from ..contract import Topic
 from ..transport import Node, TransportError
 from .graph import HW_NODE, HW_SERVICES, GraphAccess, join_name
 
-__all__ = ["BACKLOG", "FORWARDED", "TRIGGER", "ViewServer", "forwarded"]
+__all__ = ["BACKLOG", "FORWARDED", "TRIGGER", "ViewServer", "forwarded", "watched"]
 
 TRIGGER = "std_srvs/srv/Trigger"
 #: samples queued per client before the oldest is dropped: 2 s of the graph's 1 kHz streams
 BACKLOG = 2 * 1000 * 7
+
+
+def watched(topic: Topic) -> Topic:
+    """The topic as the view subscribes it: best-effort for the 1 kHz streams (never waited for by a writer)."""
+    if topic.rate_hz is not None and topic.rate_hz >= 100.0:
+        return dataclasses.replace(topic, qos=dataclasses.replace(topic.qos, reliable=False))
+    return topic
 
 
 def forwarded(topics: tuple[Topic, ...] = contract.TOPICS) -> tuple[Topic, ...]:
@@ -113,7 +128,7 @@ class ViewServer:
                 break
             topic = next((t for t in FORWARDED if t.name == name), None)
             if topic is not None and name not in self.subscribed:
-                self.node.subscribe_raw(topic, self._forward(name))
+                self.node.subscribe_raw(watched(topic), self._forward(name))
                 self.subscribed.add(name)
         self.node.spin_once(timeout_s)
 

@@ -51,6 +51,19 @@ def test_forwarded_topics_are_every_dem_topic_and_diagnostics():
     assert contract.PARAMETER_EVENTS.name not in names
 
 
+def test_the_view_never_holds_back_a_1khz_writer():
+    """The 1 kHz streams are subscribed best-effort (a writer never waits for the view); the rest as the contract says."""
+    from dem_ros.view.server import watched
+
+    for t in FORWARDED:
+        w = watched(t)
+        assert (w.name, w.type, w.qos.depth, w.qos.transient_local) == (t.name, t.type, t.qos.depth, t.qos.transient_local)
+        assert w.qos.reliable is (t.qos.reliable and t.rate_hz != 1000.0)
+    assert watched(contract.MEASUREMENT).qos.reliable is False
+    assert watched(contract.DIAGNOSTICS).qos == contract.DIAGNOSTICS.qos
+    assert watched(contract.HW_STATE).qos == contract.HW_STATE.qos
+
+
 def test_layout_file_is_the_one_built_from_the_contract():
     assert layout.LAYOUT_FILE == ROOT / "config" / "foxglove" / "dem_ros.json"
     assert layout.LAYOUT_FILE.read_text() == layout.render(), "run: python -m dem_ros.view.layout"

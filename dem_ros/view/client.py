@@ -102,6 +102,8 @@ class FoxgloveClient:
             await self._read_all()
         except websockets.ConnectionClosed as exc:
             self.closed = f"connection closed: {exc}"
+        except Exception as exc:  # a message this client cannot read: the session is over, say why
+            self.closed = f"client error reading the server's messages: {type(exc).__name__}: {exc}"
         else:
             self.closed = "connection closed by the server"
 

@@ -34,7 +34,7 @@ from .progress import Progress
 # where that takes seconds, never shows a silent start. Each command imports what it runs (numba,
 # scipy, cyclonedds) itself, under its own progress.
 
-__all__ = ["build_parser", "check_param_value", "main"]
+__all__ = ["build_parser", "main"]
 
 #: commands that join a DDS domain (and so read ROS_DOMAIN_ID)
 _DDS_COMMANDS = ("launch", "node", "param", "hw", "bench", "replay", "faults", "view")
@@ -153,7 +153,7 @@ def cmd_node(args: argparse.Namespace) -> int:
 
 def cmd_param(args: argparse.Namespace) -> int:
     from ..transport import param_get, param_set
-    from .common import UsageError
+    from .common import UsageError, check_param_value
 
     if args.action == "set" and args.value is not None:
         check_param_value(args.node, args.name, args.value)
@@ -168,23 +168,6 @@ def cmd_param(args: argparse.Namespace) -> int:
         return 0
     print(f"Setting parameter failed: {reason}", file=sys.stderr)
     return 1
-
-
-def check_param_value(node: str, name: str, text: str) -> None:
-    """A malformed value for one of our nodes' parameters is a usage error, found before the node is asked."""
-    import yaml
-
-    from ..core.params import SCHEMA
-
-    group = node.strip("/").rsplit("/", 1)[-1]
-    if group not in SCHEMA.groups or name not in {p.name for p in SCHEMA.groups[group]}:
-        return  # not one of ours (or not known here): the node answers
-    spec = SCHEMA.spec(group, name)
-    try:
-        value = yaml.safe_load(text) if spec.type is not str else text
-    except yaml.YAMLError:
-        value = text
-    spec.coerce(value, f"{group}.{name}")  # ConfigError: one line, exit 2
 
 
 def cmd_hw(args: argparse.Namespace) -> int:

@@ -2,7 +2,7 @@
 
 Parameters are named as foxglove_bridge names them: ``/<node>.<parameter>`` (``/controller.w``). A
 value set from Foxglove goes the way ``dem-ros param set NODE NAME VALUE`` goes: checked against the
-parameter schema first (:func:`dem_ros.tools.cli.check_param_value`: a malformed value is refused with
+parameter schema first (:func:`dem_ros.tools.common.check_param_value`: a malformed value is refused with
 the schema's reason before the node is asked), then sent to the node's own ``set_parameters`` service
 (:func:`dem_ros.transport.param_set`), where the node's on-set callback validates it again and may refuse
 it with its reason. Reads use the nodes' ``list_parameters`` / ``get_parameters`` services.
@@ -143,8 +143,7 @@ class GraphAccess:
 
     def set(self, full: str, value: Any) -> str | None:
         """Set ``/node.name`` to ``value`` as ``dem-ros param set`` does: None, or the reason it was refused."""
-        from ..tools.cli import check_param_value
-        from ..tools.common import yaml_scalar
+        from ..tools.common import check_param_value, yaml_scalar
 
         try:
             node, name = split_name(full)

@@ -16,6 +16,7 @@ server's code.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import struct
 import time
@@ -90,10 +91,15 @@ class FoxgloveClient:
         return self
 
     async def __aexit__(self, *exc: object) -> None:
+        import websockets
+
         if self._reader is not None:
             self._reader.cancel()
         if self._ws is not None:
-            await self._ws.close()
+            # a connection that already ended (the server stopped) has nothing left to close: say nothing,
+            # so that what ended the session (an assertion, a timeout) is what the caller sees
+            with contextlib.suppress(websockets.ConnectionClosed, TimeoutError, OSError):
+                await asyncio.wait_for(self._ws.close(), self.timeout_s)
 
     async def _read(self) -> None:
         import websockets

@@ -5,7 +5,7 @@ forwarded topics and fields of their types; parameter names; bad options. Graph 
 --compose --free-run --view`` (the real graph, the real server in its own process) against
 :class:`dem_ros.view.client.FoxgloveClient`, written from the protocol's specification: it connects, sees
 the channels, subscribes, decodes every /dem/measurement sample with the schema the server advertised
-and counts them over 10 s; sets controller.w (read back with ``dem-ros param get``), is refused an
+and counts them over 10 s; sets controller.w (the controller's own parameter event is in the run's bag), is refused an
 invalid value with the schema's reason and a read-only one with the node's; calls hw_driver's service
 with no driver running and gets the failure's reason.
 """
@@ -189,25 +189,25 @@ async def _wait_listening(port: int, proc: subprocess.Popen, timeout_s: float) -
     raise AssertionError(f"the view did not listen on port {port} within {timeout_s:g} s")
 
 
-def _param_get(node: str, name: str, domain: int) -> str:
-    r = subprocess.run([*CLI, "param", "get", node, name, "--domain-id", str(domain), "--timeout", "60"], capture_output=True,
-                       text=True, timeout=120)
-    assert r.returncode == 0, r.stderr
-    return r.stdout.strip()
-
-
 def test_a_foxglove_client_watches_and_tunes_a_composed_free_running_graph(domain_id, tmp_path):
     port = _free_port()
     # long enough for every check on a loaded machine; stopped (Ctrl-C) once they are done
-    proc = subprocess.Popen([*CLI, "launch", "--compose", "--free-run", "--no-record", "--duration", "300",
+    proc = subprocess.Popen([*CLI, "launch", "--compose", "--free-run", "--duration", "300",
                              "--domain-id", str(domain_id), "--view", str(port), "--bag-dir", str(tmp_path)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
-        result = asyncio.run(_watch_and_tune(port, proc, domain_id))
+        result = asyncio.run(_watch_and_tune(port, proc))
     finally:
         proc.send_signal(signal.SIGINT)  # the graph stops cleanly (no bag is kept: --no-record)
         out, _ = proc.communicate(timeout=300)
     assert proc.returncode == 130, out[-3000:]  # interrupted, as asked
+    # the controller's own parameter events, recorded by the graph: the one change is the client's
+    from dem_ros.bag import BagReader
+
+    bag = next(d for d in tmp_path.iterdir() if d.is_dir() and not d.name.endswith("_logs"))
+    changes = [(e.node, p.name, p.value.double_value) for _, _, e in BagReader(bag).messages([contract.PARAMETER_EVENTS.name])
+               for p in e.changed_parameters]
+    assert changes == [("/controller", "w", 60.0)], changes
     assert f"live view on ws://127.0.0.1:{port}" in out
 
     m = result["measurement"]
@@ -220,7 +220,7 @@ def test_a_foxglove_client_watches_and_tunes_a_composed_free_running_graph(domai
     assert all(2e-3 < g < 12e-3 for g in m["gap_range"]), m["gap_range"]
 
 
-async def _watch_and_tune(port: int, proc: subprocess.Popen, domain: int) -> dict:
+async def _watch_and_tune(port: int, proc: subprocess.Popen) -> dict:
     await _wait_listening(port, proc, timeout_s=300)
     async with FoxgloveClient(f"ws://127.0.0.1:{port}", timeout_s=30) as c:
         assert c.subprotocol == SUBPROTOCOL
@@ -279,8 +279,8 @@ async def _watch_and_tune(port: int, proc: subprocess.Popen, domain: int) -> dic
         assert (await c.get_parameters(["/controller.w"]))["/controller.w"] == 50.0
         everything = await c.get_parameters([])
         assert "/controller.k1" in everything and "/estimator.type" in everything
+        # the answer is read back from the controller's get_parameters service (and the bag has its event)
         assert (await c.set_parameters({"/controller.w": 60.0}))["/controller.w"] == 60.0
-        assert float(_param_get("controller", "w", domain)) == 60.0  # it reached the controller
         n0 = len(c.statuses)
         assert (await c.set_parameters({"/controller.w": -5.0}))["/controller.w"] == 60.0
         assert (await c.set_parameters({"/controller.dt": 0.002}))["/controller.dt"] == 0.001
@@ -291,7 +291,8 @@ async def _watch_and_tune(port: int, proc: subprocess.Popen, domain: int) -> dic
         assert len(refusals) == 2, c.statuses
         assert refusals[0]["message"] == "/controller.w: controller.w: got -5.0, expected a float in [0, 1e+09]"
         assert "read-only" in refusals[1]["message"] and "dt" in refusals[1]["message"]
-        assert float(_param_get("controller", "w", domain)) == 60.0
+        assert (await c.get_parameters(["/controller.w", "/controller.dt"])) == {"/controller.w": 60.0,
+                                                                                "/controller.dt": 0.001}
 
         # hw_driver's services are offered; with no driver running a call fails with the reason
         assert set(c.services) == {f"/hw_driver/{v}" for v in HW_SERVICES}

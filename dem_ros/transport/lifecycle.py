@@ -24,6 +24,13 @@ requests valid now: :meth:`LifecycleMachine.available`), ``~/get_transition_grap
 IDL types of :mod:`dem_ros.transport.dds.lifecycle_msgs`; the callbacks are the driver's (configure: open
 the link and handshake; activate: arm; deactivate: land, succeeding once the board reports LANDED; cleanup:
 close the link; errorprocessing: land).
+
+Open point for that wiring: :meth:`LifecycleMachine.trigger` runs the callback synchronously, as rcl does,
+but a deactivate that succeeds only once the board reports LANDED waits for a landing (seconds); it
+must not hold the executor (the driver's samples and the loop's topics run there). The node would
+answer ``~/change_state`` later (the dds node already queues service replies) from a machine split into
+``begin(transition)`` (into the transition state) and ``finish(result)`` (to the goal), the landing's
+end calling ``finish``.
 """
 
 from __future__ import annotations

@@ -60,11 +60,14 @@ setup(
     # ruff and mypy: tests/tools/test_lint.py runs them
     # ros: ROS 2 Jazzy's rclpy on rmw_fastrtps_cpp and the message packages the nodes use, from the
     # package index (cp311 manylinux wheels): the rclpy transport with no ROS install (make test adds it)
+    # view: dem-ros view (a Foxglove WebSocket server; websockets for its --check client); the tests run it
     extras_require={
-        "test": ["pytest>=7", "sympy>=1.12", "hypothesis>=6", "mcap>=1.1", "ruff>=0.5", "mypy>=1.10", "types-PyYAML"],
+        "test": ["pytest>=7", "sympy>=1.12", "hypothesis>=6", "mcap>=1.1", "ruff>=0.5", "mypy>=1.10", "types-PyYAML",
+                 "foxglove-sdk>=0.30", "websockets>=12"],
         "ros": ["ros-jazzy-rclpy", "ros-jazzy-rmw-fastrtps-cpp", "ros-jazzy-std-msgs", "ros-jazzy-sensor-msgs",
                 "ros-jazzy-diagnostic-msgs", "ros-jazzy-rcl-interfaces", "ros-jazzy-std-srvs",
                 "ros-jazzy-lifecycle-msgs"],
+        "view": ["foxglove-sdk>=0.30", "websockets>=12"],
     },
     zip_safe=True,
     maintainer="dem_ros maintainers",

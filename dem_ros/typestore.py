@@ -14,7 +14,8 @@ checked against it (tests/transport/test_msgs.py).
 
 The request/response messages of the parameter services are added under
 rosidl's names (``rcl_interfaces/srv/GetParameters_Request``): rmw_cyclonedds
-puts their hashes on the service endpoints.
+puts their hashes on the service endpoints. So are ``std_srvs/srv/Trigger``'s
+(the live view serves hw_driver's Trigger services with their schemas).
 """
 
 from __future__ import annotations
@@ -44,6 +45,9 @@ _SRV_DEFS = {
     "rcl_interfaces/srv/DescribeParameters_Response": "rcl_interfaces/ParameterDescriptor[] descriptors",
     "rcl_interfaces/srv/GetParameterTypes_Request": "string[] names",
     "rcl_interfaces/srv/GetParameterTypes_Response": "uint8[] types",
+    # std_srvs/srv/Trigger (hw_driver's arm | disarm | estop | status), served to Foxglove by dem_ros.view
+    "std_srvs/srv/Trigger_Request": "",
+    "std_srvs/srv/Trigger_Response": "bool success\nstring message",
 }
 
 

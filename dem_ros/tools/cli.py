@@ -14,6 +14,7 @@
     dem-ros config    print the parameter schema or the default params file
     dem-ros study     robustness over plant truth x controllers, on Dask distributed
     dem-ros faults    the fault catalogue (#12) injected into the real graph: outcome per fault
+    dem-ros view      the running graph live in Foxglove (a WebSocket server)
 
 Bad input ends with a one-line error and exit status 2, never a traceback.
 """
@@ -36,7 +37,7 @@ from .progress import Progress
 __all__ = ["build_parser", "main"]
 
 #: commands that join a DDS domain (and so read ROS_DOMAIN_ID)
-_DDS_COMMANDS = ("launch", "node", "param", "hw", "bench", "replay", "faults")
+_DDS_COMMANDS = ("launch", "node", "param", "hw", "bench", "replay", "faults", "view")
 _TRANSPORTS = ("auto", "rclpy", "dds")
 
 
@@ -151,7 +152,7 @@ def cmd_node(args: argparse.Namespace) -> int:
 
 def cmd_param(args: argparse.Namespace) -> int:
     from ..transport import param_get, param_set
-    from .common import UsageError
+    from .common import UsageError, check_param_value
 
     for what, text in (("node name", args.node), ("parameter name", args.name), ("value", args.value)):
         try:
@@ -160,7 +161,7 @@ def cmd_param(args: argparse.Namespace) -> int:
             shown = (text or "").encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
             raise UsageError(f"{what} '{shown}' is not valid UTF-8 (ROS names and strings are UTF-8)") from None
     if args.action == "set" and args.value is not None:
-        _check_param_value(args.node, args.name, args.value)
+        check_param_value(args.node, args.name, args.value)
     if args.action == "get":
         print(param_get(args.node, args.name, domain_id=args.domain_id, timeout_s=args.timeout))
         return 0
@@ -172,23 +173,6 @@ def cmd_param(args: argparse.Namespace) -> int:
         return 0
     print(f"Setting parameter failed: {reason}", file=sys.stderr)
     return 1
-
-
-def _check_param_value(node: str, name: str, text: str) -> None:
-    """A malformed value for one of our nodes' parameters is a usage error, found before the node is asked."""
-    import yaml
-
-    from ..core.params import SCHEMA
-
-    group = node.strip("/").rsplit("/", 1)[-1]
-    if group not in SCHEMA.groups or name not in {p.name for p in SCHEMA.groups[group]}:
-        return  # not one of ours (or not known here): the node answers
-    spec = SCHEMA.spec(group, name)
-    try:
-        value = yaml.safe_load(text) if spec.type is not str else text
-    except yaml.YAMLError:
-        value = text
-    spec.coerce(value, f"{group}.{name}")  # ConfigError: one line, exit 2
 
 
 def cmd_hw(args: argparse.Namespace) -> int:
@@ -350,6 +334,13 @@ def _add_param(pm: argparse.ArgumentParser) -> None:
     pm.set_defaults(func=cmd_param)
 
 
+def _add_view(vw: argparse.ArgumentParser) -> None:
+    from . import view
+
+    view.add_arguments(vw)
+    vw.set_defaults(func=view.cmd_view)
+
+
 def _add_study(sy: argparse.ArgumentParser) -> None:
     from . import study
 
@@ -371,6 +362,7 @@ _COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
     "faults": ("inject the fault catalogue into the real graph; a table of outcomes", _add_faults),
     "bag": ("inspect bags", _add_bag),
     "param": ("get or set a parameter of a running node (DDS parameter services)", _add_param),
+    "view": ("watch the running graph live in Foxglove (a WebSocket server; docs/manual/live-view.md)", _add_view),
     "study": ("robustness study: plant truth (grid or Monte Carlo) x controllers on Dask distributed", _add_study),
 }
 

@@ -2,6 +2,7 @@
 
 * :class:`UsageError`: a user-facing error, printed by the CLI as one line with exit status 2.
 * :func:`load_config`: scenario + params file + ``--set`` assignments -> the run's configuration.
+* :func:`check_param_value`: a parameter value checked against the schema (``dem-ros param set``, the live view).
 * :func:`yaml_scalar`: the one YAML emitter for parameter values (params files, launch files).
 * :func:`fmt_pair`: two numbers (e.g. e1 / e2) as one table cell.
 * ``CONTROLLER_TYPES`` / ``ESTIMATOR_TYPES``: the schema's choices, for argparse.
@@ -29,7 +30,7 @@ from ..core.params import SCHEMA, ConfigError, apply_overrides, load_params_file
 if TYPE_CHECKING:  # the scenarios (and numpy) load with the first configuration, not with every command
     from ..core.scenarios import Scenario
 
-__all__ = ["CONTROLLER_TYPES", "ESTIMATOR_TYPES", "UsageError", "domain_id", "env_domain_id", "fmt_pair", "json_safe", "json_text",
+__all__ = ["CONTROLLER_TYPES", "ESTIMATOR_TYPES", "UsageError", "check_param_value", "domain_id", "env_domain_id", "fmt_pair", "json_safe", "json_text",
            "load_config", "out_dir", "out_file", "seconds", "seed", "warm_kernels", "write_json", "yaml_scalar"]
 
 
@@ -60,6 +61,25 @@ def load_config(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], Sc
     if sets:
         cfg = apply_overrides(cfg, sets, "--set")
     return cfg, sc
+
+
+def check_param_value(node: str, name: str, text: str) -> None:
+    """A malformed value for one of our nodes' parameters is a usage error, found before the node is asked.
+
+    ``dem-ros param set`` and the live view (:mod:`dem_ros.view.graph`) check a value with it. ConfigError
+    with the schema's reason; a node or parameter the schema does not know is left to the node.
+    """
+    import yaml
+
+    group = node.strip("/").rsplit("/", 1)[-1]
+    if group not in SCHEMA.groups or name not in {p.name for p in SCHEMA.groups[group]}:
+        return  # not one of ours (or not known here): the node answers
+    spec = SCHEMA.spec(group, name)
+    try:
+        value = yaml.safe_load(text) if spec.type is not str else text
+    except yaml.YAMLError:
+        value = text
+    spec.coerce(value, f"{group}.{name}")  # ConfigError: one line, exit 2
 
 
 def fmt_pair(v: Sequence[float] | None, nd: int = 2) -> str:

@@ -55,6 +55,7 @@ from .common import (
 )
 from .progress import Progress
 from .runmetrics import RunMetrics
+from .view import port as view_port
 from .verdict import FAILED, INTERRUPTED_EXIT, OK, Verdict, judge
 
 __all__ = ["GraphError", "LaunchOptions", "StartupError", "cmd_launch", "launch", "run_graph", "write_params_file"]
@@ -125,7 +126,7 @@ class _Graph:
     def __init__(self, cfg: dict, *, duration: float, transport: str, bag: Path | None, meta: dict,
                  domain_id: int | None, status: bool, workdir: Path | None, compose: bool, hardware: str | None,
                  faults: Sequence[str], supervise: Supervise | None,
-                 node_transports: Mapping[str, str] | None = None):
+                 node_transports: Mapping[str, str] | None = None, view_port: int | None = None):
         self.workdir = workdir or Path(tempfile.mkdtemp(prefix="dem_ros_launch_"))
         self.workdir.mkdir(parents=True, exist_ok=True)
         cfg = {g: dict(v) for g, v in cfg.items()}
@@ -138,6 +139,8 @@ class _Graph:
         self.cfg, self.duration, self.transport, self.bag = cfg, duration, transport, bag
         self.status, self.compose, self.hardware, self.faults, self.supervise = status, compose, hardware, faults, supervise
         self.node_transports = dict(node_transports or {})  # a node's own transport (e.g. the controller on rclpy)
+        self.view_port = view_port
+        self.viewer: subprocess.Popen | None = None
         self.params = write_params_file(cfg, self.workdir / "params.yaml")
         env = dict(os.environ)
         if domain_id is None:
@@ -255,6 +258,15 @@ class _Graph:
             StartupError: a node exited or was not ready, no board answered (hardware), the driver faulted.
         """
         url = self.cfg["hw_driver"]["url"]
+        if self.view_port is not None:  # first: subscribed before the plant starts its clock
+            with open(self.workdir / "view.log", "wb") as view_log:
+                self.viewer = subprocess.Popen(
+                    [sys.executable, "-m", "dem_ros.tools.view", "--port", str(self.view_port),
+                     "--transport", self.transport], env=self.env, stdout=view_log, stderr=subprocess.STDOUT,
+                    start_new_session=True)
+            where = f"ws://127.0.0.1:{self.view_port}" if self.view_port else "the port in its log"
+            print(f"dem-ros launch: live view on {where} (Foxglove; log {self.workdir / 'view.log'})",
+                  file=sys.stderr, flush=True)
         for name in self.names:
             bag_args = ["--bag", str(self.bag), "--meta", str(self.meta_file)] if self.bag is not None else []
             extra = bag_args if name in ("recorder", "container") else []
@@ -375,6 +387,11 @@ class _Graph:
             self.cpu[name] = _cpu_seconds(p.pid)
         halt = Progress("dem-ros launch", None, enabled=self.status)
         halt.stage("stopping the nodes (the recorder last, so the bag is complete)")
+        if self.viewer is not None:  # the live view first: it never ends the run
+            if self.viewer.poll() is not None:
+                print(f"dem-ros launch: the live view exited early (code {self.viewer.returncode}); see "
+                      f"{self.workdir / 'view.log'}", file=sys.stderr, flush=True)
+            _interrupt(self.viewer)
         order: tuple[str, ...] = ("container", "plant_sim", "hw_driver", "controller", "estimator", "reference",
                                   "recorder")
         if self.hardware is not None:
@@ -423,7 +440,8 @@ def _no_board(url: str, waited: float) -> str:
 def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, meta: dict,
               domain_id: int | None = None, status: bool = True, workdir: Path | None = None,
               compose: bool = False, hardware: str | None = None, faults: Sequence[str] = (),
-              supervise: Supervise | None = None, node_transports: Mapping[str, str] | None = None) -> dict:
+              supervise: Supervise | None = None, node_transports: Mapping[str, str] | None = None,
+              view_port: int | None = None) -> dict:
     """Start the graph, wait for the plant to finish ``duration`` s, stop everything; return raw facts.
 
     ``compose``: all nodes in one ``container`` process (intra-process topics)
@@ -439,6 +457,8 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     other node that exits ends the run: ``cut_short`` in the facts says which (the run failed).
     ``node_transports``: a node's own transport instead of ``transport`` (e.g. the controller on
     rclpy/Fast DDS, the rest on dds/Cyclone).
+    ``view_port``: also run ``dem-ros view`` on that port (the live view, :mod:`.view`), started first
+    and stopped first; its log is ``view.log``; it never ends the run.
 
     Raises:
         StartupError: the run never started (a node exited or was not ready, no board answered, a driver fault
@@ -446,7 +466,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     """
     g = _Graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id, status=status,
                workdir=workdir, compose=compose, hardware=hardware, faults=faults, supervise=supervise,
-               node_transports=node_transports)
+               node_transports=node_transports, view_port=view_port)
 
     def on_signal(signum, frame):
         g.interrupted = True
@@ -569,6 +589,7 @@ class LaunchOptions:
     domain_id: int | None = None
     hardware: str | None = None
     fault: list[str] = field(default_factory=list)
+    view: int | None = None  # the live view's port (dem-ros view); None: none
 
     @classmethod
     def from_namespace(cls, ns: argparse.Namespace) -> LaunchOptions:
@@ -700,7 +721,7 @@ def launch(args: LaunchOptions | argparse.Namespace, *, quiet: bool = False, sup
         facts = run_graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id,
                           status=not quiet, workdir=logs_dir or ((bag.parent / (bag.name + "_logs")) if record else None),
                           compose=compose, hardware=hardware, faults=opts.fault,
-                          supervise=supervise)
+                          supervise=supervise, view_port=opts.view)
         if facts["interrupted"] and not facts["reached_t0"]:  # Ctrl-C while starting: no run, no bag (exit 130)
             raise KeyboardInterrupt
         with Progress("dem-ros launch", None, enabled=not quiet) as bar:
@@ -782,6 +803,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hardware", default=None, metavar="LINK",
                    help="hw_driver instead of plant_sim, on udp://HOST:PORT or serial:///dev/PATH; 'rig' (UDP) or "
                         "'rig-serial' (a pty pair) also start the emulator 'dem-ros rig'")
+    p.add_argument("--view", type=view_port, nargs="?", const=8765, default=None, metavar="PORT",
+                   help="also serve the run live to Foxglove on ws://127.0.0.1:PORT (default 8765; dem-ros view)")
     p.add_argument("--fault", action="append", default=None, metavar="SPEC",
                    help="with --hardware rig: inject a rig fault, e.g. linkloss@10+0.05 (dem-ros rig --help-faults)")
 

@@ -55,6 +55,7 @@ __all__ = [
     "RunData",
     "Validation",
     "coil_rows",
+    "flux_noise",
     "heave_rows",
     "identify",
     "simulate_coils",
@@ -189,8 +190,9 @@ def _windows(n: int, w: int) -> np.ndarray:
     return np.arange(0, n - w, w)
 
 
-def coil_rows(d: RunData, geo: Mapping[str, float], window: int) -> tuple[np.ndarray, np.ndarray]:
-    """The integrated coil equations, both coils: A (2 M, 4) over theta = (R1, R2, K, m), b (2 M,) [V s].
+def coil_rows(d: RunData, geo: Mapping[str, float], window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The integrated coil equations, both coils: A (2 M, 4) over theta = (R1, R2, K, m), b (2 M,) [V s], and
+    the variance of each regressor's noise (2 M, 4) (the K column: 2 (b(t_b) - b(t_a)) with b's white noise).
 
     Rows 0..M-1 are coil 1, M..2M-1 coil 2; ``window``: samples per window.
     """
@@ -203,12 +205,15 @@ def coil_rows(d: RunData, geo: Mapping[str, float], window: int) -> tuple[np.nda
     M = k0.size
     A = np.zeros((2 * M, 4))
     rhs = np.zeros(2 * M)
+    noise = np.zeros((2 * M, 4))
+    sb2 = flux_noise(d, geo)
     for j in (0, 1):
         rows = slice(j * M, (j + 1) * M)
         A[rows, j] = ii[k1, j] - ii[k0, j]
         A[rows, 2] = 2.0 * (b[k1, j] - b[k0, j])
         rhs[rows] = iu[k1, j] - iu[k0, j]
-    return A, rhs
+        noise[rows, 2] = 8.0 * sb2[j]  # (2 (n_b - n_a))^2, n white
+    return A, rhs, noise
 
 
 def heave_rows(d: RunData, geo: Mapping[str, float], window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -265,14 +270,22 @@ def simulate_coils(d: RunData, geo: Mapping[str, float], R1: float, R2: float, K
 
 
 # -- estimation ---------------------------------------------------------------------------------------------------
-def _wls(A: np.ndarray, b: np.ndarray, groups: Sequence[slice], scale: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Group-weighted least squares in scaled parameters: (theta, its covariance, the weighted scaled Jacobian)."""
+def _wls(A: np.ndarray, b: np.ndarray, groups: Sequence[slice], scale: np.ndarray,
+         noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Group-weighted least squares in scaled parameters: (theta, its covariance, the weighted scaled Jacobian).
+
+    ``noise`` (same shape as A): variances of the regressors' own noise (errors in variables); their
+    weighted sum is taken off the normal matrix (bias-compensated least squares), so a noisy regressor does
+    not pull its parameter towards zero.
+    """
     As = A * scale
+    Ns = np.zeros_like(A) if noise is None else noise * scale ** 2
     w = np.ones(b.size)
     theta_s = np.zeros(A.shape[1])
     for _ in range(3):  # weights from the residuals of the previous pass
         Aw, bw = As * w[:, None], b * w
-        theta_s = np.linalg.lstsq(Aw, bw, rcond=None)[0]
+        Nm = Aw.T @ Aw - np.diag((Ns * w[:, None] ** 2).sum(axis=0))
+        theta_s = np.linalg.pinv(Nm) @ (Aw.T @ bw)
         r = As @ theta_s - b
         for g in groups:
             s = float(np.sqrt(np.mean(r[g] ** 2))) if r[g].size else 1.0
@@ -280,8 +293,16 @@ def _wls(A: np.ndarray, b: np.ndarray, groups: Sequence[slice], scale: np.ndarra
     Aw = As * w[:, None]
     dof = max(b.size - A.shape[1], 1)
     s2 = float(np.sum(((As @ theta_s - b) * w) ** 2) / dof)
-    cov_s = s2 * np.linalg.pinv(Aw.T @ Aw)
+    Nm = Aw.T @ Aw - np.diag((Ns * w[:, None] ** 2).sum(axis=0))
+    cov_s = s2 * np.linalg.pinv(Nm)
     return theta_s * scale, cov_s * np.outer(scale, scale), Aw * math.sqrt(1.0 / s2)
+
+
+def flux_noise(d: RunData, geo: Mapping[str, float]) -> np.ndarray:
+    """Variance of the white noise on b_j = i_j/delta_j, (2,) [(A/m)^2]: var of the second differences / 6
+    (white noise of variance s^2 has second differences of variance 6 s^2; a smooth signal has almost none)."""
+    b = d.current / _deltas(d.gap, geo)
+    return np.asarray(np.var(np.diff(b, 2, axis=0), axis=0) / 6.0)
 
 
 def _tau(r: np.ndarray, max_lag: int = 1000) -> float:
@@ -335,9 +356,21 @@ def _why(name: str, weak: dict[str, float], exc: dict[str, float], rel_ci: float
     return f"{base}" + (f"; the weakest direction mixes {', '.join([name, *mixed])}" if mixed else "")
 
 
+def _why_flux(name: str, exc: dict[str, float], limit: float) -> str:
+    share = min(exc["flux_noise_share_1"], exc["flux_noise_share_2"])
+    flux = max(exc["flux_change_rel_1"], exc["flux_change_rel_2"])
+    head = ("K enters the coil equation only through changes of the flux i/delta" if name == "K" else
+            "m follows from the heave balance m (g - a) = K (q1 + q2) - (N1 + N2) only once K is known, and K")
+    tail = "" if name == "K" else " is not determined"
+    return (f"{head}{tail}: the run's flux changes are at the sensors' noise level ({share * 100:.3g} % of their "
+            f"energy is noise, limit {limit * 100:.3g} %; relative change per window {flux:.2g}). Hover and slow "
+            f"references hold the fluxes constant (every equilibrium needs the same magnet forces); record a run "
+            f"with faster reference steps (docs/manual/hardware.md, bring-up step 5)")
+
+
 def identify(d: RunData, geo: Mapping[str, float], nominal: Mapping[str, float], *, coil_window: float = 0.02,
              heave_window: float = 0.2, holdout: float = 0.3, refine: bool = True,
-             max_rel_ci: float = 0.1) -> IdentResult:
+             max_rel_ci: float = 0.1, max_flux_noise: float = 0.25, rel_floor: float = 1e-4) -> IdentResult:
     """Estimate (R1, R2, K, m) from ``d`` (see the module docstring).
 
     Args:
@@ -347,6 +380,10 @@ def identify(d: RunData, geo: Mapping[str, float], nominal: Mapping[str, float],
         holdout: fraction of the run (its end) kept out of the fit and simulated with the estimates.
         refine: stage 2 (simulation error) after the linear stage.
         max_rel_ci: a parameter whose 95 % half-width exceeds this fraction of its nominal value is not determined.
+        max_flux_noise: K (and with it m) is not determined when, in both coils, more than this share of the
+            flux changes' energy is the sensors' noise (the changes are too small to tell K).
+        rel_floor: a relative standard deviation added to each statistical one (in quadrature): what the
+            statistics cannot see (the trapezoid rule's error, the ADC's quantisation, unmodelled dynamics).
     Raises:
         IdentError: too few samples for the windows.
     """
@@ -360,29 +397,34 @@ def identify(d: RunData, geo: Mapping[str, float], nominal: Mapping[str, float],
                          f"{heave_window:g} s, holdout {holdout:g})")
     fit = d.slice(0, n_fit)
     scale = np.array([nominal[k] for k in PARAMS], float)
-    Ac, bc = coil_rows(fit, geo, wc)
+    Ac, bc, Nc = coil_rows(fit, geo, wc)
     Ah, bh, _ = heave_rows(fit, geo, wh)
     A, b = np.vstack([Ac, Ah]), np.concatenate([bc, bh])
     M = Ac.shape[0] // 2
     groups = [slice(0, M), slice(M, 2 * M), slice(2 * M, b.size)]
-    theta, cov, J = _wls(A, b, groups, scale)
+    theta, cov, J = _wls(A, b, groups, scale, np.vstack([Nc, np.zeros_like(Ah)]))
     exc = _excitation(fit, geo, wc)
+    # errors in variables: the share of the K column's energy that is the flux's own noise, per coil
+    share = [float(Nc[g, 2].sum() / max(float(np.sum(Ac[g, 2] ** 2)), 1e-300)) for g in groups[:2]]
+    exc["flux_noise_share_1"], exc["flux_noise_share_2"] = share
+    flux_ok = min(share) < max_flux_noise
     refined = False
     notes: list[str] = []
-    rel = Z95 * np.sqrt(np.maximum(np.diag(cov), 0.0)) / scale
-    det0 = (rel < max_rel_ci) & (theta > 0)
-    if refine and det0.any():
-        theta, cov, refined = _refine(fit, geo, theta, cov, det0, scale, wh, notes)
+    if refine and flux_ok:
+        start = np.where(theta > 0, theta, scale)
+        theta, cov, J, refined = _refine(fit, geo, start, cov, J, scale, wh, notes)
     F = J.T @ J
     evals, evecs = np.linalg.eigh(F)
     cond = float(evals[-1] / max(evals[0], 1e-300))
     weak = {k: float(v) for k, v in zip(PARAMS, evecs[:, 0] * np.sign(evecs[np.argmax(np.abs(evecs[:, 0])), 0]),
                                         strict=True)}
-    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0) + (rel_floor * theta) ** 2)
     rel = Z95 * std / scale
     est: dict[str, Estimate] = {}
     for i, k in enumerate(PARAMS):
-        if rel[i] < max_rel_ci and theta[i] > 0:
+        if k in ("K", "m") and not flux_ok:
+            est[k] = Estimate(k, UNITS[k], False, reason=_why_flux(k, exc, max_flux_noise))
+        elif rel[i] < max_rel_ci and theta[i] > 0:
             est[k] = Estimate(k, UNITS[k], True, float(theta[i]), float(std[i]),
                               (float(theta[i] - Z95 * std[i]), float(theta[i] + Z95 * std[i])))
         else:
@@ -393,19 +435,13 @@ def identify(d: RunData, geo: Mapping[str, float], nominal: Mapping[str, float],
     return IdentResult(est, exc, cond, weak, val, refined, n, float(d.t[-1] - d.t[0]), notes)
 
 
-def _refine(fit: RunData, geo: Mapping[str, float], theta0: np.ndarray, cov0: np.ndarray, free: np.ndarray,
-            scale: np.ndarray, wh: int, notes: list[str]) -> tuple[np.ndarray, np.ndarray, bool]:
-    """Stage 2: least squares on the coils' simulation error and the heave equations, over the determined
-    parameters (the others held at their stage-1 values); covariance from the Jacobian (see the module)."""
+def _refine(fit: RunData, geo: Mapping[str, float], theta0: np.ndarray, cov0: np.ndarray, J0: np.ndarray,
+            scale: np.ndarray, wh: int, notes: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """Stage 2: least squares on the coils' simulation error and the heave equations over all four parameters;
+    (theta, covariance, weighted scaled Jacobian, refined) with the covariance from the Jacobian (see the module)."""
     from scipy.optimize import least_squares
 
     Ah, bh, _ = heave_rows(fit, geo, wh)
-    idx = np.nonzero(free)[0]
-
-    def full(v: np.ndarray) -> np.ndarray:
-        th = theta0.copy()
-        th[idx] = v * scale[idx]
-        return th
 
     def groups(th: np.ndarray) -> list[np.ndarray]:
         i_sim = simulate_coils(fit, geo, th[0], th[1], th[2])
@@ -416,25 +452,21 @@ def _refine(fit: RunData, geo: Mapping[str, float], theta0: np.ndarray, cov0: np
     w = [1.0 / max(float(np.sqrt(np.mean(g ** 2))), 1e-12) for g in g0]
 
     def resid(v: np.ndarray, w: list[float]) -> np.ndarray:
-        return np.concatenate([g * wi for g, wi in zip(groups(full(v)), w, strict=True)])
+        return np.concatenate([g * wi for g, wi in zip(groups(v * scale), w, strict=True)])
 
-    v0 = theta0[idx] / scale[idx]
-    sol = least_squares(resid, v0, args=(w,), x_scale=1.0, method="lm")
-    gs = groups(full(sol.x))
+    sol = least_squares(resid, theta0 / scale, args=(w,), method="lm")
+    gs = groups(sol.x * scale)
     taus = [_tau(g) for g in gs]
     w = [1.0 / (max(float(np.sqrt(np.mean(g ** 2))), 1e-12) * math.sqrt(t)) for g, t in zip(gs, taus, strict=True)]
-    sol = least_squares(resid, sol.x, args=(w,), x_scale=1.0, method="lm")
-    if not sol.success:
+    sol = least_squares(resid, sol.x, args=(w,), method="lm")
+    if not sol.success or not np.all(np.isfinite(sol.x)):
         notes.append(f"refinement did not converge ({sol.message}); stage-1 estimates kept")
-        return theta0, cov0, False
+        return theta0, cov0, J0, False
     J = sol.jac
-    cov_v = np.linalg.pinv(J.T @ J)
-    th = full(sol.x)
-    cov = cov0.copy()
-    cov[np.ix_(idx, idx)] = cov_v * np.outer(scale[idx], scale[idx])
+    cov = np.linalg.pinv(J.T @ J) * np.outer(scale, scale)
     notes.append("autocorrelation times of the refined residuals (samples): coil 1 {:.3g}, coil 2 {:.3g}, "
                  "heave {:.3g}".format(*taus))
-    return th, cov, True
+    return sol.x * scale, cov, J, True
 
 
 def _validate(d: RunData, geo: Mapping[str, float], n_fit: int, theta: np.ndarray, wh: int) -> Validation:

@@ -73,6 +73,7 @@ from .link import (
     encode,
     seq_diff,
 )
+from .sensors import ShimInput, parse_shims, sensed_gap
 
 __all__ = ["FAULT_KINDS", "Board", "Fault", "RigError", "main", "parse_fault", "run_rig"]
 
@@ -193,6 +194,7 @@ class Board:
             g = rig["support_gap"]
             self.plant.x[:] = [g, 0.0, g, 0.0, 0.0, 0.0]
         self.last_counts = [0, 0]
+        self.shims: tuple[float, float] | None = None  # resting on shims (d1, d2) [m]: hardware/sensors.py
         self.driver_fault = 0  # DRIVERj_FAULT bits seen while applying the last period's voltages
         self.streaming = False
         self.c = BoardCounters()
@@ -265,6 +267,8 @@ class Board:
         if getattr(self, "_rx_error", False):
             status |= Status.RX_ERROR
             self._rx_error = False
+        if self.shims is not None:  # on shims: coils off, the plate held at their thicknesses
+            self.plant.x[:] = [self.shims[0], 0.0, self.shims[1], 0.0, 0.0, 0.0]
         x = self.plant.x
         z = self.plant.measurement() if self.released_at is not None else x.copy()
         gaps, currents = np.array([z[0], z[2]]), np.array([z[4], z[5]])
@@ -379,7 +383,7 @@ class Board:
                 out.append(self.full)
                 status |= Status.GAP0_RANGE << j
                 continue
-            d = (1 + self.rc["gap_gain_error"]) * gaps[j] + self.rc["gap_offset_error"]
+            d = float(sensed_gap(j + 1, float(gaps[j]), self.rc))  # the sensor's curve (hardware/sensors.py)
             if self.rc["gap_noise"] > 0:
                 d += self.rng.normal(0.0, self.rc["gap_noise"])
             c = self._nearest_count(j, d)
@@ -471,7 +475,8 @@ def _realtime() -> str:
 
 
 def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, duration: float = 0.0,
-            status_every: float = 1.0, stop: list[bool] | None = None, out=sys.stdout) -> dict[str, Any]:
+            status_every: float = 1.0, stop: list[bool] | None = None, out=sys.stdout,
+            shims: tuple[float, float] | None = None, shims_stdin: bool = False) -> dict[str, Any]:
     """Open the board's end of the link and run the board at 1 kHz until ``duration`` (0: until stopped).
 
     Prints ``RIG {json}`` lines: ``listening`` (with the URL the PC opens), a status every
@@ -483,6 +488,15 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
     for _ in range(3):
         warm.tick()
     board = Board(cfg["plant_sim"], cfg["rig"], cfg["hw_driver"], faults)
+    board.shims = shims
+    if shims_stdin:  # an emulated calibration session: 'shims MM[,MM]' lines place the plate on shims
+        def place(v: tuple[float, float] | None) -> None:
+            board.shims = v
+            print("RIG " + json.dumps({"event": "shims", "mm": [round(x * 1e3, 6) for x in v] if v else None}),
+                  file=out, flush=True)
+
+        ShimInput(sys.stdin, place, lambda m: print("RIG " + json.dumps({"event": "input", "message": m}), file=out,
+                                                    flush=True))
     ch = open_channel(cfg["rig"]["url"], "board")
     peer = getattr(ch, "peer_url", cfg["rig"]["url"])
     stop = stop if stop is not None else [False]
@@ -557,6 +571,9 @@ def build_parser(p: argparse.ArgumentParser | None = None) -> argparse.ArgumentP
     p.add_argument("--fault", action="append", default=[], metavar="SPEC", help="inject a fault, e.g. dropout:1@5+0.5 (see --help-faults)")
     p.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds of board time (0: until Ctrl-C)")
     p.add_argument("--help-faults", action="store_true", help="describe the fault specifications")
+    p.add_argument("--shims", default=None, metavar="MM[,MM]", help="rest the plate on shims of these thicknesses "
+                   "(coils off): a calibration session (dem-ros calibrate gaps --url)")
+    p.add_argument("--shims-stdin", action="store_true", help="read 'shims MM[,MM]' / 'shims off' lines from stdin")
     return p
 
 
@@ -582,7 +599,11 @@ def cmd_rig(args: argparse.Namespace) -> int:
 
         for s in (signal.SIGINT, signal.SIGTERM):
             signal.signal(s, on_signal)
-        summary = run_rig(cfg, faults, duration=args.duration, stop=stop)
+        try:
+            shims = parse_shims(args.shims) if args.shims else None
+        except ValueError as exc:
+            raise RigError(str(exc)) from None
+        summary = run_rig(cfg, faults, duration=args.duration, stop=stop, shims=shims, shims_stdin=args.shims_stdin)
     except (RigError, ConfigError, ChannelError) as exc:
         print(f"dem-ros rig: error: {exc}", file=sys.stderr)
         return 2

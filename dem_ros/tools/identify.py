@@ -328,6 +328,20 @@ def _one_rig(args: tuple[int, float, bool, float, float]) -> dict[str, Any]:
     return row
 
 
+def _row_text(row: dict[str, Any]) -> str:
+    if "error" in row:
+        return "run failed: " + row["error"]
+    parts = []
+    for k in PARAMS:
+        e = row["result"]["estimates"][k]
+        if not e["determined"]:
+            parts.append(f"{k} not determined")
+            continue
+        inside = e["ci95"][0] <= row["truth"][k] <= e["ci95"][1]
+        parts.append(f"{k} {100 * (e['value'] / row['truth'][k] - 1):+.3f} % ({'in' if inside else 'OUTSIDE'} 95 %)")
+    return ("ok: " if row["ok"] else "NOT ok: ") + ", ".join(parts)
+
+
 def study_table(rows: list[dict[str, Any]]) -> str:
     head = "| seed | " + " | ".join(f"{k} truth | {k} error % | in 95 %" for k in PARAMS) + " | all within |"
     out = [head, "|" + "---|" * (2 + 3 * len(PARAMS))]
@@ -359,8 +373,7 @@ def run_study(o: IdentifyOptions) -> int:
     with ProcessPoolExecutor(workers) as ex:
         for row in ex.map(_one_rig, jobs):
             rows.append(row)
-            status = "run failed: " + row["error"] if "error" in row else ("ok" if row["ok"] else "outside")
-            print(f"  rig {row['seed']}: {status}", flush=True)
+            print(f"  rig {row['seed']}: {_row_text(row)}", flush=True)
     print(study_table(rows))
     n_ok = sum(1 for r in rows if r.get("ok"))
     print(f"{n_ok} of {len(rows)} rigs: R1, R2, K within 3 %, m within 5 %, each truth inside its 95 % interval")

@@ -304,7 +304,7 @@ class Board:
         frame = SensorFrame(n % (1 << 32), round(n * self.dt * 1e6), gc, cc,
                             (float(self.applied[0]), float(self.applied[1])), float(bus),
                             int(status | self._sup_status(u_cmd)), mode)
-        held = self.released_at is None and self.rc["start"] == "hover"
+        held = (self.released_at is None and self.rc["start"] == "hover") or self.shims is not None  # clamped
         self.applied = self._actuate(np.asarray(u, float), bus, currents) if not held else self.applied
         if not held and self.failed is None:
             self._advance()

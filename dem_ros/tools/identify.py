@@ -147,12 +147,15 @@ def rig_config(truth: Mapping[str, float], excite: bool, rig_seed: int = 7) -> d
     return apply_overrides(default_config(), over, "emulated rig")
 
 
-def emulated_run(cfg: Mapping[str, Mapping[str, Any]], duration: float, preroll: float = 1.0) -> tuple[RunData, float]:
+def emulated_run(cfg: Mapping[str, Mapping[str, Any]], duration: float, preroll: float = 1.0,
+                 driver: Mapping[str, Any] | None = None) -> tuple[RunData, np.ndarray]:
     """S1 (the ``reference`` group's steps) on the rig emulator's board, closed through the link's frames, the
     hardware driver and the graph's estimator, controller and reference model, one board tick at a time.
 
-    Returns the run from t = 0 (after ``preroll`` s of hover) as the driver publishes it, and the largest
-    tracking error of the true gaps [m]. Raises IdentError if the plate did not levitate to the end.
+    ``driver``: the driver's parameters when they differ from the board's ``hw_driver`` group (which is the
+    sensors' data sheet for the emulator), e.g. a calibration from ``dem-ros calibrate gaps``.
+    Returns the run from t = 0 (after ``preroll`` s of hover) as the driver publishes it, and the tracking
+    errors of the true gaps (n, 2) [m]. Raises IdentError if the plate did not levitate to the end.
     """
     from ..core.controllers import make_controller
     from ..core.estimator import make_estimator
@@ -163,7 +166,7 @@ def emulated_run(cfg: Mapping[str, Mapping[str, Any]], duration: float, preroll:
 
     board = Board(cfg["plant_sim"], cfg["rig"], cfg["hw_driver"], preroll=0.0)
     board.receive(encode(HELLO_REQUEST))
-    drv = HwDriver(dict(cfg["hw_driver"]) | {"clock_sync_frames": 1, "arm_samples": 1})
+    drv = HwDriver(dict(driver or cfg["hw_driver"]) | {"clock_sync_frames": 1, "arm_samples": 1})
     drv.arm()
     est = make_estimator(cfg["estimator"], None, False)
     ctrl = make_controller(cfg["controller"])
@@ -171,7 +174,7 @@ def emulated_run(cfg: Mapping[str, Mapping[str, Any]], duration: float, preroll:
     dt = cfg["plant_sim"]["dt"]
     n_pre, n_run = round(preroll / dt), round(duration / dt)
     rows: list[np.ndarray] = []
-    worst = 0.0
+    errors: list[tuple[float, float]] = []
     started = False
     for _ in range(n_pre + n_run + 100):
         data = board.tick()
@@ -191,7 +194,7 @@ def emulated_run(cfg: Mapping[str, Mapping[str, Any]], duration: float, preroll:
         k = len(rows) - n_pre
         r = ref.step_hold() if k < 0 else ref.step_at(k * dt)
         if k >= 0:
-            worst = max(worst, abs(board.plant.x[0] - r[0]), abs(board.plant.x[2] - r[1]))
+            errors.append((board.plant.x[0] - r[0], board.plant.x[2] - r[1]))
         rows.append(np.concatenate([[k * dt], s.gap, s.current, s.applied]))
         cmd = drv.command(s.stamp_ns, ctrl.step(xh, r).copy(), board.n * MS)
         if cmd is not None:
@@ -202,7 +205,7 @@ def emulated_run(cfg: Mapping[str, Mapping[str, Any]], duration: float, preroll:
         if len(rows) >= n_pre + n_run:
             break
     a = np.array(rows[n_pre:])
-    return RunData(a[:, 0], a[:, 1:3], a[:, 3:5], a[:, 5:7]), worst
+    return RunData(a[:, 0], a[:, 1:3], a[:, 3:5], a[:, 5:7]), np.array(errors)
 
 
 # -- outputs --------------------------------------------------------------------------------------------------
@@ -317,11 +320,12 @@ def _one_rig(args: tuple[int, float, bool, float, float]) -> dict[str, Any]:
     truth = rig_truth(seed)
     cfg = rig_config(truth, excite, rig_seed=seed)
     try:
-        d, worst = emulated_run(cfg, duration)
+        d, err = emulated_run(cfg, duration)
     except IdentError as exc:
         return {"seed": seed, "truth": truth, "error": str(exc)}
     res = identify(d, _geometry(cfg), _nominal(cfg), coil_window=cw, heave_window=hw)
-    row: dict[str, Any] = {"seed": seed, "truth": truth, "max_tracking_error_um": worst * 1e6, "result": res.to_dict()}
+    row: dict[str, Any] = {"seed": seed, "truth": truth, "max_tracking_error_um": float(np.abs(err).max() * 1e6),
+                           "result": res.to_dict()}
     row["ok"] = res.complete and all(
         abs(res.estimates[k].value / truth[k] - 1) <= TOLERANCE[k]
         and res.estimates[k].ci95[0] <= truth[k] <= res.estimates[k].ci95[1] for k in PARAMS)

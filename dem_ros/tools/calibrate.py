@@ -157,10 +157,10 @@ def params_text(fits: Sequence[SensorFit], table: Path | None) -> str:
              "  ros__parameters:"]
     if table is None:
         for f in fits:
-            lines += [f"    gap{f.sensor}_c{p}: {f.coeffs[p]!r}" for p in range(4)]
+            lines += [f"    gap{f.sensor}_c{p}: {float(f.coeffs[p])!r}" for p in range(4)]
         lines.append("    gap_table: ''")
     else:
-        lines.append(f"    gap_table: {json.dumps(str(table))}")
+        lines.append(f"    gap_table: {json.dumps(str(table.resolve()))}")  # the driver opens it from anywhere
     return "\n".join(lines) + "\n"
 
 

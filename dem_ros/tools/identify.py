@@ -100,7 +100,8 @@ def load_run_data(bag: Path) -> tuple[RunData, dict[str, dict[str, Any]]]:
     meas = r.joint_state_arrays(contract.MEASUREMENT.name)
     app = r.joint_state_arrays(contract.APPLIED.name)
     epoch = None
-    for _, _, msg in r.messages([contract.DIAGNOSTICS.name]):
+    diags = [contract.DIAGNOSTICS.name] if contract.DIAGNOSTICS.name in r.topics else []
+    for _, _, msg in r.messages(diags) if diags else ():
         for s in msg.status:
             if s.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
                 ls = LoopStats.from_status({kv.key: kv.value for kv in s.values})

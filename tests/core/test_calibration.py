@@ -52,7 +52,7 @@ def true_counts(b: Board, j: int, d: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("kind", ["poly", "table"])
 def test_fits_recover_the_emulators_nonlinear_curves_within_10_um_rms_over_4_to_12_mm(kind):
-    b, cfg, pts = shim_session()
+    b, _cfg, pts = shim_session()
     d = np.linspace(4e-3, 12e-3, 801)
     for j in (1, 2):
         f = fit_sensor(pts, j, kind)

@@ -91,8 +91,9 @@ def read_session(path: Path) -> list[ShimPoint]:
 
 def live_session(url: str, shims_mm: Sequence[float], samples: int, settle: int, timeout: float,
                  ask: Callable[[str], str], say: Callable[[str], None]) -> list[ShimPoint]:
-    """Prompt for each shim placement and average ``samples`` sensor frames from the board after it
-    (the first ``settle`` frames after Enter are dropped: the plate settling, frames already under way)."""
+    """Prompt for each shim placement and average ``samples`` sensor frames from the board after it (the frames
+    queued while the operator worked are drained, then the first ``settle`` are dropped: the plate settling,
+    frames already under way)."""
     from ..hardware.channel import open_channel
     from ..hardware.link import HELLO_REQUEST, Hello, LinkError, SensorFrame, Status, decode, encode
     from .common import UsageError
@@ -119,6 +120,9 @@ def live_session(url: str, shims_mm: Sequence[float], samples: int, settle: int,
         points = []
         for mm in shims_mm:
             ask(f"place the {mm:g} mm shims under both magnets (coils off), then press Enter")
+            drained = 0
+            while ch.recv(0.0) is not None and drained < 1_000_000:  # frames queued while the operator worked
+                drained += 1
             got: list[tuple[int, int]] = []
             skipped = 0
             end = time.monotonic() + timeout

@@ -383,7 +383,7 @@ _COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
     "bag": ("inspect bags", _add_bag),
     "param": ("get or set a parameter of a running node (DDS parameter services)", _add_param),
     "study": ("robustness study: plant truth (grid or Monte Carlo) x controllers on Dask distributed", _add_study),
-    "identify": ("R1, R2, K and m of a rig from a recorded run, with 95 % intervals", _add_identify),
+    "identify": ("R1, R2, K and m of a rig from a recorded run, with 95 %% intervals", _add_identify),
     "calibrate": ("calibrate the gap sensors from a shim session (CSV, or live over the link)", _add_calibrate),
 }
 

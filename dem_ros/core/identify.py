@@ -298,11 +298,29 @@ def _wls(A: np.ndarray, b: np.ndarray, groups: Sequence[slice], scale: np.ndarra
     return theta_s * scale, cov_s * np.outer(scale, scale), Aw * math.sqrt(1.0 / s2)
 
 
+def _lsb(x: np.ndarray) -> float:
+    """The smallest step between samples of a quantised signal (its ADC's LSB); ~0 for an unquantised one."""
+    d = np.abs(np.diff(x))
+    d = d[d > 1e-12 * max(float(np.max(np.abs(x))), 1e-300)]
+    return float(d.min()) if d.size else 0.0
+
+
 def flux_noise(d: RunData, geo: Mapping[str, float]) -> np.ndarray:
-    """Variance of the white noise on b_j = i_j/delta_j, (2,) [(A/m)^2]: var of the second differences / 6
-    (white noise of variance s^2 has second differences of variance 6 s^2; a smooth signal has almost none)."""
-    b = d.current / _deltas(d.gap, geo)
-    return np.asarray(np.var(np.diff(b, 2, axis=0), axis=0) / 6.0)
+    """Variance of the noise on b_j = i_j/delta_j, (2,) [(A/m)^2]: the larger of the white part (var of the
+    second differences / 6: white noise of variance s^2 has second differences of variance 6 s^2, a smooth
+    signal almost none) and the ADCs' quantisation, LSB^2/12 of the current and of the gap carried through
+    b = i/delta. Quantisation of a slowly moving signal is not white (the second differences miss most of it)
+    and, fed back through the controller, correlates with the voltages: it must count in full."""
+    de = _deltas(d.gap, geo)
+    b = d.current / de
+    white = np.var(np.diff(b, 2, axis=0), axis=0) / 6.0
+    out = np.empty(2)
+    for j in (0, 1):
+        qi, qd = _lsb(d.current[:, j]), max(_lsb(d.gap[:, 0]), _lsb(d.gap[:, 1]))
+        db = float(np.mean(np.abs(de[:, j])))
+        quant = (qi ** 2 / 12.0) / db ** 2 + (float(np.mean(np.abs(b[:, j]))) / db) ** 2 * qd ** 2 / 12.0
+        out[j] = max(float(white[j]), quant)
+    return out
 
 
 def _tau(r: np.ndarray, max_lag: int = 1000) -> float:
@@ -370,7 +388,7 @@ def _why_flux(name: str, exc: dict[str, float], limit: float) -> str:
 
 def identify(d: RunData, geo: Mapping[str, float], nominal: Mapping[str, float], *, coil_window: float = 0.02,
              heave_window: float = 0.2, holdout: float = 0.3, refine: bool = True,
-             max_rel_ci: float = 0.1, max_flux_noise: float = 0.25, rel_floor: float = 1e-4) -> IdentResult:
+             max_rel_ci: float = 0.1, max_flux_noise: float = 0.5, rel_floor: float = 1e-4) -> IdentResult:
     """Estimate (R1, R2, K, m) from ``d`` (see the module docstring).
 
     Args:
@@ -381,7 +399,9 @@ def identify(d: RunData, geo: Mapping[str, float], nominal: Mapping[str, float],
         refine: stage 2 (simulation error) after the linear stage.
         max_rel_ci: a parameter whose 95 % half-width exceeds this fraction of its nominal value is not determined.
         max_flux_noise: K (and with it m) is not determined when, in both coils, more than this share of the
-            flux changes' energy is the sensors' noise (the changes are too small to tell K).
+            flux changes' energy is the sensors' noise (the changes are too small to tell K). On the emulated
+            rig: 28-34 % in the excitation runs that identify K within 0.3 %, 61-103 % in S1 and hover runs
+            (where a K 22 % off once came with a 5 % interval: closed-loop quantisation noise biases it).
         rel_floor: a relative standard deviation added to each statistical one (in quadrature): what the
             statistics cannot see (the trapezoid rule's error, the ADC's quantisation, unmodelled dynamics).
     Raises:

@@ -2,9 +2,10 @@
 (``dem-ros rig``, :mod:`dem_ros.hardware.rig`; docs/manual/board.md).
 
 Sensor models (counts n from a gap d [m] or a current i [A]):
-    gap:     n = c^-1((1 + gain_error) d + offset_error + noise),  c: the driver's calibration
+    gap:     n = c^-1((1 + gain_error) d + offset_error + a c_j(x) + noise),  c: the driver's calibration
              polynomial (``hw_driver.gap{j}_c{p}``: the sensor's data sheet), rounded, clipped
-             to [0, 2^adc_bits - 1] (at either end: out of range)
+             to [0, 2^adc_bits - 1] (at either end: out of range); a c_j(x): the sensor's curve
+             (:func:`curve_deviation`, ``rig.gap_curve`` = a; the shape: dem_ros/hardware/sensors.py)
     current: n = (i + noise) / gain + offset (``hw_driver.current{j}_*``), rounded and clipped
 Actuator models (per coil):
     bus      V_bus = bus_voltage - bus_resistance (|i1| + |i2|)     (sag; a fault may lower bus_voltage)
@@ -16,6 +17,7 @@ The noise is drawn by the caller (the rig, with its seeded generator) and passed
 from __future__ import annotations
 
 import bisect
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -23,7 +25,24 @@ import numpy as np
 
 from .modes import SafetyError
 
-__all__ = ["CoilDrivers", "CurrentSensors", "GapSensors"]
+__all__ = ["HALF", "MID", "CoilDrivers", "CurrentSensors", "GapSensors", "curve_deviation"]
+
+MID = 0.008  # m, centre of the sensor curves' span
+HALF = 0.004  # m, half their span (4-12 mm)
+
+
+def curve_deviation(j: int, d: float | np.ndarray, a: float) -> float | np.ndarray:
+    """a c_j(x) [m], x = (d - MID) / HALF: sensor j's (1 or 2) deviation from a linear response at the true gap
+    d [m] (c_1 = (1 - x^2)(1 + 0.3 x), c_2 = sin(pi x / 2) - 0.4 x^2; a float for a float: the board's 1 kHz path
+    takes no numpy call per sample)."""
+    if isinstance(d, float):
+        if a == 0.0:
+            return 0.0
+        x = (d - MID) / HALF
+        return a * ((1.0 - x * x) * (1.0 + 0.3 * x) if j == 1 else math.sin(0.5 * math.pi * x) - 0.4 * x * x)
+    xa = (np.asarray(d, dtype=float) - MID) / HALF
+    c = (1.0 - xa * xa) * (1.0 + 0.3 * xa) if j == 1 else np.sin(0.5 * math.pi * xa) - 0.4 * xa * xa
+    return a * c
 
 
 class GapSensors:
@@ -34,11 +53,13 @@ class GapSensors:
         adc_bits: ADC resolution.
         gain_error: relative gain error of the sensors against their calibration.
         offset_error: their offset error [m].
+        curve: the amplitude a [m] of their nonlinear curves (:func:`curve_deviation`; 0: linear).
     """
 
-    def __init__(self, hw: Mapping[str, Any], adc_bits: int, gain_error: float = 0.0, offset_error: float = 0.0):
+    def __init__(self, hw: Mapping[str, Any], adc_bits: int, gain_error: float = 0.0, offset_error: float = 0.0,
+                 curve: float = 0.0):
         self.full = (1 << adc_bits) - 1
-        self.gain_error, self.offset_error = gain_error, offset_error
+        self.gain_error, self.offset_error, self.curve = gain_error, offset_error, float(curve)
         n = np.arange(self.full + 1, dtype=float)
         self.gap_of_counts: list[np.ndarray] = []
         for j in (1, 2):
@@ -50,9 +71,10 @@ class GapSensors:
             self.gap_of_counts.append(g)
         self.gap_list = [g.tolist() for g in self.gap_of_counts]
 
-    def sensed(self, gap: float) -> float:
-        """The gap [m] a sensor reports for the true gap [m], before noise: (1 + gain_error) d + offset_error."""
-        return (1 + self.gain_error) * gap + self.offset_error
+    def sensed(self, j: int, gap: float) -> float:
+        """The gap [m] sensor j (0, 1) reports for the true gap [m], before noise:
+        (1 + gain_error) d + offset_error + a c_j(x)."""
+        return (1 + self.gain_error) * gap + self.offset_error + float(curve_deviation(j + 1, gap, self.curve))
 
     def count(self, j: int, d: float) -> int:
         """The count of sensor j (0, 1) whose calibrated gap is nearest to d [m] (binary search of the monotonic

@@ -512,6 +512,7 @@ SCHEMA = Schema(
             ParamSpec("adc_vref", float, 10.0, "V", "ADC full-scale voltage (reported in the hello)", 0.1, 100.0),
             ParamSpec("gap_gain_error", float, 0.0, "", "gap sensors: relative gain error against their data-sheet calibration", -0.5, 0.5),
             ParamSpec("gap_offset_error", float, 0.0, "m", "gap sensors: offset error against their data-sheet calibration", -0.01, 0.01),
+            ParamSpec("gap_curve", float, 0.0, "m", "gap sensors: size of their nonlinearity against the data sheet over 4-12 mm, a different curve per sensor (hardware/sensors.py; 0: none); dem-ros calibrate gaps finds it", 0.0, 1e-3),
             ParamSpec("gap_noise", float, 0.0, "m", "gap sensors: Gaussian noise standard deviation (on top of the scenario's noise)", 0.0, 0.01),
             ParamSpec("current_noise", float, 0.0, "A", "current sensors: Gaussian noise standard deviation (on top of the scenario's noise)", 0.0, 10.0),
             ParamSpec("pwm_bits", int, 16, "bits", "coil drivers: PWM resolution (signed duty in steps of 2^-(bits-1)); the adaptive law has no current loop: 12 bits at 200 V (0.1 V steps) limit-cycle at ~95 um RMS, 14 bits ~17 um, 16 bits ~4.5 um (S1 in lockstep)", 2, 24),

@@ -68,6 +68,7 @@ from .link import (
     encode,
     seq_diff,
 )
+from .sensors import ShimInput, parse_shims
 
 __all__ = ["FAULT_KINDS", "Board", "Fault", "RigError", "main", "parse_fault", "run_rig"]
 
@@ -177,7 +178,8 @@ class Board:
         self.faults = list(faults or [])
         self.rng = np.random.default_rng(rig["seed"])
         try:
-            self.gap_sensors = GapSensors(hw, rig["adc_bits"], rig["gap_gain_error"], rig["gap_offset_error"])
+            self.gap_sensors = GapSensors(hw, rig["adc_bits"], rig["gap_gain_error"], rig["gap_offset_error"],
+                                          rig["gap_curve"])
         except SafetyError as exc:
             raise RigError(str(exc)) from None
         self.full = self.gap_sensors.full
@@ -197,6 +199,7 @@ class Board:
             g = rig["support_gap"]
             self.plant.x[:] = [g, 0.0, g, 0.0, 0.0, 0.0]
         self.last_counts = [0, 0]
+        self.shims: tuple[float, float] | None = None  # resting on shims (d1, d2) [m]: hardware/sensors.py
         self.driver_fault = 0  # DRIVERj_FAULT bits seen while applying the last period's voltages
         self.streaming = False
         self.c = BoardCounters()
@@ -258,6 +261,8 @@ class Board:
         if getattr(self, "_rx_error", False):
             status |= Status.RX_ERROR
             self._rx_error = False
+        if self.shims is not None:  # on shims: coils off, the plate held at their thicknesses
+            self.plant.x[:] = [self.shims[0], 0.0, self.shims[1], 0.0, 0.0, 0.0]
         x = self.plant.x
         z = self.plant.measurement() if self.released_at is not None else x.copy()
         gaps, currents = np.array([z[0], z[2]]), np.array([z[4], z[5]])
@@ -293,7 +298,7 @@ class Board:
         frame = SensorFrame(n % (1 << 32), round(n * self.dt * 1e6), gc, cc,
                             (float(self.applied[0]), float(self.applied[1])), float(bus),
                             int(status | self._sup_status(u_cmd)), mode)
-        held = self.released_at is None and self.rc["start"] == "hover"
+        held = (self.released_at is None and self.rc["start"] == "hover") or self.shims is not None  # clamped
         self.applied = self._actuate(np.asarray(u, float), bus, currents) if not held else self.applied
         if not held and self.failed is None:
             self._advance()
@@ -372,7 +377,7 @@ class Board:
                 out.append(self.full)
                 status |= Status.GAP0_RANGE << j
                 continue
-            d = self.gap_sensors.sensed(gaps[j])
+            d = self.gap_sensors.sensed(j, float(gaps[j]))  # its curve (board/rig_io.py, rig.gap_curve)
             if self.rc["gap_noise"] > 0:
                 d += self.rng.normal(0.0, self.rc["gap_noise"])
             c = self.gap_sensors.count(j, d)
@@ -443,7 +448,8 @@ def _realtime() -> str:
 
 
 def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, duration: float = 0.0,
-            status_every: float = 1.0, stop: list[bool] | None = None, out=sys.stdout) -> dict[str, Any]:
+            status_every: float = 1.0, stop: list[bool] | None = None, out=sys.stdout,
+            shims: tuple[float, float] | None = None, shims_stdin: bool = False) -> dict[str, Any]:
     """Open the board's end of the link and run the board at 1 kHz until ``duration`` (0: until stopped).
 
     Prints ``RIG {json}`` lines: ``listening`` (with the URL the PC opens), a status every
@@ -459,6 +465,15 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
     # with the C board (numba itself loaded then): the first commands arrived late, the board landed at once
     warm.plant.hold(warm.applied)
     board = Board(cfg["plant_sim"], cfg["rig"], cfg["hw_driver"], faults)
+    board.shims = shims
+    if shims_stdin:  # an emulated calibration session: 'shims MM[,MM]' lines place the plate on shims
+        def place(v: tuple[float, float] | None) -> None:
+            board.shims = v
+            print("RIG " + json.dumps({"event": "shims", "mm": [round(x * 1e3, 6) for x in v] if v else None}),
+                  file=out, flush=True)
+
+        ShimInput(sys.stdin, place, lambda m: print("RIG " + json.dumps({"event": "input", "message": m}), file=out,
+                                                    flush=True))
     ch = open_channel(cfg["rig"]["url"], "board")
     peer = getattr(ch, "peer_url", cfg["rig"]["url"])
     stop = stop if stop is not None else [False]
@@ -534,6 +549,9 @@ def build_parser(p: argparse.ArgumentParser | None = None) -> argparse.ArgumentP
     p.add_argument("--fault", action="append", default=[], metavar="SPEC", help="inject a fault, e.g. dropout:1@5+0.5 (see --help-faults)")
     p.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds of board time (0: until Ctrl-C)")
     p.add_argument("--help-faults", action="store_true", help="describe the fault specifications")
+    p.add_argument("--shims", default=None, metavar="MM[,MM]", help="rest the plate on shims of these thicknesses "
+                   "(coils off): a calibration session (dem-ros calibrate gaps --url)")
+    p.add_argument("--shims-stdin", action="store_true", help="read 'shims MM[,MM]' / 'shims off' lines from stdin")
     return p
 
 
@@ -561,7 +579,11 @@ def cmd_rig(args: argparse.Namespace) -> int:
 
         for s in (signal.SIGINT, signal.SIGTERM):
             signal.signal(s, on_signal)
-        summary = run_rig(cfg, faults, duration=args.duration, stop=stop)
+        try:
+            shims = parse_shims(args.shims) if args.shims else None
+        except ValueError as exc:
+            raise RigError(str(exc)) from None
+        summary = run_rig(cfg, faults, duration=args.duration, stop=stop, shims=shims, shims_stdin=args.shims_stdin)
     except (RigError, ConfigError, ChannelError, FirmwareError, SafetyError) as exc:
         print(f"dem-ros rig: error: {exc}", file=sys.stderr)
         return 2

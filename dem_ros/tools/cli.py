@@ -15,6 +15,8 @@
     dem-ros study     robustness over plant truth x controllers, on Dask distributed
     dem-ros faults    the fault catalogue (#12) injected into the real graph: outcome per fault
     dem-ros view      the running graph live in Foxglove (a WebSocket server)
+    dem-ros identify  R1, R2, K and m of a rig from a recorded run (or --rigs N: on emulated rigs)
+    dem-ros calibrate the gap sensors' calibration from a shim session (calibrate gaps; CSV or live)
 
 Bad input ends with a one-line error and exit status 2, never a traceback.
 """
@@ -348,6 +350,20 @@ def _add_study(sy: argparse.ArgumentParser) -> None:
     sy.set_defaults(func=study.cmd_study)
 
 
+def _add_identify(p: argparse.ArgumentParser) -> None:
+    from . import identify
+
+    identify.add_arguments(p)
+    p.set_defaults(func=identify.cmd_identify)
+
+
+def _add_calibrate(p: argparse.ArgumentParser) -> None:
+    from . import calibrate
+
+    calibrate.add_arguments(p)
+    p.set_defaults(func=calibrate.cmd_calibrate)
+
+
 #: each command: (its line in ``dem-ros --help``, the function that adds its options, importing what they need)
 _COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
     "sim": ("offline closed-loop simulation of one scenario", _add_sim),
@@ -364,6 +380,8 @@ _COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
     "param": ("get or set a parameter of a running node (DDS parameter services)", _add_param),
     "view": ("watch the running graph live in Foxglove (a WebSocket server; docs/manual/live-view.md)", _add_view),
     "study": ("robustness study: plant truth (grid or Monte Carlo) x controllers on Dask distributed", _add_study),
+    "identify": ("R1, R2, K and m of a rig from a recorded run, with 95 %% intervals", _add_identify),
+    "calibrate": ("calibrate the gap sensors from a shim session (CSV, or live over the link)", _add_calibrate),
 }
 
 

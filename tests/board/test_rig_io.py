@@ -31,7 +31,7 @@ def test_gap_counts_clip_at_the_ends_of_the_range():
 
 def test_gain_and_offset_errors_are_applied_before_the_adc():
     s = GapSensors(HW, 16, gain_error=0.1, offset_error=1e-4)
-    assert s.sensed(0.008) == pytest.approx(1.1 * 0.008 + 1e-4)
+    assert s.sensed(0, 0.008) == pytest.approx(1.1 * 0.008 + 1e-4)
 
 
 def test_a_calibration_that_is_not_increasing_is_refused():

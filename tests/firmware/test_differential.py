@@ -12,12 +12,13 @@ tests/core/test_safety.py, seeded and randomised within them:
 - ``lost``: sensor samples lost at hover (NaN bursts of 1-15 samples or for good, on one or two channels);
 - ``stuck``: gap sensors frozen at a plausible value, the plate pushed at 1 cm/s (the flux check);
 - ``commands``: late and lost commands in bursts, non-finite and clipped commands, bus sags, a failed bridge
-  (the applied voltage the board measures).
+  (the applied voltage the board measures);
+- ``cycle``: land (request, e-stop, watchdog, a lost gap sensor), clear(), levitate again, several times a case.
 
 Asserted per case: the same mode sequence, each transition within one sample; the same latched decisions
 (trips, landings, landed, implausible sensors, sensor losses, hold events, clips, rejections; the fault's
 kind); and where both boards are in the same mode with no transition shifted, voltages within
-``U_TOL`` (float32 against float64 arithmetic). 0 decision differences over >= 1000 cases.
+``U_TOL`` (RUN, HOLD, brake) and ``U_TOL_LAND`` (the landing law). 0 decision differences over >= 1000 cases.
 """
 
 from __future__ import annotations

@@ -47,8 +47,23 @@ $(ROS_STAMP): $(STAMP) setup.py
 	  echo "unavailable: the ROS 2 Jazzy wheels are cp311 linux x86_64, this is $$($(PY) -c "import sys, platform; print(f'cp{sys.version_info[0]}{sys.version_info[1]} {sys.platform} {platform.machine()}')")" > $@; \
 	fi
 
-test: $(STAMP) $(ROS_STAMP)
+# the Cortex-M cross-build of the firmware (make -C firmware test-arm: arm-none-eabi-gcc, qemu-system-arm), from
+# Debian's packages where apt-get can install them (root; about 100 MB to download, a minute); elsewhere the ARM
+# test skips and every `make test` says why. The stamp keeps what happened until this Makefile changes
+ARM_PKGS  := gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm
+ARM_STAMP := $(VENV)/.arm-stamp
+$(ARM_STAMP): $(STAMP) Makefile
+	@if command -v arm-none-eabi-gcc >/dev/null && command -v qemu-system-arm >/dev/null; then echo installed > $@; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "make: apt-get install $(ARM_PKGS) (the firmware's Cortex-M test; about a minute)"; \
+	  if { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(ARM_PKGS); } \
+	     >$(VENV)/.arm-apt.log 2>&1; then echo installed > $@; \
+	  else echo "unavailable: apt-get install $(ARM_PKGS) failed (see $(VENV)/.arm-apt.log)" > $@; fi; \
+	else echo "unavailable: needs root and apt-get to install $(ARM_PKGS)" > $@; fi
+
+test: $(STAMP) $(ROS_STAMP) $(ARM_STAMP)
 	@grep -q '^installed' $(ROS_STAMP) || echo "make: no rclpy, the rclpy tests skip: $$(cat $(ROS_STAMP))"
+	@grep -q '^installed' $(ARM_STAMP) || echo "make: no Cortex-M toolchain, the firmware's ARM test skips: $$(cat $(ARM_STAMP))"
 	$(PY) -m pytest -q tests
 
 bench: $(STAMP)

@@ -560,8 +560,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def cmd_rig(args: argparse.Namespace) -> int:
-    from ..core.params import ConfigError
     from ..board import SafetyError
+    from ..core.params import ConfigError
     from .cboard import FirmwareError
     from .channel import ChannelError
 

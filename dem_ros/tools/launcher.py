@@ -55,8 +55,8 @@ from .common import (
 )
 from .progress import Progress
 from .runmetrics import RunMetrics
-from .view import port as view_port
 from .verdict import FAILED, INTERRUPTED_EXIT, OK, Verdict, judge
+from .view import port as view_port
 
 __all__ = ["GraphError", "LaunchOptions", "StartupError", "cmd_launch", "launch", "run_graph", "write_params_file"]
 

@@ -32,10 +32,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
+from dem_ros.board import LANDING_OVERSHOOT, Mode, Supervisor
 from dem_ros.core.model import IP, IQ, equilibrium
 from dem_ros.core.params import SCHEMA, TABLE2
 from dem_ros.core.plant import DemPlant
-from dem_ros.board import LANDING_OVERSHOOT, Mode, Supervisor
 
 try:
     from dem_ros.hardware.cboard import CSupervisor, FirmwareError, library_path

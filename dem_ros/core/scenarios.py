@@ -17,14 +17,14 @@ validates them and builds what a scenario implies, all seeded:
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .params import ConfigError, apply_overrides, default_config
+from .params import ConfigError, apply_overrides, default_config, load_params_file, parse_assignment
 
 __all__ = [
     "Disturbances",
@@ -37,6 +37,7 @@ __all__ = [
     "noise_samples",
     "perturbation_samples",
     "plant_schedule",
+    "scenario_config",
     "sensor_model",
 ]
 
@@ -96,6 +97,19 @@ def get_scenario(name: str, path: str | Path | None = None) -> Scenario:
     if name not in scenarios:
         raise ConfigError(f"unknown scenario {name!r}; known: {', '.join(scenarios)}")
     return scenarios[name]
+
+
+def scenario_config(scenario: str, params: str | Path | None = None, sets: Sequence[str] = (),
+                    default_group: str = "controller") -> dict[str, dict[str, Any]]:
+    """Scenario ``scenario``'s configuration, a params file on top, then ``GROUP.NAME=VALUE`` assignments
+    (``NAME=VALUE`` alone: ``default_group``'s). ConfigError on any mistake."""
+    base = load_params_file(params) if params else None
+    cfg = get_scenario(scenario).config(base)
+    over: dict[str, dict[str, Any]] = {}
+    for text in sets:
+        g, n, v = parse_assignment(text, default_group=default_group)
+        over.setdefault(g, {})[n] = v
+    return apply_overrides(cfg, over, "--set") if over else cfg
 
 
 def _ramp(t: np.ndarray, t0: float, t1: float) -> np.ndarray:

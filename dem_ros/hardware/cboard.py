@@ -370,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
     import sys
 
     from ..core.params import ConfigError
-    from .rig import rig_config
+    from ..core.scenarios import scenario_config
 
     p = argparse.ArgumentParser(prog="python -m dem_ros.hardware.cboard",
                                 description="the C board's configuration header from a launch's parameters")
@@ -379,7 +379,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--set", action="append", default=[], metavar="GROUP.NAME=VALUE")
     args = p.parse_args(argv)
     try:
-        sys.stdout.write(config_header(rig_config(args.scenario, args.params, args.set)))
+        sys.stdout.write(config_header(scenario_config(args.scenario, args.params, args.set, default_group="rig")))
     except (ConfigError, FirmwareError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -527,17 +527,10 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
 
 
 def rig_config(scenario: str, params: str | None, sets: list[str]) -> dict[str, dict[str, Any]]:
-    """The scenario's configuration, a params file on top, then GROUP.NAME=VALUE assignments."""
-    from ..core.params import apply_overrides, load_params_file, parse_assignment
-    from ..core.scenarios import get_scenario
+    """The scenario's configuration, a params file on top, then GROUP.NAME=VALUE assignments (NAME alone: rig's)."""
+    from ..core.scenarios import scenario_config
 
-    base = load_params_file(params) if params else None
-    cfg = get_scenario(scenario).config(base)
-    over: dict[str, dict[str, Any]] = {}
-    for text in sets:
-        g, n, v = parse_assignment(text, default_group="rig")
-        over.setdefault(g, {})[n] = v
-    return apply_overrides(cfg, over, "--set") if over else cfg
+    return scenario_config(scenario, params, sets, default_group="rig")
 
 
 def build_parser(p: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:

@@ -20,7 +20,6 @@ interval coverage.
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -446,11 +445,3 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return 0 if res.complete else 1
 
 
-def main(argv: list[str] | None = None) -> int:
-    from .cli import main as cli_main
-
-    return cli_main(["identify", *(sys.argv[1:] if argv is None else argv)])
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

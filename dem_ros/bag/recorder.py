@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import signal
+import struct
 import sys
 import threading
 from collections import deque
@@ -36,16 +37,69 @@ from dem_ros.contract import Topic
 from .errors import BagError
 from .writer import DEFAULT_CHUNK_SIZE, BagWriter
 
-__all__ = ["Recorder", "TopicCounters", "finalize_on_signals"]
+__all__ = ["GRID_TOPICS", "Recorder", "StampGrid", "TopicCounters", "finalize_on_signals"]
+
+#: the plant's streams, one sample per period from its first to its last: every one missing from the bag is lost
+GRID_TOPICS = ("/dem/measurement", "/dem/plant/truth", "/dem/applied_voltage")
 
 
 @dataclass
 class TopicCounters:
-    """Per-topic message counts: received = written + dropped + still queued."""
+    """Per-topic message counts: received = written + dropped + still queued. ``lost``: on a topic with a sample
+    grid (the plant's 1 kHz streams, :class:`StampGrid`), the samples between the first and the newest stamp
+    written that the bag lacks, whatever happened to them (never sent to us, lost on the wire, dropped here)."""
 
     received: int = 0
     written: int = 0
     dropped: int = 0
+    lost: int = 0
+
+
+class StampGrid:
+    """Which samples of a fixed-rate stream (``period_ns``) the bag holds, by header stamp: the lost ones are the
+    grid points from the first stamp written to the newest that none of the written samples has (a repeated stamp,
+    e.g. a foreign writer's, counts once). A stamp further than ``horizon_ns`` ahead of the newest (a corrupt or
+    foreign stamp) or before the first is off the grid and counted apart (``off_grid``). One bit per sample."""
+
+    __slots__ = ("bits", "first", "horizon", "newest", "off_grid", "period", "present")
+
+    def __init__(self, period_ns: int, horizon_ns: int = 10_000_000_000):
+        self.period = int(period_ns)
+        self.horizon = int(horizon_ns)
+        self.first: int | None = None
+        self.newest = -1  # index of the newest stamp
+        self.present = 0  # distinct grid points written
+        self.off_grid = 0
+        self.bits = bytearray()
+
+    def add(self, stamp_ns: int) -> None:
+        if self.first is None:
+            self.first = stamp_ns
+        k = round((stamp_ns - self.first) / self.period)
+        if k < 0 or (k - self.newest) * self.period > self.horizon:
+            self.off_grid += 1
+            return
+        byte, bit = divmod(k, 8)
+        if byte >= len(self.bits):
+            self.bits.extend(bytes(max(byte + 1 - len(self.bits), 4096)))
+        if not self.bits[byte] >> bit & 1:
+            self.bits[byte] |= 1 << bit
+            self.present += 1
+        if k > self.newest:
+            self.newest = k
+
+    @property
+    def lost(self) -> int:
+        """Grid points from the first stamp to the newest that no written sample has."""
+        return self.newest + 1 - self.present
+
+
+def _cdr_stamp(data: bytes) -> int | None:
+    """``header.stamp`` (ns) of a serialized message whose first field is a std_msgs/Header (CDR, either order)."""
+    if len(data) < 12:
+        return None
+    sec, nsec = struct.unpack_from("<iI" if data[1] & 1 else ">iI", data, 4)
+    return int(sec) * 1_000_000_000 + int(nsec)
 
 
 class _Deferred:
@@ -109,6 +163,9 @@ class Recorder:
         self.failure: str | None = None
         self._wake = threading.Event()
         self._counters = {t.name: TopicCounters() for t in self.topics}
+        #: the plant's fixed-rate streams: which of their samples the bag holds (``lost``)
+        self.grids = {t.name: StampGrid(round(1e9 / t.rate_hz)) for t in self.topics if t.name in GRID_TOPICS
+                      and t.rate_hz}
         self._queue: deque[tuple[str, int, bytes | _Deferred]] = deque()
         self.max_queue_depth = 0
         self.error: BaseException | None = None
@@ -152,7 +209,7 @@ class Recorder:
 
     # -- writer thread ---------------------------------------------------
     def _run(self) -> None:
-        q, w, counters = self._queue, self._writer, self._counters
+        q, w, counters, grids = self._queue, self._writer, self._counters, self.grids
         while True:
             depth = len(q)
             if depth > self.max_queue_depth:
@@ -175,7 +232,14 @@ class Recorder:
                             self.last_serialize_error = f"{topic}: {exc!r}"
                             continue
                     w.write(topic, t, data)
-                    counters[topic].written += 1
+                    c = counters[topic]
+                    c.written += 1
+                    g = grids.get(topic)
+                    if g is not None:
+                        stamp = _cdr_stamp(data)
+                        if stamp is not None:
+                            g.add(stamp)
+                            c.lost = g.lost
             except BagError as exc:  # disk full, I/O error: the writer has stopped; account and report
                 self._stopped(str(exc))
                 return

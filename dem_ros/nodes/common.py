@@ -356,8 +356,8 @@ class Binding:
 
     Samples reach ``callback(msg)`` only from the bound writer (by GID, :meth:`~dem_ros.transport.api.Node.
     subscribe_with_source`) and only when they have the contract's shape (:data:`SHAPES`; else ``malformed``).
-    The bound writer is the one writer that the ROS graph attributes to one of the ``sources`` node names
-    (:meth:`~dem_ros.transport.api.Node.publisher_gids`), looked up at start-up and again while unbound:
+    The bound writer is the first writer to send that the ROS graph attributes to one of the ``sources`` node
+    names (:meth:`~dem_ros.transport.api.Node.publisher_gids`):
 
     * a writer the graph does not attribute yet, while nothing is bound (a node whose graph information trails its
       first samples: discovery came late), is *held*: its latest sample is kept and delivered the moment the graph
@@ -368,7 +368,8 @@ class Binding:
       every sample counted (``refused``), logged once per writer (WARN) and reported (ERROR on /diagnostics,
       naming its GID);
     * two writers of the source at once with nothing bound (an impersonator there before the run): the first of
-      them to send is bound and the others refused (a warning at once; ERROR on /diagnostics while none is bound);
+      them to send is bound and the others refused (a warning at once; ERROR on /diagnostics while none is bound;
+      an impersonator that sends first wins: only DDS-Security tells them apart);
     * the bound writer gone from the graph (the node left, or its participant's lease ran out): unbound, and the
       next single writer of the source is bound (``rebinds``): the defined path of a restarted node.
     """
@@ -424,9 +425,11 @@ class Binding:
             self.resolve(now)  # when due: the bound writer may be gone and this one the source's next
             if gid == self.bound:
                 self._deliver(msg)
-            else:
+                return
+            if self.bound or gid not in self.writers:
                 self._refuse(gid, self.refused_writers[gid], 1)
-            return
+                return
+            del self.refused_writers[gid]  # nothing bound and the graph names it the source's: it may be bound
         if self.bound:
             # a new writer beside the bound one: the graph is looked up at once (the bound writer may have left:
             # a restart); while the bound one lives, the new one is refused, whatever its node name
@@ -480,14 +483,15 @@ class Binding:
                                   " counted)")
 
     # -- the graph --------------------------------------------------------------------------------------
-    def _bind(self, gid: bytes) -> None:
+    def _bind(self, gid: bytes, now: int) -> None:
         self.bound = gid
         self.refused_writers.pop(gid, None)
         self.node.logger.info(f"{self.topic.name}: bound to writer {gid.hex()} of {self.source_text}")
         held = self.pending.pop(gid, None)
         if held is not None:
-            self.released += 1
-            self._deliver(held[1])  # the latest sample it sent before the graph named it
+            if held[0] < now:
+                self.released += 1  # held until the graph named its writer
+            self._deliver(held[1])  # the latest sample it sent before it was bound
 
     def resolve(self, now: int, force: bool = False) -> None:
         """Look the sources' writers up when due (or ``force``) and bind, re-bind or refuse accordingly."""
@@ -506,18 +510,16 @@ class Binding:
             self.rebinds += 1
             self._wait_ns = inp.retry_ns
         if not self.bound:
-            if len(live) == 1:
-                self._bind(next(iter(live)))
-            elif len(live) > 1:
-                # several writers with the source's name and none bound yet (an impersonator that was there before
-                # the run): the first of them to send is bound, the others refused; reported as ERROR meanwhile
-                if not self.ambiguous:
-                    self.ambiguous = True
-                    self.node.logger.warn(f"{self.topic.name}: {len(live)} writers of {self.source_text} "
-                                          f"({', '.join(g.hex() for g in sorted(live))}): the first to send is bound")
-                first = next((g for g in self.pending if g in live), None)
-                if first is not None:
-                    self._bind(first)
+            # the first writer of the source to send is bound (a writer of the source's name that is there but
+            # silent, e.g. an idle script started before the graph, does not take the input); several writers with
+            # the source's name: a warning at once (ERROR on /diagnostics while none is bound)
+            if len(live) > 1 and not self.ambiguous:
+                self.ambiguous = True
+                self.node.logger.warn(f"{self.topic.name}: {len(live)} writers of {self.source_text} "
+                                      f"({', '.join(g.hex() for g in sorted(live))}): the first to send is bound")
+            first = next((g for g in self.pending if g in live), None)
+            if first is not None:
+                self._bind(first, now)
         for gid, (first, _msg, n) in list(self.pending.items()):
             if self.bound:
                 del self.pending[gid]

@@ -52,7 +52,8 @@ class RecorderNode:
         # were dropped. A write failure (disk full) stops recording: logged at once from the writer thread,
         # latched as ERROR and published by a timer on the node's own thread within 0.1 s
         self._failure: str | None = None
-        self.diag = Diagnostics(node, contract.RECORDER_STATUS, warn_on=("dropped",), values=self._totals)
+        self.diag = Diagnostics(node, contract.RECORDER_STATUS, warn_on=("dropped", "plant_samples_lost"),
+                                values=self._totals)
         node.timer(0.1, self._report_failure)
         # the controller's state is the last message of a loop cycle: write while the loop sleeps
         self.rec = Recorder(bag, topics, meta, kick_on=contract.CONTROLLER_STATE.name, on_error=self._on_error)
@@ -88,8 +89,11 @@ class RecorderNode:
 
     def _totals(self) -> dict[str, int]:
         counts = self.rec.counters().values()
+        c_meas = self.rec.counters().get(contract.MEASUREMENT.name)
         return {"received": sum(c.received for c in counts), "written": sum(c.written for c in counts),
-                "dropped": sum(c.dropped for c in counts)}
+                "dropped": sum(c.dropped for c in counts),
+                # the plant's samples the bag lacks (the /dem/measurement stamp grid), however they went missing
+                "plant_samples_lost": c_meas.lost if c_meas is not None else 0}
 
     def _report_failure(self) -> None:
         if self._failure is not None:
@@ -98,7 +102,8 @@ class RecorderNode:
     def close(self) -> dict:
         """Finalise the bag; per-topic counters, also printed as a ``RECORDER {json}`` line."""
         counters = self.rec.close()
-        summary = {name: {"received": c.received, "written": c.written, "dropped": c.dropped}
+        summary = {name: {"received": c.received, "written": c.written, "dropped": c.dropped,
+                          **({"lost": c.lost} if name in self.rec.grids else {})}
                    for name, c in counters.items()}
         print("RECORDER " + json.dumps(summary), flush=True)
         if self.rec.failure is not None:

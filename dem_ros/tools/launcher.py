@@ -826,8 +826,10 @@ def cmd_launch(args: argparse.Namespace) -> int:
                       f"{fmt_pair(info['offline_rms_error_um'])} (same configuration and timing, first {info['offline_duration_s']:g} s)"))
     if info["recorder"]:
         rc = info["recorder"]
+        lost = (rc.get("/dem/measurement") or {}).get("lost")  # the plant's samples the bag lacks (its stamp grid)
         extra.append(("recorded", f"{sum(v['written'] for v in rc.values())} messages,"
-                                  f" {sum(v['dropped'] for v in rc.values())} dropped"))
+                                  f" {sum(v['dropped'] for v in rc.values())} dropped"
+                                  + (f", {lost} plant samples lost" if lost is not None else "")))
     if info.get("rig"):
         r = info["rig"]
         extra.append(("rig (emulated board)", f"{r['ticks']} samples, {r['late_over_1ms']} ticks > 1 ms late,"

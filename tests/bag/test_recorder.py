@@ -49,7 +49,7 @@ def test_full_queue_drops_are_counted_and_persisted(tmp_path: Path) -> None:
     assert c.written + c.dropped == c.received
     meta = yaml.safe_load((tmp_path / "slow" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     saved = json.loads(meta["custom_data"]["dem_ros.recorder_counters"])[MEASUREMENT.name]
-    assert saved == {"received": 500, "written": c.written, "dropped": c.dropped}
+    assert saved == {"received": 500, "written": c.written, "dropped": c.dropped, "lost": c.lost}
     rep = check(tmp_path / "slow")
     assert any("recorder dropped" in w for w in rep.warnings)
     assert rep.topics[0].count == c.written
@@ -105,3 +105,20 @@ def test_objects_are_serialized_on_the_writer_thread(tmp_path: Path) -> None:
         assert r.topics[MEASUREMENT.name].count == 500
         raw = [bytes(m[-1]) for m in r.raw_messages([MEASUREMENT.name])]
     assert len(raw) == 500 and all(d == MSG for d in raw)
+
+
+def test_the_plant_samples_the_bag_lacks_are_counted_lost(tmp_path: Path) -> None:
+    """Lost = the grid points of the plant's stream (1 kHz stamps) from the first written to the newest that no
+    written sample has: whatever the queue saw (issue #21: '0 dropped' beside 2 888 missing samples). A repeated
+    stamp (a foreign writer's) counts once, a stamp an hour ahead is off the grid, not 3.6 million lost."""
+    stamps = [*range(0, 100), *range(150, 200), 120, 120, 3_600_000, *range(200, 210)]
+    with Recorder(tmp_path / "g", [MEASUREMENT, COMMAND]) as rec:
+        for k in stamps:
+            rec.on_message(MEASUREMENT.name, k, joint_state_cdr(["magnet_1", "magnet_2"], [0, 0], [], [0, 0], k * 10**6))
+            rec.on_message(COMMAND.name, k, joint_state_cdr(["magnet_1", "magnet_2"], [], [], [1, 1], k * 10**6))
+    c = rec.counters()
+    assert c[MEASUREMENT.name].lost == 50 - 1 and c[MEASUREMENT.name].dropped == 0  # 100..149 but 120
+    assert rec.grids[MEASUREMENT.name].off_grid == 1 and COMMAND.name not in rec.grids
+    counts = json.loads(yaml.safe_load((tmp_path / "g" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+                        ["custom_data"]["dem_ros.recorder_counters"])
+    assert counts[MEASUREMENT.name]["lost"] == 49 and counts[COMMAND.name]["lost"] == 0

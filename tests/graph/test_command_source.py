@@ -111,9 +111,10 @@ def test_a_restarted_controller_whose_graph_information_comes_late_loses_no_comm
     old = bus.node("controller")
     p_old = old.publisher(contract.COMMAND)
     bus.advance(0.01)
-    assert cs.binding.bound == p_old.gid
+    assert cs.matched and not cs.binding.bound  # bound by its first sample
     p_old.publish(joint_state(JS, 1, effort=(1.0, 1.0)))
     bus.spin_once()
+    assert cs.binding.bound == p_old.gid and cs.values()["commands_late"] == 0
     old.shutdown()
     new = bus.node("controller")
     p_new = new.publisher(contract.COMMAND)
@@ -178,7 +179,9 @@ def test_a_second_writer_named_controller_is_refused_while_the_bound_one_lives()
     # the real controller leaves: the impersonator is now the only "controller" on the graph, and is bound
     real = next(n for t, n, p in bus.writers if t == contract.COMMAND.name and n is not None and p.gid == bound)
     real.shutdown()
-    bus.advance(1.0)
+    bus.advance(1.0)  # the bound writer is gone (looked up every refresh_s): unbound
+    p_fake.publish(joint_state(JS, bus.now_ns, effort=(1e6, 1e6)))  # the next writer of "controller" to send
+    bus.spin_once()
     assert plant.source.binding.bound == p_fake.gid and plant.source.binding.rebinds == 1
 
 
@@ -208,10 +211,12 @@ def test_a_persistent_foreign_writer_costs_few_graph_lookups():
     cs = CommandSource(plant, "controller", got.append)
     ctl = bus.node("controller").publisher(contract.COMMAND)
     rogue = bus.node("rogue").publisher(contract.COMMAND)
-    bus.advance(0.01)
-    assert cs.matched and cs.binding.bound == ctl.gid
-    lookups = _count_lookups(plant)
     JS = bus.msg("sensor_msgs/msg/JointState")
+    ctl.publish(joint_state(JS, bus.now_ns, effort=(1.0, 1.0)))
+    bus.advance(0.01)
+    assert cs.matched and cs.binding.bound == ctl.gid and len(got) == 1
+    got.clear()
+    lookups = _count_lookups(plant)
     for _ in range(1000):
         rogue.publish(joint_state(JS, bus.now_ns, effort=(1e6, 1e6)))
         bus.advance(0.001)

@@ -84,6 +84,9 @@ GRAPH: frozenset[str] = frozenset({
     "tools/test_mistakes.py::test_mistake_is_one_line_exit_2_nothing_written",
     "tools/test_node_cli.py",
     "tools/test_progress.py::test_a_command_that_cannot_run_still_shows_its_elapsed_time",
+    "tools/test_replay.py::test_replay_cli_writes_json_and_figures",  # dem-ros replay as a command
+    "tools/test_replay.py::test_corrupt_or_foreign_input_is_a_clear_error",
+    "tools/test_replay_figures.py::test_replay_and_sim_draw_the_same_figures",
     "tools/test_runmetrics.py::test_sim_help_states_the_configured_command_delay",
     "tools/test_study.py::test_study_on_a_local_cluster_writes_rows_maps_and_resumes",  # a Dask cluster
     "tools/test_study.py::test_results_of_another_study_are_not_mixed_in",

@@ -1,4 +1,5 @@
-# The quick-start commands: `make demo` (the main job), `make test`, `make report`, `make bench`.
+# The quick-start commands: `make demo` (the main job), `make test` (`make test-fast`: the unit tier), `make report`,
+# `make bench`.
 # Each creates .venv and installs the package with its test extras when missing, then compiles the
 # numba kernels once; every step prints a line at least every 5 s (a first run takes minutes).
 VENV   ?= .venv
@@ -6,7 +7,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 PYTHON ?= python3
 
-.PHONY: demo test bench report clean-venv
+.PHONY: demo test test-fast bench report clean-venv
 
 # pip -qq: errors only (setuptools' editable-install notice is nothing a user can act on); the background
 # loop is the progress line that venv and pip do not give (it ends with the recipe's shell, Ctrl-C included)
@@ -65,6 +66,10 @@ test: $(STAMP) $(ROS_STAMP) $(ARM_STAMP)
 	@grep -q '^installed' $(ROS_STAMP) || echo "make: no rclpy, the rclpy tests skip: $$(cat $(ROS_STAMP))"
 	@grep -q '^installed' $(ARM_STAMP) || echo "make: no Cortex-M toolchain, the firmware's ARM test skips: $$(cat $(ARM_STAMP))"
 	$(PY) -m pytest -q tests
+
+# the unit tier (tests/conftest.py marks the tiers): no process, no DDS; a change is checked in a few minutes
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -m "unit and not slow" tests
 
 bench: $(STAMP)
 	$(VENV)/bin/dem-ros bench sim

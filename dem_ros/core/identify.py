@@ -401,7 +401,7 @@ def identify(d: RunData, geo: Mapping[str, float], nominal: Mapping[str, float],
         max_flux_noise: K (and with it m) is not determined when more than this share of the flux changes'
             energy (both coils) is the sensors' noise (the changes are too small to tell K). On the emulated
             rig: 19-31 % in the excitation runs that identify K within 0.4 %, 50-100 % in S1 and hover runs
-            (a hover run at 50 % gave K 32 % off with a 5 % interval: closed-loop quantisation noise biases it).
+            (a hover run at 50 % gave K 21 % off with a 5 % interval: closed-loop quantisation noise biases it).
         rel_floor: a relative standard deviation added to each statistical one (in quadrature): what the
             statistics cannot see (the trapezoid rule's error, the ADC's quantisation, unmodelled dynamics).
     Raises:

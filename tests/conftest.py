@@ -49,6 +49,18 @@ GRAPH: frozenset[str] = frozenset({
     "bag/test_faults.py::test_full_disk_stops_the_recorder_cleanly_reports_at_once_and_keeps_what_was_written",
     "bag/test_faults.py::test_recorder_counters_survive_a_full_disk_in_a_child_that_exits",
     "bag/test_recorder_node_disk_full.py",
+    "board/test_board_no_middleware.py",  # a clean interpreter probes the imports
+    "firmware/test_differential.py",  # the firmware compiled for the host
+    "firmware/test_firmware_c.py",
+    "graph/test_rclpy_transport.py",
+    "graph/test_recorder_starved.py",
+    "graph/test_shutdown_signals.py",
+    "tools/test_identify_tool.py",  # emulated rig runs
+    "tools/test_identify_calibrate.py",
+    "tools/test_identify_launch.py",
+    "tools/test_verdicts.py",
+    "tools/test_view.py",
+    "transport/test_param_answers.py",
     "core/test_no_middleware.py",  # a clean interpreter probes the imports
     "graph/test_command_lock.py",
     "graph/test_composed.py",
@@ -108,6 +120,10 @@ SLOW: frozenset[str] = frozenset({
     "core/test_estimator.py::test_noise_is_reduced",
     "bag/test_check_errors.py::test_check_complete_bag",
     "fuzz/test_node_fuzz.py",
+    "firmware/test_differential.py",
+    "graph/test_shutdown_signals.py",
+    "graph/test_rclpy_transport.py",
+    "tools/test_identify_launch.py",
     "fuzz/test_decode_fuzz.py::test_joint_state_fast_path_and_generic_decoder_agree_on_mutated_input",
     "hardware/test_hw_restart.py",
     "tools/test_fault_catalogue.py",

@@ -6,7 +6,7 @@ What each setting is for (a Python loop on a stock, non-RT Linux kernel):
   thread preempts every normal (SCHED_OTHER) thread on its core the moment its timer fires,
   instead of waiting for the fair scheduler to give it a slice. On a loaded machine this is
   the difference between wake-ups > 1 ms late in ~5-10 % of periods and in < 1 % (measured
-  here, see the README's "Speed" section). Applied to the loop's thread (the one that calls
+  here, see docs/manual/realtime.md and docs/results.md). Applied to the loop's thread (the one that calls
   :func:`enter_loop`) and to the DDS threads that receive and deliver samples (cyclonedds
   ``recv*`` / ``dq.*``), which sit on the same path in a process-per-node graph; its
   timed-event and collector threads (``tev``, ``gc``: heartbeats, acknowledgements, discovery)
@@ -17,7 +17,7 @@ What each setting is for (a Python loop on a stock, non-RT Linux kernel):
   has touched is paged out (or reclaimed and faulted in again) while the loop runs.
   ``MCL_ONFAULT`` (Linux >= 4.4) locks pages as they are used instead of populating every
   mapping at once: without it a composed graph (numba, LLVM, cyclonedds, thread stacks) locks
-  ~0.9 GB, with it about what it uses (see the README's "Speed" section).
+  ~0.9 GB, with it about what it uses (see docs/manual/realtime.md and docs/results.md).
 * **timer slack** (``timer_slack_ns``, 1 us): a normal thread's sleeps may end up to 50 us
   late (the kernel's default slack, used to batch wake-ups); the loop sleeps to absolute
   deadlines and wants none of it. Needs no privilege.

@@ -19,7 +19,7 @@ closes a second loop estimator -> law -> estimator whose gain nobody designed
 R_hat by a sample in the graph, and the law's single R cannot describe two
 coils. The bias states need no other node and are per coil. Measured effect
 (``adaptive``, S1, 100 s, delay 1): true R = 18 ohm, 28 um RMS with the old
-8-state filter, see README for the figures with this one.
+8-state filter, see docs/results.md for the figures with this one.
 
 Model (continuous, nominal m, R, K of the ``estimator`` group)::
 

@@ -359,7 +359,7 @@ RIG_CATALOGUE: tuple[FaultSpec, ...] = (
               rig_fault="sag@{t}+0.2:95", allowed=("landed safely",), reports=("BUS_UNDERVOLTAGE",),
               counts=(("driver", "board: BUS_UNDERVOLTAGE", 3), _DRIVER_TRIP)),
     # 95 V to the end: below the 113 V the landing law needs at the support: the plate sinks faster than
-    # landing_speed onto its support, away from the rail (the README's limit; the descent is reported)
+    # landing_speed onto its support, away from the rail (docs/manual/safety.md's limit; the descent is reported)
     FaultSpec("sag-sustained", "bus at 95 V to the end: landed, the last mm faster than landing_speed (design limit)",
               hardware=True, rig_fault="sag@{t}:95", allowed=("landed safely",), reports=("BUS_UNDERVOLTAGE",),
               counts=(("driver", "board: BUS_UNDERVOLTAGE", 3), _DRIVER_TRIP), descent_bounded=False),
@@ -844,7 +844,7 @@ def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duratio
                j["diagnostics"], verdict=_verdict_text(info))
 
 
-HW_SETS = ("controller.command_delay=2",)  # the README's hardware runs: a loaded host keeps the loop in time
+HW_SETS = ("controller.command_delay=2",)  # docs/results.md's hardware runs: a loaded host keeps the loop in time
 
 
 def _run_hw_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duration: float, at: float,

@@ -239,7 +239,7 @@ def test_s1_through_the_board_models_in_lockstep_tracks_as_offline():
     """The hardware path without the clock: rig sensors (16-bit ADC, calibration), actuators (12-bit PWM,
     bus sag), the Supervisor, the link codec and the driver, closed by the graph's estimator and
     controller at command_delay 2, every command in time. Tracks S1 within max(2x offline, offline +
-    10 um) RMS: what the free-running runs lose is the clock (README: hardware in the loop)."""
+    10 um) RMS: what the free-running runs lose is the clock (docs/results.md: hardware in the loop)."""
     from dem_ros.core.simulate import simulate
 
     duration = 12.0

@@ -1,5 +1,5 @@
 """``dem-ros launch --hardware rig``: the whole graph with hw_driver and the emulator, recorded and read
-back with rosbags. Whether the plate levitates free-running depends on the machine's load (README:
+back with rosbags. Whether the plate levitates free-running depends on the machine's load (docs/results.md:
 hardware in the loop), so this asserts what does not: the run ends by itself with a metrics summary
 and no traceback, an end-of-run landing (the driver disarms first, the board lands the plate, then
 the graph stops) is told from a failure, the bag holds plant_sim's contract without a truth topic plus the driver's state

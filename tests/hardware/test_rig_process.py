@@ -4,7 +4,7 @@ by :class:`HwDriver` and the graph's own estimator and controller (in this proce
 What is asserted does not depend on how loaded the machine is: the handshake, the stream (in order, no
 corruption), the board taking the commands (RUN), a latched fault on the PC landing the plate (LAND
 from the driver), and the board's summary (never a rail contact). Timing figures come from
-``dem-ros launch --hardware rig`` (README), not from tests.
+``dem-ros launch --hardware rig`` (docs/manual/hardware.md), not from tests.
 """
 
 from __future__ import annotations

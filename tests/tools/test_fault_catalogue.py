@@ -5,7 +5,7 @@ checked for coverage of issue #11 and its rows' design (no real run needed), and
 (e-stop, corrupt frames, through :func:`run_row`). What they assert is what the design guarantees whatever the
 host's load: the fault counted and reported, no rail contact and a landing no faster than ``landing_speed``
 (the emulator's truth). Whether the plate *levitates* through a ridden-through fault is a free-running timing
-property (README: hardware in the loop; a host stall over ``hold_timeout`` lands the plate by itself), so a
+property (docs/manual/faults.md; a host stall over ``hold_timeout`` lands the plate by itself), so a
 landing there is accepted when the board's reason is its watchdog, and the e-stop row is skipped when such a
 landing came before the e-stop (the e-stop then lands nothing). The other rig rows stay out of the suite:
 dropout-short, spike and linkloss-20ms are "levitating" rows, which a stall makes land (a timing property:

@@ -55,7 +55,7 @@ GRAPH: frozenset[str] = frozenset({
     "graph/test_rclpy_transport.py",
     "graph/test_recorder_starved.py",
     "graph/test_shutdown_signals.py",
-    "tools/test_identify_tool.py",  # emulated rig runs
+    "tools/test_identify_cli.py",  # emulated rig runs
     "tools/test_identify_calibrate.py",
     "tools/test_identify_launch.py",
     "tools/test_verdicts.py",

@@ -224,3 +224,33 @@ def test_sources_name_the_writer_of_every_sample_among_two(node):
     finally:
         rogue.shutdown()
         ctl.shutdown()
+
+
+def test_log_lines_reach_a_stock_rosout_subscription_from_one_writer(node, capfd):
+    """The node logs through the transport's logger (not rclpy's, whose lines cost the 1 kHz loop
+    milliseconds): one stderr line in rcutils' console format, and the record on /rosout as rcl
+    publishes it, from the node's one /rosout writer (rcl's own rosout is off)."""
+    from rcl_interfaces.msg import Log
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    stock = rclpy.create_node("rclpy_test_rosout_reader")
+    ex = SingleThreadedExecutor()
+    ex.add_node(stock)
+    try:
+        got: list = []
+        qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        stock.create_subscription(Log, "/rosout", lambda m: got.append(m) if m.name == node.logger_name else None, qos)
+        writers = [i for i in stock.get_publishers_info_by_topic("/rosout") if i.node_name == node.name]
+        assert len(writers) == 1
+        _spin_until(_spinners(node, ex), lambda: stock.count_publishers("/rosout") >= 1 and
+                    any(i.node_name == node.name for i in stock.get_publishers_info_by_topic("/rosout")))
+        node.logger.warn("hold engaged")
+        _spin_until(_spinners(node, ex), lambda: bool(got), 10.0)
+        assert [(m.level, m.msg) for m in got] == [(30, "hold engaged")]
+        err = capfd.readouterr().err
+        assert "[WARN] [" in err and f"] [{node.logger_name}]: hold engaged" in err
+    finally:
+        ex.shutdown()
+        stock.destroy_node()

@@ -49,6 +49,7 @@ from ..api import (
     node_fqn,
 )
 from ..dds import fastcdr, msgs
+from ..logger import NodeLogger
 from ..loop import LocalSubscription, LoopTimer, SourcedLocalSubscription, deliver_local
 from ..parameters import ParameterStore
 from ..rosargs import initial_parameters, parse_ros_args
@@ -58,6 +59,8 @@ __all__ = ["RclpyNode", "RclpyPublisher", "ros_type", "to_qos_profile"]
 
 #: how often an intra-process publisher re-reads its count of subscribers outside the container (ns)
 _REMOTE_CHECK_NS = 100_000_000
+#: rcl's /rosout QoS (Jazzy: reliable, transient local, depth 1000)
+_QOS_ROSOUT = QoS(reliable=True, transient_local=True, depth=1000)
 
 
 def ros_type(type_name: str) -> Any:
@@ -80,22 +83,6 @@ def to_qos_profile(q: QoS) -> QoSProfile:
         reliability=ReliabilityPolicy.RELIABLE if q.reliable else ReliabilityPolicy.BEST_EFFORT,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if q.transient_local else DurabilityPolicy.VOLATILE,
     )
-
-
-class _Logger:
-    def __init__(self, logger: Any):
-        self._l = logger
-
-    def info(self, msg: str) -> None:
-        self._l.info(msg)
-
-    def warn(self, msg: str) -> None:
-        self._l.warning(msg)
-
-    warning = warn
-
-    def error(self, msg: str) -> None:
-        self._l.error(msg)
 
 
 def _ignore(_msg: Any) -> None:
@@ -168,12 +155,21 @@ class RclpyNode:
         self._ex = executor if executor is not None else RclpyExecutor(argv)
         self._own_ex = executor is None
         try:
-            self._node = rclpy.create_node(name)
+            # rcl's rosout is off: the node logs through NodeLogger and its own /rosout writer (see _rosout)
+            self._node = rclpy.create_node(name, enable_rosout=False)
         except Exception as exc:  # an invalid node name, a context shut down meanwhile
             raise TransportError(f"cannot create rclpy node {name!r}: {exc}") from None
         self.name = self._node.get_name()
         self.namespace = self._node.get_namespace()
-        self.logger = _Logger(self._node.get_logger())
+        # Not rclpy's logger: on the 1 kHz path a node's first lines (the loop's start, a board hold) cost
+        # 8-30 ms each and every further line ~0.5 ms (rclpy finds its caller with inspect, rcutils
+        # formats, rcl_logging_spdlog writes the log file); the transport's logger writes one stderr line
+        # in rcutils' console format and publishes the record on /rosout (rcl_interfaces/msg/Log) itself.
+        self.logger = NodeLogger(lambda: self.logger_name)
+        self._rosout_pub = RclpyPublisher(
+            self._node.create_publisher(ros_type("rcl_interfaces/msg/Log"), "/rosout", to_qos_profile(_QOS_ROSOUT)),
+            msgs.Log)
+        self.logger.sink = self._rosout
         self._ex.add_node(self)
         self._shutdown = False
         self._destroyed = False
@@ -183,6 +179,17 @@ class RclpyNode:
     @property
     def fully_qualified_name(self) -> str:
         return str(self._node.get_fully_qualified_name())
+
+    @property
+    def logger_name(self) -> str:
+        """rcl's logger name of the node (``ns.name``)."""
+        return self.fully_qualified_name.lstrip("/").replace("/", ".")
+
+    def _rosout(self, level: str, name: str, text: str, t_ns: int) -> None:
+        """One log record on /rosout, as rcl publishes it."""
+        self._rosout_pub.publish(msgs.Log(
+            stamp=msgs.Time(sec=t_ns // 10**9, nanosec=t_ns % 10**9), level=NodeLogger.LEVELS[level],
+            name=name, msg=text, file="", function="", line=0))
 
     @property
     def ros_node(self) -> Any:

@@ -58,7 +58,7 @@ def test_fits_recover_the_emulators_nonlinear_curves_within_10_um_rms_over_4_to_
         f = fit_sensor(pts, j, kind)
         n = true_counts(b, j, d)
         rms = float(np.sqrt(np.mean((f.gap(n) - d) ** 2)))
-        sheet = float(np.sqrt(np.mean((b.gap_of_counts[j - 1][n.astype(int)] - d) ** 2)))
+        sheet = float(np.sqrt(np.mean((b.gap_sensors.gap_of_counts[j - 1][n.astype(int)] - d) ** 2)))
         print(f"sensor {j} {kind}: {rms * 1e6:.2f} um RMS (data sheet: {sheet * 1e6:.0f} um)")
         assert rms <= 10e-6 and f.monotonic and f.rms <= 10e-6
         assert sheet > 100e-6  # the curve is there: the data sheet alone is far off

@@ -12,7 +12,7 @@ from dem_ros.transport.memory import MemoryBus
 
 def test_estimator_uses_the_voltage_of_each_measurements_stamp():
     bus = MemoryBus()
-    src, est_node, sink = bus.node("source"), bus.node("estimator"), bus.node("sink")
+    src, est_node, sink = bus.node("plant_sim"), bus.node("estimator"), bus.node("sink")  # plant_sim: the bound writer
     node = EstimatorNode(est_node)
     out = {}
     sink.subscribe(contract.ESTIMATE, lambda m: out.__setitem__(stamp_ns(m), list(m.position) + list(m.velocity)))

@@ -79,7 +79,9 @@ def test_a_reference_step_and_stale_stamps_leave_the_plate_levitating_and_are_re
     step, stale = rows["reference-step"], rows["stale-stamps"]
     for row in (step, stale):
         assert row["passed"] and row["outcome"] == "levitating" and row["min_gap_mm"] > 5.0
-        assert "controller WARN" in row["reported"]  # the controller's checks refused them, on /diagnostics
+        # the injector is a writer of its own on the controller's input: the input binding refuses it before the
+        # controller's checks see it (nodes/common.Binding), ERROR on /diagnostics naming the writer
+        assert "controller: inputs ERROR" in row["reported"], row["reported"]
     assert step["data_lost"] == "none"
     assert "| reference-step | per process | levitating" in r.stdout  # the table
 

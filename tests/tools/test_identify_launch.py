@@ -24,6 +24,9 @@ ROOT = Path(__file__).resolve().parents[2]
 TRUTH = {"R1": 17.6, "R2": 23.3, "K": 4.374e-4 * 1.13, "m": 14.852 * 0.88}
 
 
+@pytest.mark.skipif(os.environ.get("DEM_ROS_HIL") != "1", reason=(
+    "on demand (DEM_ROS_HIL=1): the excited rig run it identifies landed at t = 0 beside two busy processes (the "
+    "rig path's start-up, open in issue #19); a landing fails this test, it is not skipped"))
 def test_identify_a_recorded_rig_run_of_the_whole_graph(tmp_path, domain_id):
     env = dict(os.environ, PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(domain_id))
     sets = [f"plant_sim.{k}={v}" for k, v in TRUTH.items()] + [f"plant_sim.R={TRUTH['R1']}",
@@ -33,11 +36,9 @@ def test_identify_a_recorded_rig_run_of_the_whole_graph(tmp_path, domain_id):
                         "--scenario", "S1", "--duration", "14", "--transport", "dds", "--bag-dir", str(tmp_path / "bags"),
                         *[a for s in sets for a in ("--set", s)], "--json", str(tmp_path / "run.json")],
                        cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
-    assert p.returncode in (0, 1), p.stderr[-3000:]
+    assert p.returncode in (0, 1, 3), p.stderr[-3000:]
     s = json.loads((tmp_path / "run.json").read_text())
-    if s["failed"]:
-        pytest.skip(f"the free-running graph lost the plate at {s['fail_time_s']} s on this machine's load; "
-                    f"no identification run: {p.stdout.strip().splitlines()[-1] if p.stdout.strip() else ''}")
+    assert not s["failed"], p.stdout.strip().splitlines()[-1] if p.stdout.strip() else s
     q = subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", "identify", s["bag"], "--json",
                         str(tmp_path / "id.json")], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
     print(q.stdout)

@@ -280,10 +280,13 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
                        f" or {contract.MEASUREMENT.name}; has: {have})")
     loop_hist = []
     laws: list[str] = []
+    refusals: dict[str, tuple[int, str]] = {}  # node's inputs status -> (samples refused so far, its last ERROR)
     for _, log_ns, msg in r.messages([contract.DIAGNOSTICS.name]):
         for s in msg.status:
             if s.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
                 loop_hist.append((log_ns, {kv.key: kv.value for kv in s.values}))
+            elif s.name.endswith(": inputs"):
+                _note_refusals(refusals, s)
             elif s.name == "controller":
                 law = next((kv.value for kv in s.values if kv.key == "law"), "")
                 if law and (not laws or laws[-1] != law):
@@ -353,6 +356,8 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     m.problems = run_problems(r, src["stamp_ns"], ref["stamp_ns"], epoch, ts, m.duration_s, had_ref)
     m.problems += [f"{n} message(s) on {topic} left out: not the topic's JointState layout (a foreign or corrupt"
                    " writer)" for topic, n in skipped.items()]
+    m.problems += [f"{name.split(':')[0]} refused {n} sample(s) from writers not bound to its inputs ({why})"
+                   for name, (n, why) in refusals.items() if n > 0]
     status = ((r.metadata_yaml or {}).get("custom_data") or {}).get("dem_ros.status")
     facts = run_facts(src["stamp_ns"], epoch, run, loop_hist, m.problems,
                       record_incomplete=r.truncated is not None or status == "failed")
@@ -440,6 +445,20 @@ def _stretches(idx: np.ndarray) -> tuple[int, int, int]:
     ends = np.concatenate((idx[breaks], [idx[-1]]))
     k = int(np.argmax(ends - starts))
     return int(starts.size), int(starts[k]), int(ends[k] - starts[k] + 1)
+
+
+def _note_refusals(refusals: dict[str, tuple[int, str]], status: Any) -> None:
+    """A node's ``<node>: inputs`` status (nodes/common.Inputs): the samples it refused from writers not bound to
+    its inputs so far (``refused``, a running count) and the last ERROR that named them (GID and why)."""
+    values = {kv.key: kv.value for kv in status.values}
+    try:
+        n = int(values.get("refused", "0"))
+    except ValueError:
+        return
+    level = status.level if isinstance(status.level, int) else int.from_bytes(bytes(status.level), "little")
+    prev_n, prev_why = refusals.get(status.name, (0, ""))
+    why = status.message if level >= 2 and "refused" in status.message else prev_why
+    refusals[status.name] = (max(n, prev_n), why)
 
 
 def run_problems(r: Any, src_ns: np.ndarray, ref_ns: np.ndarray, epoch_ns: int | None, ts: np.ndarray,

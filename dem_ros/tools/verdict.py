@@ -10,7 +10,8 @@ exit status (:attr:`Verdict.exit_code`). docs/manual/runs.md has the table.
   landed, or the driver faulted before the planned end (the end-of-run landing is part of a good run);
   on hardware, the board never reached RUN; the run could not start (no board answered, a node exited).
 * **degraded** (exit 3): the run went to its end, but its record is incomplete or its figures are
-  qualified: samples or references missing from the bag, a truncated bag, a recorder that stopped.
+  qualified: samples or references missing from the bag, a truncated bag, a recorder that stopped, a node
+  that refused samples from a writer not bound to its inputs (the graph ran on, but someone else wrote).
 * **ok** (exit 0): none of the above.
 
 An interrupted run (Ctrl-C) is judged as any other (it is short: failed) and exits 130.

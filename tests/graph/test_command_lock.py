@@ -133,6 +133,12 @@ def test_a_rogue_publisher_of_1e6_volts_changes_nothing_and_is_reported(tmp_path
     warned = [d for d in r["diags"] if d[0] >= 1 and "commands_foreign +" in d[1]]
     assert warned, [d[:2] for d in r["diags"]]
     assert plant_log.count("/dem/command from writer") == 1 and "refused: not the bound writer of 'controller'" in plant_log
+    # the run's verdict says so: degraded (exit 3), naming the node that refused and the writer's GID
+    from dem_ros.tools.runmetrics import load_run
+
+    m, _ = load_run(bag)
+    reasons = [x for x in m.verdict_reasons if "refused" in x]
+    assert m.verdict == "degraded" and reasons and reasons[0].startswith("plant_sim refused"), (m.verdict, m.verdict_reasons)
     print(f"\nrogue: {rogue_cmds} commands of 1e6 V in the bag, {foreign} dropped by the plant; max applied "
           f"{r['applied'].max():.2f} V; gaps {r['gaps'].min() * 1e3:.3f}..{r['gaps'].max() * 1e3:.3f} mm")
 

@@ -22,8 +22,8 @@ domain (:class:`Injector`); nodes are killed with SIGKILL and restarted by the l
 **Hardware rows** (``--hardware rig``, :data:`RIG_CATALOGUE`): ``dem-ros launch --hardware rig --compose`` (the
 hardware driver, and the emulated board and rig ``dem-ros rig`` as its own free-running 1 kHz process, over UDP on
 loopback; ``controller.command_delay=2``), one row per rig fault (``dem-ros rig --fault``, scheduled on the board's
-clock at the experiment's t = ``--at``), an e-stop on ``/dem/hw/estop`` or a killed controller (a process per node
-for that row: composed, the controller's process is also the recorder's). A rig has no truth topic, so the
+clock at the experiment's t = ``--at``), an e-stop on ``/dem/hw/estop`` or a killed controller (for that row the
+controller runs in a process of its own beside the container: ``--apart controller``). A rig has no truth topic, so the
 plate's truth is the emulator's own (its ``RIG`` summary in ``rig.log``: smallest true gap since the release,
 fastest descent while the board landed it, rail contact):
 
@@ -58,7 +58,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Collection, Iterable
+from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -371,7 +371,7 @@ RIG_CATALOGUE: tuple[FaultSpec, ...] = (
     FaultSpec("estop", "e-stop on /dem/hw/estop (as dem-ros hw estop): the driver latches it, the board lands",
               _estop, 3, hardware=True, allowed=("landed safely",), reports=("e-stop",),
               counts=(("driver", "estops", 1),)),
-    # the controller alone is killed (a process per node: composed, its process is also the recorder's);
+    # the controller alone is killed (in a process of its own beside the container, --apart controller);
     # the driver's command watchdog and the board's hold both end after 50 ms: LAND
     FaultSpec("kill-controller", "SIGKILL the controller (not restarted): the driver's watchdog, the board lands",
               kill="controller", hardware=True, composed=False, allowed=("landed safely",),
@@ -428,11 +428,12 @@ def _kill_hook(spec: FaultSpec, inj: Injector) -> Callable[..., Collection[str]]
 
 
 def _launch_args(scenario: str, duration: float, compose: bool, free_run: bool, bag_dir: Path, domain_id: int,
-                 sets: list[str], hardware: str | None = None) -> LaunchOptions:
+                 sets: list[str], hardware: str | None = None, apart: Sequence[str] = ()) -> LaunchOptions:
     from .launcher import LaunchOptions
 
     return LaunchOptions(scenario=scenario, duration=duration, bag_dir=str(bag_dir), domain_id=domain_id,
-                         transport="dds", compose=compose, free_run=free_run, hardware=hardware, set=list(sets))
+                         transport="dds", compose=compose, free_run=free_run, hardware=hardware, set=list(sets),
+                         apart=list(apart))
 
 
 def _log_lines(logs: dict[str, str], since_ns: int) -> list[tuple[str, str]]:
@@ -854,7 +855,13 @@ def _run_hw_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, dura
     from the bag, the node logs and the emulator's own figures (rig.log)."""
     from .launcher import _config_from_args
 
-    args = _launch_args(scenario, duration, compose, False, workdir, domain_id, [*HW_SETS, *sets], hardware="rig")
+    # a killed node runs in a process of its own beside the container (the rest composed, as on a rig: with a
+    # process per node the emulated board and five node processes need ~190 % of a 2-core host)
+    apart = (spec.kill,) if spec.kill is not None else ()
+    if apart:
+        compose, how = True, f"composed, {spec.kill} apart"
+    args = _launch_args(scenario, duration, compose, False, workdir, domain_id, [*HW_SETS, *sets], hardware="rig",
+                        apart=apart)
     cfg, _, _ = _config_from_args(args)
     if spec.rig_fault:
         args.fault = [spec.rig_fault.format(t=f"{at + cfg['hw_driver']['preroll']:g}")]
@@ -920,7 +927,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "rig, UDP on loopback, controller.command_delay=2; rig faults, an e-stop, a killed controller)")
     p.add_argument("--processes", choices=("per-process", "composed", "both"), default=None,
                    help="the graph as a process per node, composed in one process, or both (default: both; with "
-                        "--hardware rig each row once, composed, a killed controller in a process per node)")
+                        "--hardware rig each row once, composed; a killed controller in a process of its own beside the container)")
     p.add_argument("--scenario", default="S1")
     p.add_argument("--duration", type=float, default=4.0, help="seconds of each run (default 4)")
     p.add_argument("--at", type=float, default=1.5, help="inject at this experiment time [s] (default 1.5)")
@@ -973,8 +980,9 @@ def cmd_faults(args: argparse.Namespace) -> int:
     domain = args.domain_id if args.domain_id is not None else 1 + os.getpid() % 100
     rows: list[Row] = []
     for spec, compose in _plan(specs, args.processes, bool(args.hardware)):
-        print(f"dem-ros faults: {spec.name} ({'composed' if compose else 'per process'}): {spec.description}",
-              file=sys.stderr, flush=True)
+        how = (f"composed, {spec.kill} apart" if spec.hardware and spec.kill else "composed" if compose
+               else "per process")
+        print(f"dem-ros faults: {spec.name} ({how}): {spec.description}", file=sys.stderr, flush=True)
         row = run_row(spec, compose=compose, scenario=args.scenario, duration=max(args.duration, spec.min_duration),
                       at=args.at, free_run=args.free_run,
                       workdir=work / spec.name / ("composed" if compose else "processes"), domain_id=domain, sets=args.set)

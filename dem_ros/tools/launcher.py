@@ -61,6 +61,8 @@ from .view import port as view_port
 __all__ = ["GraphError", "LaunchOptions", "StartupError", "cmd_launch", "launch", "run_graph", "write_params_file"]
 
 NODES = ("recorder", "reference", "estimator", "controller", "plant_sim")
+#: the loop's nodes that ``--apart`` can take out of the container (the plant or driver and the recorder stay)
+APART_NODES = ("estimator", "controller", "reference")
 
 
 #: ``run_graph``'s hook: (wall s since t = 0 or None, node processes, restart(name)) -> names that may be down
@@ -126,7 +128,8 @@ class _Graph:
     def __init__(self, cfg: dict, *, duration: float, transport: str, bag: Path | None, meta: dict,
                  domain_id: int | None, status: bool, workdir: Path | None, compose: bool, hardware: str | None,
                  faults: Sequence[str], supervise: Supervise | None,
-                 node_transports: Mapping[str, str] | None = None, view_port: int | None = None):
+                 node_transports: Mapping[str, str] | None = None, view_port: int | None = None,
+                 apart: Sequence[str] = ()):
         self.workdir = workdir or Path(tempfile.mkdtemp(prefix="dem_ros_launch_"))
         self.workdir.mkdir(parents=True, exist_ok=True)
         cfg = {g: dict(v) for g, v in cfg.items()}
@@ -139,6 +142,7 @@ class _Graph:
         self.cfg, self.duration, self.transport, self.bag = cfg, duration, transport, bag
         self.status, self.compose, self.hardware, self.faults, self.supervise = status, compose, hardware, faults, supervise
         self.node_transports = dict(node_transports or {})  # a node's own transport (e.g. the controller on rclpy)
+        self.apart = tuple(apart)  # composed: these loop nodes in processes of their own beside the container
         self.view_port = view_port
         self.viewer: subprocess.Popen | None = None
         self.params = write_params_file(cfg, self.workdir / "params.yaml")
@@ -177,7 +181,9 @@ class _Graph:
         names = ["container"] if compose else [n if n != "plant_sim" else self.plant_node for n in NODES
                                                if n != "recorder" or bag is not None]
         if compose and hardware is not None:  # the loop's nodes composed, the driver beside them (it owns the link)
-            names = ["container", "hw_driver"]
+            names = ["container", *self.apart, "hw_driver"]
+        elif compose and self.apart:  # the nodes apart first: the container's plant starts its clock when it is ready
+            names = [*self.apart, "container"]
         if hardware is not None:  # the driver first: the board answers (or not) while the others start; the
             # controller last, once they are set up: its first commands arm the loop (the driver waits armed)
             names = ["hw_driver", *(n for n in names if n != "hw_driver")]
@@ -270,8 +276,12 @@ class _Graph:
         for name in self.names:
             bag_args = ["--bag", str(self.bag), "--meta", str(self.meta_file)] if self.bag is not None else []
             extra = bag_args if name in ("recorder", "container") else []
-            if name == "container" and self.hardware is not None:
-                extra = [*extra, "--nodes", "estimator,controller,reference"]
+            if name == "container" and (self.hardware is not None or self.apart):
+                inside = [n for n in NODES if n != "recorder" and n not in self.apart
+                          and (n != "plant_sim" or self.hardware is None)]  # the container orders them itself
+                extra = [*extra, "--nodes", ",".join(inside)]
+                if self.apart and self.hardware is None:  # its plant starts the clock: the nodes apart are up first
+                    self._wait_nodes(boot, list(self.apart))
             self.logs[name] = self.workdir / f"{name}.log"
             node_params = self.params
             if name == "hw_driver" and self.hardware in ("rig", "rig-serial"):  # the emulator first, then its driver
@@ -441,7 +451,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
               domain_id: int | None = None, status: bool = True, workdir: Path | None = None,
               compose: bool = False, hardware: str | None = None, faults: Sequence[str] = (),
               supervise: Supervise | None = None, node_transports: Mapping[str, str] | None = None,
-              view_port: int | None = None) -> dict:
+              view_port: int | None = None, apart: Sequence[str] = ()) -> dict:
     """Start the graph, wait for the plant to finish ``duration`` s, stop everything; return raw facts.
 
     ``compose``: all nodes in one ``container`` process (intra-process topics)
@@ -459,6 +469,8 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     rclpy/Fast DDS, the rest on dds/Cyclone).
     ``view_port``: also run ``dem-ros view`` on that port (the live view, :mod:`.view`), started first
     and stopped first; its log is ``view.log``; it never ends the run.
+    ``apart``: with ``compose``, these of the loop's nodes (estimator, controller, reference) run in processes
+    of their own beside the container, e.g. a controller that can be killed and restarted on its own.
 
     Raises:
         StartupError: the run never started (a node exited or was not ready, no board answered, a driver fault
@@ -466,7 +478,7 @@ def run_graph(cfg: dict, *, duration: float, transport: str, bag: Path | None, m
     """
     g = _Graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id, status=status,
                workdir=workdir, compose=compose, hardware=hardware, faults=faults, supervise=supervise,
-               node_transports=node_transports, view_port=view_port)
+               node_transports=node_transports, view_port=view_port, apart=apart)
 
     def on_signal(signum, frame):
         g.interrupted = True
@@ -590,13 +602,14 @@ class LaunchOptions:
     hardware: str | None = None
     fault: list[str] = field(default_factory=list)
     view: int | None = None  # the live view's port (dem-ros view); None: none
+    apart: list[str] = field(default_factory=list)  # with compose: loop nodes in processes of their own
 
     @classmethod
     def from_namespace(cls, ns: argparse.Namespace) -> LaunchOptions:
         """From the parsed command line (its unknown keys, e.g. the sub-command's, left out)."""
         known = {f.name for f in fields(cls)}
         given = {k: v for k, v in vars(ns).items() if k in known}
-        for k in ("set", "fault"):
+        for k in ("set", "fault", "apart"):
             given[k] = list(given.get(k) or [])
         return cls(**given)
 
@@ -684,6 +697,11 @@ def launch(args: LaunchOptions | argparse.Namespace, *, quiet: bool = False, sup
     domain_id = opts.domain_id if opts.domain_id is not None else (env_domain_id() or 0)
     hardware = opts.hardware
     _check_hardware(opts)
+    bad = [n for n in opts.apart if n not in APART_NODES]
+    if bad or len(set(opts.apart)) != len(opts.apart):
+        raise UsageError(f"--apart: got {', '.join(opts.apart)}; distinct names of {', '.join(APART_NODES)}")
+    if opts.apart and not opts.compose:
+        raise UsageError("--apart needs --compose (without it every node has a process of its own)")
     transport = _resolve_transport(opts.transport)
     cfg = with_board_limit(cfg, "plant_sim" if hardware is None else "hw_driver")  # the law clips where the board does
     if not quiet:
@@ -721,7 +739,7 @@ def launch(args: LaunchOptions | argparse.Namespace, *, quiet: bool = False, sup
         facts = run_graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id,
                           status=not quiet, workdir=logs_dir or ((bag.parent / (bag.name + "_logs")) if record else None),
                           compose=compose, hardware=hardware, faults=opts.fault,
-                          supervise=supervise, view_port=opts.view)
+                          supervise=supervise, view_port=opts.view, apart=opts.apart)
         if facts["interrupted"] and not facts["reached_t0"]:  # Ctrl-C while starting: no run, no bag (exit 130)
             raise KeyboardInterrupt
         with Progress("dem-ros launch", None, enabled=not quiet) as bar:
@@ -752,7 +770,7 @@ def launch(args: LaunchOptions | argparse.Namespace, *, quiet: bool = False, sup
         bar.stage(f"the offline run to compare with ({ran:g} s, same configuration and timing)")
         offline = simulate(cfg, controller=cfg["controller"]["type"], estimator=cfg["estimator"]["type"], duration=ran,
                            scenario=sc.name).metrics() if ran > 0 else {"rms_error_um": None}
-    info = {"composed": compose, "offline_rms_error_um": offline["rms_error_um"], "offline_duration_s": ran, "bag": str(bag) if record else None,
+    info = {"composed": compose, "apart": list(opts.apart), "offline_rms_error_um": offline["rms_error_um"], "offline_duration_s": ran, "bag": str(bag) if record else None,
             "hardware": hardware, "rig": facts.get("rig"), "cut_short": facts["cut_short"], "events": facts["events"],
             "recorder": facts["recorder"], "interrupted": facts["interrupted"], "exits": facts["exits"]}
     _judge(metrics, facts)
@@ -791,6 +809,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--compose", action="store_true",
                    help="all nodes in one process on one executor, topics between them in memory; "
                         "the real-time configuration")
+    p.add_argument("--apart", action="append", default=[], metavar="NODE", choices=APART_NODES,
+                   help="with --compose: run NODE (estimator, controller or reference) in a process of its own beside "
+                        "the container, e.g. a controller to kill and restart on its own (repeatable)")
     p.add_argument("--free-run", action="store_true",
                    help="free-running plant (plant_sim.lockstep false): hardware-like timing, a late command is held "
                         "at most hold_timeout, then the simulated board lands the plate; default: lockstep (exact)")
@@ -820,6 +841,8 @@ def cmd_launch(args: argparse.Namespace) -> int:
             write_json(opts.json, v.to_dict())
         return v.exit_code
     how = "one process (composed)" if info["composed"] else "a process per node"
+    if info.get("apart"):
+        how = f"composed, {', '.join(info['apart'])} in a process of its own"
     extra = [("processes", how)]
     if info["offline_rms_error_um"] is not None:
         extra.append(("offline RMS error e1 / e2 [um]",

@@ -11,8 +11,7 @@ landing came before the e-stop (the e-stop then lands nothing). The other rig ro
 dropout-short, spike and linkloss-20ms are "levitating" rows, which a stall makes land (a timing property:
 the catalogue run measures them); linkloss-50ms sits at the hold_timeout by design; dropout-long, stuck, sag,
 sag-sustained, coil and kill-controller land by design like the e-stop and add nothing to what it proves here
-but minutes (the stuck sensor's landing is tested in lockstep: tests/hardware/test_rig.py) (kill-controller also needs a process per node: four DDS hops per sample, the least robust
-timing).
+but minutes (the stuck sensor's landing is tested in lockstep: tests/hardware/test_rig.py) (kill-controller runs the controller in a process of its own beside the container: --apart).
 """
 
 from __future__ import annotations
@@ -128,7 +127,8 @@ def test_the_rig_catalogue_covers_issue_11():
     sag = _rig(rows["sag"].rig_fault)
     assert 90 <= sag.value < cfg["rig"]["bus_min"] and rows["sag"].descent_bounded
     assert not rows["coil"].descent_bounded  # an open bridge's end falls: nothing can bound that descent
-    assert not rows["kill-controller"].composed  # composed, the controller's process is the recorder's too
+    # never inside the container (its process would be the recorder's too): beside it, --apart controller
+    assert not rows["kill-controller"].composed
 
 
 def test_an_unknown_rig_row_is_a_usage_error(tmp_path, domain_id):

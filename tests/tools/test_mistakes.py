@@ -54,6 +54,8 @@ MISTAKES: list[tuple[str, list[str], dict[str, str], str]] = [
     ("launch-duration-nan", ["launch", "--duration", "nan"], {}, "--duration"),
     ("launch-bad-hardware-url", ["launch", "--duration", "1", "--hardware", "bogus://x"], {}, "--hardware"),
     ("launch-fault-without-rig", ["launch", "--duration", "1", "--fault", "linkloss@1+0.1"], {}, "--fault"),
+    ("launch-apart-without-compose", ["launch", "--duration", "1", "--apart", "controller"], {}, "--compose"),
+    ("launch-apart-unknown-node", ["launch", "--duration", "1", "--compose", "--apart", "plant_sim"], {}, "--apart"),
     ("launch-udp-without-port", ["launch", "--duration", "1", "--hardware", "udp://localhost"], {}, "udp://HOST:PORT"),
     ("launch-udp-unresolvable", ["launch", "--duration", "1", "--hardware", "udp://nohost.invalid:47000"], {},
      "resolve"),

@@ -100,3 +100,16 @@ def test_a_plate_landed_mid_run_is_failed_with_when_and_why_exit_1(tmp_path, dom
     assert d["verdict"] == "failed" and d["verdict_reasons"][0].startswith("landed before the planned end at t = 1.")
     assert d["metrics_until_s"] is not None and 1.0 < d["metrics_until_s"] < 1.5  # figures before the landing only
     assert f"dem-ros launch: {first[1]}" in r.stderr
+
+
+def test_a_composed_run_with_the_controller_apart_runs_it_in_its_own_process(tmp_path, domain_id):
+    """``--compose --apart controller`` (what the rig's kill-controller row runs): the container holds the other
+    nodes, the controller has a process (and log) of its own; lockstep, so the run is the offline one."""
+    r, d = _launch(tmp_path, domain_id, "--duration", "2", "--compose", "--apart", "controller")
+    assert r.returncode == 0 and d["verdict"] == "ok", (d.get("verdict_reasons"), r.stderr[-3000:])
+    assert d["composed"] and d["apart"] == ["controller"]
+    assert "composed, controller in a process of its own" in r.stdout
+    logs = Path(d["bag"] + "_logs")
+    controller, container = (logs / "controller.log").read_text(), (logs / "container.log").read_text()
+    assert "[controller]: ready" in controller and "[controller]" not in container
+    assert "[estimator]: ready" in container and "[plant_sim]" in container

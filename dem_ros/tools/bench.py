@@ -100,9 +100,8 @@ def timer_floor(seconds: float = 5.0, period_s: float = 1e-3, command_delay: int
     wake = np.empty(n, dtype=np.int64)
     monitor = StallMonitor(5.0, write=lambda _line: None)
     # warm-up, not measured (as the graph's pre-roll is not): the first pass through this code and the
-    # monitor's /proc reads fault their pages in. At load 20 (2026-11-24) the probe was once blocked 4.2 s
-    # (cause not established: asleep, no steal) and, as a loop that catches up, counted every later
-    # wake-up late: floor p50 242 ms beside a graph run with p50 106 us
+    # monitor's /proc reads fault their pages in. On a loaded host the probe was once blocked for seconds
+    # there and, as a loop that catches up, counted every later wake-up late (a floor far above the graph's)
     due = time.monotonic_ns() + period
     for _ in range(FLOOR_WARMUP_ROUNDS):
         wait = due - time.monotonic_ns()

@@ -278,7 +278,7 @@ class FaultSpec:
 
 
 _KILLED = ("levitating", "landed safely")
-_RESTART_S = 15.0  # run length with a restart: a restarted node takes seconds to come up (6.6 s at load 20)
+_RESTART_S = 15.0  # run length with a restart: a restarted node takes seconds to come up on a loaded host
 CATALOGUE: tuple[FaultSpec, ...] = (
     FaultSpec("rogue-command", "1e6 V on /dem/command from a foreign writer, 50 samples", _rogue_command, 50),
     FaultSpec("empty-position", "/dem/measurement and /dem/state_estimate with an empty position, 10 samples",

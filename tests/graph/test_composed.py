@@ -57,7 +57,7 @@ def composed_run(tmp_path_factory, module_domain_id, request):
     # (the status lines say "t = 0.0 s" through the pre-roll: wait for t = 1 s of the experiment itself)
     in_run = _wait_log(log, lambda s: re.search(r"^t =\s+[1-9]", s, re.M) is not None, 180)
     # the loop runs at 1 kHz: change a parameter now, through the rcl_interfaces services over DDS, from this
-    # process (a client process's start-up took seconds at load 20 and its call came after the 6 s run; the
+    # process (a client process's start-up takes seconds on a loaded host and its call came after the 6 s run; the
     # 'dem-ros param' command line itself is tested against the running graph in test_graph.py)
     done = {key: param_set("controller", *args, domain_id=domain, timeout_s=30.0)
             for key, args in (("set", ("w", 55.0)), ("set_bad", ("k1", 0.5)))}

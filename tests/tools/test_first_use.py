@@ -2,7 +2,7 @@
 the next command, and the node processes of a launched graph, load what it compiled.
 
 This is the one test that compiles every kernel from nothing (real subprocesses, an empty
-``NUMBA_CACHE_DIR``): 40-60 s on a quiet 2-core VM, 2-3 minutes at load 10-25. The compile is
+``NUMBA_CACHE_DIR``): under a minute on a quiet 2-core VM, minutes on a loaded one. The compile is
 done once and reused by the warm check that follows (a launched graph).
 """
 
@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[2]
 #: progress lines come at least every 5 s by design (tools/progress.py); three times that is the bound here,
 #: so a thread starved for seconds on a loaded machine does not fail the test, while a silent compile does
 SILENCE_LIMIT_S = 15.0
-COMPILE_TIMEOUT_S = 900.0  # a cold compile took 162 s at load 7-15; this bounds a hang, not the speed
+COMPILE_TIMEOUT_S = 900.0  # a cold compile takes minutes on a loaded host; this bounds a hang, not the speed
 
 
 def _timed_run(args: list[str], env: dict[str, str], timeout: float) -> tuple[int, list[tuple[float, str]], str]:

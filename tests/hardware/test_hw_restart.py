@@ -1,8 +1,10 @@
 """A controller killed mid-run on a rig, then restarted and re-armed: real processes over real UDP.
 
-``dem-ros rig`` (the emulated board, its own 1 kHz process), ``hw_driver``, estimator, controller and
-reference (each its own process, DDS on loopback) and the recorder, as ``dem-ros launch --hardware rig``
-runs them. The controller is killed (SIGKILL) while the plate levitates: the driver's command watchdog
+``dem-ros rig`` (the emulated board, its own 1 kHz process), ``hw_driver`` (its own process), the estimator,
+reference and recorder composed in one container, and the controller in a process of its own beside it (DDS on
+loopback), as ``dem-ros launch --hardware rig --compose --apart controller`` runs them: with a process per node
+the emulated board and five node processes need about 190 % of a 2-core host and the rig does not hold. The
+controller is killed (SIGKILL) while the plate levitates: the driver's command watchdog
 faults (reported on /diagnostics and in the bag) and the board lands the plate (its landing law: no
 faster than ``landing_speed``, never near the rail). The controller is started again and
 ``dem-ros hw arm`` (a process of its own) re-arms the driver: the board leaves its latched landing and
@@ -25,12 +27,9 @@ command for 50 ms): the script then re-arms (the same restart path), at most ``R
 from __future__ import annotations
 
 import json
-import os
 import signal
 import time
 from pathlib import Path
-
-import pytest
 
 from dem_ros import contract
 from dem_ros.bag import BagReader
@@ -76,7 +75,7 @@ class Script:
         self.liftoffs_at_arm = self._log().count("lift-off done")
         self.t.pop("lifted", None)  # a lift-off the board ended by landing the plate does not count
         self.arm_out = str(self.client.request("arm", timeout_s=30.0))
-        self.t["armed"] = time.monotonic()  # confirmed by the driver (discovery alone takes 20 s at load 15)
+        self.t["armed"] = time.monotonic()  # confirmed by the driver (discovery alone takes seconds on a loaded host)
 
     def _log(self) -> str:
         return (self.workdir / "controller.log").read_text(errors="replace")
@@ -112,9 +111,6 @@ class Script:
         return {"controller"}
 
 
-@pytest.mark.skipif(os.environ.get("DEM_ROS_HIL") != "1", reason=(
-    "on demand (DEM_ROS_HIL=1): the lift-off after the restart and re-arm fails on the merged graph (the board lands "
-    "again at each lift-off: 'gave up in phase lift'), on a quiet host too; open in issue #19, item 5"))
 def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path, domain_id):
     cfg = get_scenario("S1").config()
     cfg["plant_sim"]["measure_velocity"] = False  # a rig has no gap-rate sensors
@@ -129,7 +125,7 @@ def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path
     try:
         facts = run_graph(cfg, duration=2 * LIMIT_S, transport="dds", bag=bag,
                           meta={"scenario": "S1", "duration_s": LIMIT_S}, domain_id=domain_id, status=False,
-                          workdir=workdir, hardware="rig", supervise=script)
+                          workdir=workdir, hardware="rig", supervise=script, compose=True, apart=("controller",))
     finally:
         script.client.close()
     rig = facts["rig"]
@@ -137,9 +133,9 @@ def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path
     assert script.phase == "stop", (script.phase, script.t, _rig_status(workdir), logs)
     # the board: never near the rail, landed no faster than landing_speed (twice: the watchdog landing, the stop)
     pc = cfg["plant_sim"]
-    assert rig["failed"] == ""
+    assert rig["failed"] == "", (rig["failed"], rig["min_gap_mm"], rig["reason"], script.phase, script.t)
     assert rig["min_gap_mm"] > pc["trip_gap_min"] * 1e3, rig
-    assert rig["landings"] >= 2 and rig["land_speed_max_mm_s"] <= pc["landing_speed"] * 1e3, rig
+    assert rig["landings"] >= 2 and rig["land_speed_max_mm_s"] <= pc["landing_speed"] * 1e3, (rig["landings"], rig["land_speed_max_mm_s"], rig["reason"], script.t)
     assert rig["mode"] in ("LAND", "LANDED") and rig["reason"] == "LAND requested", rig  # the driver's stop, not its watchdog
     # the fault on /diagnostics, in the bag; the levitation after the arm, in the bag
     r = BagReader(bag)

@@ -3,9 +3,8 @@ behind UDP, hw_driver, the graph's nodes, the recorder) on a plant none of the d
 excitation reference of the bring-up guide; the bag it recorded is identified by the command.
 
 Identification uses what the board applied (``/dem/applied_voltage``), so late or held commands on a loaded
-machine do not bias it. Whether the free-running graph keeps the plate up to the end depends on the
-machine's load (README: hardware in the loop); a run that lost it is not an identification run: skipped,
-with the launch's own failure line."""
+machine do not bias it. The graph runs composed beside the driver (the rig's configuration); a run that
+lost the plate fails this test with the launch's own verdict line."""
 
 from __future__ import annotations
 
@@ -15,8 +14,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
-
 from dem_ros.core.identify import PARAMS
 from dem_ros.tools.identify import EXCITATION, TOLERANCE
 
@@ -24,9 +21,6 @@ ROOT = Path(__file__).resolve().parents[2]
 TRUTH = {"R1": 17.6, "R2": 23.3, "K": 4.374e-4 * 1.13, "m": 14.852 * 0.88}
 
 
-@pytest.mark.skipif(os.environ.get("DEM_ROS_HIL") != "1", reason=(
-    "on demand (DEM_ROS_HIL=1): the excited rig run it identifies landed at t = 0 beside two busy processes (the "
-    "rig path's start-up, open in issue #19); a landing fails this test, it is not skipped"))
 def test_identify_a_recorded_rig_run_of_the_whole_graph(tmp_path, domain_id):
     env = dict(os.environ, PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(domain_id))
     sets = [f"plant_sim.{k}={v}" for k, v in TRUTH.items()] + [f"plant_sim.R={TRUTH['R1']}",

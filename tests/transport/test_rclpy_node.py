@@ -254,3 +254,17 @@ def test_log_lines_reach_a_stock_rosout_subscription_from_one_writer(node, capfd
     finally:
         ex.shutdown()
         stock.destroy_node()
+
+
+def test_cyclone_instance_handle_gids_are_told_from_guids():
+    """rmw_cyclonedds_cpp gives a sample's writer as its 8-byte instance handle (zero-padded), the graph
+    lists its GUID: the take resolves the former (with a sourced Jazzy on rmw_cyclonedds_cpp,
+    test_sources_name_the_writer_of_every_sample_among_two checks the resolution end to end)."""
+    from dem_ros.transport.rclpy.take import CYCLONE, is_handle_gid
+
+    handle = (0x94BAE4ADF3D114C1).to_bytes(8, "little") + bytes(8)
+    guid = bytes.fromhex("0110b767817464d2574523b800005a03")
+    assert is_handle_gid(CYCLONE, handle)
+    assert not is_handle_gid(CYCLONE, guid)
+    assert not is_handle_gid(b"rmw_fastrtps_cpp", handle)
+    assert not is_handle_gid(CYCLONE, bytes(16))

@@ -8,6 +8,11 @@ lists as ``endpoint_gid``), so this module calls ``rcl_take_serialized_message``
 on the rcl subscription rclpy made (``Subscription.handle.pointer``), from the ``librcl`` and
 ``librcutils`` rclpy has loaded. The structs are rcl's (``rcutils_uint8_array_t``,
 ``rmw_message_info_t``); ``rmw_gid_t`` holds 24 bytes before Iron and 16 since.
+
+rmw_cyclonedds_cpp fills ``publisher_gid`` with the writer's 8-byte DDS instance handle (zero-padded), not
+its GUID, while ``get_publishers_info_by_topic`` lists the GUID: there each new handle is resolved once to
+the writer's GUID with Cyclone's ``dds_get_matched_publication_data`` on the subscription's reader (from
+the ``libddsc`` rmw_cyclonedds_cpp has loaded), so a sample's GID is the GUID on both RMWs.
 """
 
 from __future__ import annotations
@@ -61,6 +66,58 @@ def _info_struct(gid_size: int) -> type[ctypes.Structure]:
     return Info
 
 
+#: rmw_cyclonedds_cpp's implementation identifier (in each rmw_gid_t)
+CYCLONE = b"rmw_cyclonedds_cpp"
+
+
+class _Endpoint(ctypes.Structure):  # the head of Cyclone's dds_builtintopic_endpoint_t
+    _fields_ = [("key", ctypes.c_uint8 * 16)]
+
+
+def is_handle_gid(identifier: bytes | None, gid: bytes) -> bool:
+    """Whether ``gid`` (from ``rmw_message_info_t``) is rmw_cyclonedds_cpp's instance-handle form: 8 bytes
+    of handle, the rest zero (a GUID's entity id is never zero)."""
+    return identifier == CYCLONE and any(gid[:8]) and not any(gid[8:])
+
+
+class _CycloneGuids:
+    """Writer GUIDs of rmw_cyclonedds_cpp's instance handles, resolved on the reader that took the sample."""
+
+    def __init__(self) -> None:
+        rcl = ctypes.CDLL(_loaded("librcl.so"))
+        ddsc = ctypes.CDLL(_loaded("libddsc.so.0"))
+        self._rmw_handle = rcl.rcl_subscription_get_rmw_handle
+        self._rmw_handle.argtypes = [ctypes.c_void_p]
+        self._rmw_handle.restype = ctypes.c_void_p
+        self._matched = ddsc.dds_get_matched_publication_data
+        self._matched.argtypes = [ctypes.c_int32, ctypes.c_uint64]
+        self._matched.restype = ctypes.POINTER(_Endpoint)
+        self._free = ddsc.dds_builtintopic_free_endpoint
+        self._free.argtypes = [ctypes.POINTER(_Endpoint)]
+        self._cache: dict[bytes, bytes] = {}
+
+    def guid(self, pointer: int, gid: bytes) -> bytes:
+        """The GUID of the writer whose instance handle is ``gid[:8]``, as seen by the rcl subscription at
+        ``pointer``; ``gid`` itself when Cyclone does not know it (any more)."""
+        got = self._cache.get(gid)
+        if got is not None:
+            return got
+        rmw = self._rmw_handle(pointer)  # rmw_subscription_t: implementation_identifier, data, ...
+        data = ctypes.c_void_p.from_address(rmw + ctypes.sizeof(ctypes.c_void_p)).value if rmw else None
+        if not data:
+            return gid
+        reader = ctypes.c_int32.from_address(data).value  # CddsSubscription starts with its dds_entity_t
+        ep = self._matched(reader, int.from_bytes(gid[:8], "little"))
+        if not ep:
+            return gid
+        try:
+            guid = bytes(ep.contents.key)
+        finally:
+            self._free(ep)
+        self._cache[gid] = guid
+        return guid
+
+
 class SerializedTake:
     """One reusable buffer and message info: :meth:`take` a subscription's next sample (one thread only)."""
 
@@ -85,6 +142,7 @@ class SerializedTake:
         self._buf_ref = ctypes.byref(self._buf)
         self._info_ref = ctypes.byref(self._info)
         self._gid = self._info.publisher_gid
+        self._cyclone: _CycloneGuids | None = None
 
     def take(self, pointer: int) -> tuple[bytes, bytes] | None:
         """``(cdr, writer_gid)`` of the next sample of the rcl subscription at ``pointer``
@@ -95,7 +153,12 @@ class SerializedTake:
                 return None
             raise TransportError(f"rcl_take_serialized_message failed (code {rc})")
         buf = self._buf
-        return ctypes.string_at(buf.buffer, buf.buffer_length), gid16(bytes(self._gid.data))
+        gid = gid16(bytes(self._gid.data))
+        if is_handle_gid(self._gid.implementation_identifier, gid):
+            if self._cyclone is None:
+                self._cyclone = _CycloneGuids()
+            gid = self._cyclone.guid(pointer, gid)
+        return ctypes.string_at(buf.buffer, buf.buffer_length), gid
 
     def close(self) -> None:
         if self._buf.buffer:

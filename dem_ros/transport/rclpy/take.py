@@ -22,7 +22,7 @@ import os
 
 from ..api import TransportError, gid16
 
-__all__ = ["SerializedTake", "gid_storage_size"]
+__all__ = ["SerializedTake", "gid_storage_size", "publisher_gid"]
 
 #: rcl's "no sample to take" (RCL_RET_SUBSCRIPTION_TAKE_FAILED)
 TAKE_FAILED = 401
@@ -54,9 +54,15 @@ class _Bytes(ctypes.Structure):  # rcutils_uint8_array_t = rcl_serialized_messag
                 ("buffer_capacity", ctypes.c_size_t), ("allocator", _Alloc)]
 
 
-def _info_struct(gid_size: int) -> type[ctypes.Structure]:
-    class Gid(ctypes.Structure):
+def _gid_struct(gid_size: int) -> type[ctypes.Structure]:
+    class Gid(ctypes.Structure):  # rmw_gid_t
         _fields_ = [("implementation_identifier", ctypes.c_char_p), ("data", ctypes.c_uint8 * gid_size)]
+
+    return Gid
+
+
+def _info_struct(gid_size: int) -> type[ctypes.Structure]:
+    Gid = _gid_struct(gid_size)
 
     class Info(ctypes.Structure):  # rmw_message_info_t
         _fields_ = [("source_timestamp", ctypes.c_int64), ("received_timestamp", ctypes.c_int64),
@@ -116,6 +122,24 @@ class _CycloneGuids:
             self._free(ep)
         self._cache[gid] = guid
         return guid
+
+
+def publisher_gid(pointer: int) -> bytes:
+    """The GID of the rcl publisher at ``pointer`` (``_rclpy.Publisher.pointer``) from
+    ``rmw_get_gid_for_publisher``: the writer's GUID, known as soon as the publisher exists (the graph
+    lists it only once discovery has processed it, asynchronously on rmw_cyclonedds_cpp)."""
+    try:
+        rcl = ctypes.CDLL(_loaded("librcl.so"))  # its dependencies give rmw_get_gid_for_publisher
+    except OSError as exc:
+        raise TransportError(f"cannot load rcl for a publisher's GID: {exc}") from None
+    rcl.rcl_publisher_get_rmw_handle.argtypes = [ctypes.c_void_p]
+    rcl.rcl_publisher_get_rmw_handle.restype = ctypes.c_void_p
+    handle = rcl.rcl_publisher_get_rmw_handle(pointer)
+    gid = _gid_struct(gid_storage_size())()
+    rcl.rmw_get_gid_for_publisher.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+    if not handle or rcl.rmw_get_gid_for_publisher(handle, ctypes.byref(gid)) != 0:
+        raise TransportError("rmw_get_gid_for_publisher failed")
+    return gid16(bytes(gid.data))
 
 
 class SerializedTake:

@@ -198,7 +198,8 @@ def test_callback_error_is_counted_and_the_node_keeps_running(node):
 
 def test_sources_name_the_writer_of_every_sample_among_two(node):
     """Each sample comes with its writer's GID (rcl's message info, taken through ctypes), the one
-    publisher_gids lists for that writer's node, also while two writers share the topic."""
+    publisher_gids lists for that writer's node and its publisher holds, also while two writers share the
+    topic."""
     from dem_ros.nodes.common import joint_state
     from dem_ros.transport.api import GID_SIZE
 
@@ -220,6 +221,7 @@ def test_sources_name_the_writer_of_every_sample_among_two(node):
             p_rogue.publish(joint_state(JS, 2 * k + 2, effort=(float(2 * k + 2), 0.0)))
         _spin_until(spin, lambda: len(got) >= 6, 10.0)
         ctl_gid, rogue_gid = next(iter(g_ctl)), next(iter(g_rogue))
+        assert (p_ctl.gid, p_rogue.gid) == (ctl_gid, rogue_gid)  # what in-memory delivery hands on, the same GID
         assert sorted(got) == [(float(v), ctl_gid if v % 2 else rogue_gid) for v in range(1, 7)]
     finally:
         rogue.shutdown()

@@ -125,9 +125,10 @@ class _CycloneGuids:
 
 
 def publisher_gid(pointer: int) -> bytes:
-    """The GID of the rcl publisher at ``pointer`` (``_rclpy.Publisher.pointer``) from
-    ``rmw_get_gid_for_publisher``: the writer's GUID, known as soon as the publisher exists (the graph
-    lists it only once discovery has processed it, asynchronously on rmw_cyclonedds_cpp)."""
+    """The GUID of the writer of the rcl publisher at ``pointer`` (``_rclpy.Publisher.pointer``), what the
+    graph lists as its ``endpoint_gid``, known as soon as the publisher exists (the graph lists it only once
+    discovery has processed it, asynchronously on rmw_cyclonedds_cpp): ``rmw_get_gid_for_publisher``,
+    and where that is rmw_cyclonedds_cpp's instance handle, Cyclone's ``dds_get_guid`` of the writer."""
     try:
         rcl = ctypes.CDLL(_loaded("librcl.so"))  # its dependencies give rmw_get_gid_for_publisher
     except OSError as exc:
@@ -139,7 +140,17 @@ def publisher_gid(pointer: int) -> bytes:
     rcl.rmw_get_gid_for_publisher.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
     if not handle or rcl.rmw_get_gid_for_publisher(handle, ctypes.byref(gid)) != 0:
         raise TransportError("rmw_get_gid_for_publisher failed")
-    return gid16(bytes(gid.data))
+    data = gid16(bytes(gid.data))
+    if not is_handle_gid(gid.implementation_identifier, data):
+        return data
+    # rmw_cyclonedds_cpp gives the instance handle here too: the GUID of its writer entity
+    # (rmw_publisher_t: implementation_identifier, data -> CddsPublisher, which starts with its dds_entity_t)
+    pub = ctypes.c_void_p.from_address(handle + ctypes.sizeof(ctypes.c_void_p)).value
+    guid = (ctypes.c_uint8 * 16)()
+    if not pub or ctypes.CDLL(_loaded("libddsc.so.0")).dds_get_guid(ctypes.c_int32.from_address(pub).value,
+                                                                    ctypes.byref(guid)) != 0:
+        raise TransportError("dds_get_guid failed for a publisher's writer")
+    return bytes(guid)
 
 
 class SerializedTake:

@@ -24,6 +24,7 @@ from launch.actions import DeclareLaunchArgument, ExecuteProcess, OpaqueFunction
 from launch.conditions import IfCondition, UnlessCondition
 from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
+from launch_ros.substitutions import ExecutableInPackage
 
 from launch import LaunchDescription
 
@@ -43,7 +44,8 @@ def generate_launch_description():
     driver = Node(package="dem_ros", executable="hw_driver", name="hw_driver", output="screen",
                   parameters=[params, {"url": url, "auto_arm": LaunchConfiguration("auto_arm")}])
     rig = ExecuteProcess(
-        cmd=["dem-ros", "rig", "--url", RIG_URL, "--params", params, "--scenario", LaunchConfiguration("scenario")],
+        # the package's own dem-ros (lib/dem_ros; a colcon install puts none on PATH)
+        cmd=[ExecutableInPackage("dem-ros", "dem_ros"), "rig", "--url", RIG_URL, "--params", params, "--scenario", LaunchConfiguration("scenario")],
         output="screen",
         condition=IfCondition(is_rig),
     )

@@ -198,7 +198,8 @@ def test_callback_error_is_counted_and_the_node_keeps_running(node):
 
 def test_sources_name_the_writer_of_every_sample_among_two(node):
     """Each sample comes with its writer's GID (rcl's message info, taken through ctypes), the one
-    publisher_gids lists for that writer's node, also while two writers share the topic."""
+    publisher_gids lists for that writer's node and its publisher holds, also while two writers share the
+    topic."""
     from dem_ros.nodes.common import joint_state
     from dem_ros.transport.api import GID_SIZE
 
@@ -220,6 +221,7 @@ def test_sources_name_the_writer_of_every_sample_among_two(node):
             p_rogue.publish(joint_state(JS, 2 * k + 2, effort=(float(2 * k + 2), 0.0)))
         _spin_until(spin, lambda: len(got) >= 6, 10.0)
         ctl_gid, rogue_gid = next(iter(g_ctl)), next(iter(g_rogue))
+        assert (p_ctl.gid, p_rogue.gid) == (ctl_gid, rogue_gid)  # what in-memory delivery hands on, the same GID
         assert sorted(got) == [(float(v), ctl_gid if v % 2 else rogue_gid) for v in range(1, 7)]
     finally:
         rogue.shutdown()
@@ -254,3 +256,17 @@ def test_log_lines_reach_a_stock_rosout_subscription_from_one_writer(node, capfd
     finally:
         ex.shutdown()
         stock.destroy_node()
+
+
+def test_cyclone_instance_handle_gids_are_told_from_guids():
+    """rmw_cyclonedds_cpp gives a sample's writer as its 8-byte instance handle (zero-padded), the graph
+    lists its GUID: the take resolves the former (with a sourced Jazzy on rmw_cyclonedds_cpp,
+    test_sources_name_the_writer_of_every_sample_among_two checks the resolution end to end)."""
+    from dem_ros.transport.rclpy.take import CYCLONE, is_handle_gid
+
+    handle = (0x94BAE4ADF3D114C1).to_bytes(8, "little") + bytes(8)
+    guid = bytes.fromhex("0110b767817464d2574523b800005a03")
+    assert is_handle_gid(CYCLONE, handle)
+    assert not is_handle_gid(CYCLONE, guid)
+    assert not is_handle_gid(b"rmw_fastrtps_cpp", handle)
+    assert not is_handle_gid(CYCLONE, bytes(16))

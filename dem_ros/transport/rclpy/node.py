@@ -54,6 +54,7 @@ from ..loop import LocalSubscription, LoopTimer, SourcedLocalSubscription, deliv
 from ..parameters import ParameterStore
 from ..rosargs import initial_parameters, parse_ros_args
 from .executor import RclpyExecutor
+from .take import publisher_gid
 
 __all__ = ["RclpyNode", "RclpyPublisher", "ros_type", "to_qos_profile"]
 
@@ -212,22 +213,13 @@ class RclpyNode:
 
     def publisher(self, topic: Topic) -> RclpyPublisher:
         resolved = self._resolve(topic)
-        before = self._own_writers(resolved)
         pub = self._node.create_publisher(ros_type(topic.type), topic.name, to_qos_profile(topic.qos.for_writer()))
-        new = self._own_writers(resolved) - before
-        gid = next(iter(new)) if len(new) == 1 else b""
+        gid = publisher_gid(int(pub.handle.pointer))
         cls = msgs.message_class(topic.type)
         if self._ex.intra_process:
-            if not gid:
-                raise TransportError(f"{self.fully_qualified_name}: the new writer on {resolved} is not on the graph")
             self._ex.local_writers.add(gid)
             return RclpyPublisher(pub, cls, self._ex.local_subscriptions(resolved), self._ex.queue, gid)
         return RclpyPublisher(pub, cls, gid=gid)
-
-    def _own_writers(self, resolved: str) -> set[bytes]:
-        fqn = self.fully_qualified_name
-        return {gid16(i.endpoint_gid) for i in self._node.get_publishers_info_by_topic(resolved)
-                if node_fqn(i.node_name, i.node_namespace) == fqn}
 
     def _subscribe(self, topic: Topic, handler: Callable[[bytes, bytes], object],
                    local: LocalSubscription | None) -> None:

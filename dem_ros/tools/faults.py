@@ -759,7 +759,11 @@ def _outage_s(info: dict[str, Any], name: str, killed_ns: int | None) -> float |
 
 
 def _lost(info: dict[str, Any], problems: list[str]) -> list[str]:
-    """What a run lost: the recorder's drops, what the bag says about itself, a summary that could not be made."""
+    """What a run lost: the recorder's drops, what the bag says about itself, a summary that could not be made
+    (a node's refusal of a foreign writer qualifies the run, it loses nothing: the ``reported`` column has it)."""
+    from .runmetrics import is_refusal
+
+    problems = [p for p in problems if not is_refusal(p)]
     dropped = sum(v.get("dropped", 0) for v in (info.get("recorder") or {}).values())
     lost = [f"{dropped} dropped", *problems] if dropped else list(problems)
     if info.get("summary_error"):

@@ -356,7 +356,7 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     m.problems = run_problems(r, src["stamp_ns"], ref["stamp_ns"], epoch, ts, m.duration_s, had_ref)
     m.problems += [f"{n} message(s) on {topic} left out: not the topic's JointState layout (a foreign or corrupt"
                    " writer)" for topic, n in skipped.items()]
-    m.problems += [f"{name.split(':')[0]} refused {n} sample(s) from writers not bound to its inputs ({why})"
+    m.problems += [f"{name.split(':')[0]} refused {n} sample(s) {REFUSED} ({why})"
                    for name, (n, why) in refusals.items() if n > 0]
     status = ((r.metadata_yaml or {}).get("custom_data") or {}).get("dem_ros.status")
     facts = run_facts(src["stamp_ns"], epoch, run, loop_hist, m.problems,
@@ -445,6 +445,15 @@ def _stretches(idx: np.ndarray) -> tuple[int, int, int]:
     ends = np.concatenate((idx[breaks], [idx[-1]]))
     k = int(np.argmax(ends - starts))
     return int(starts.size), int(starts[k]), int(ends[k] - starts[k] + 1)
+
+
+#: the words of a verdict reason that says a node refused a writer's samples (a qualified run, not lost data)
+REFUSED = "from writers not bound to its inputs"
+
+
+def is_refusal(problem: str) -> bool:
+    """Whether a run's problem line is a node's refusal of writers (``refused N sample(s) ...``), not a loss."""
+    return REFUSED in problem
 
 
 def _note_refusals(refusals: dict[str, tuple[int, str]], status: Any) -> None:

@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 #: (Cyclone DDS maps higher ids to UDP ports that can collide with the ephemeral range on Linux/macOS)
 DOMAIN_ID_MAX = 101
 
-__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "HW_LOOP_STATUS", "LOOP_STATUS", "MAGNETS", "RECORDER_STATUS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic", "markdown_table"]
+__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "HW_LOOP_STATUS", "LOOP_STATUS", "MAGNETS", "RECORDER_STATUS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic", "markdown_table", "status_level"]
 
 FRAME = "dem"
 FRAME_PREROLL = "dem/preroll"
@@ -186,3 +186,10 @@ def markdown_table() -> str:
         lines.append(" | ".join(["", f"`{t.name}`", f"`{t.type}`", cell(t.fields), rate, qos, cell(t.publisher),
                                  cell(", ".join(t.subscribers)), ""]).strip())
     return "\n".join(lines) + "\n"
+
+
+def status_level(status: object) -> int:
+    """A ``diagnostic_msgs/DiagnosticStatus``'s level as an int (0 OK, 1 WARN, 2 ERROR, 3 STALE), whichever way the
+    transport or the bag reader gave its ``byte`` field (an int, or one byte)."""
+    level = status.level  # type: ignore[attr-defined]
+    return level[0] if isinstance(level, (bytes, bytearray)) else int(level)

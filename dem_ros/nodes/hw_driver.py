@@ -471,7 +471,7 @@ class HwClient:
     def _values(st) -> dict[str, str]:
         out = {kv.key: kv.value for kv in st.values}
         out["state"] = st.message
-        out["level"] = str(st.level[0] if isinstance(st.level, bytes) else st.level)
+        out["level"] = str(contract.status_level(st))
         return out
 
     def request(self, verb: str, reason: str = "", *, timeout_s: float = 5.0) -> dict[str, str]:

@@ -132,7 +132,7 @@ class Injector:
 
     def _on_diag(self, m: Any) -> None:
         for st in m.status:
-            level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
+            level = contract.status_level(st)
             if level >= 1:
                 self.diags.append((-math.inf if self.t is None else self.t, str(st.name), level))
 
@@ -503,7 +503,7 @@ def _read_bag(bag: Path, measured: bool = False) -> dict[str, Any]:
                     loop = vals
                     if vals.get("epoch_ns", "").isdigit():
                         epoch = int(vals["epoch_ns"])
-                level = s.level[0] if isinstance(s.level, bytes) else int(s.level)
+                level = contract.status_level(s)
                 diags.append((log_ns, s.name, level, s.message, vals))
         truncated = r.truncated
     problems = [f"{n} recorded sample(s) of {topic} do not decode (the injected ones, recorded as sent)"

@@ -464,7 +464,7 @@ def _note_refusals(refusals: dict[str, tuple[int, str]], status: Any) -> None:
         n = int(values.get("refused", "0"))
     except ValueError:
         return
-    level = status.level if isinstance(status.level, int) else int.from_bytes(bytes(status.level), "little")
+    level = contract.status_level(status)
     prev_n, prev_why = refusals.get(status.name, (0, ""))
     why = status.message if level >= 2 and "refused" in status.message else prev_why
     refusals[status.name] = (max(n, prev_n), why)

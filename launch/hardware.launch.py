@@ -45,11 +45,13 @@ def generate_launch_description():
                   parameters=[params, {"url": url, "auto_arm": LaunchConfiguration("auto_arm")}])
     rig = ExecuteProcess(
         # the package's own dem-ros (lib/dem_ros; a colcon install puts none on PATH)
-        cmd=[ExecutableInPackage("dem-ros", "dem_ros"), "rig", "--url", RIG_URL, "--params", params, "--scenario", LaunchConfiguration("scenario")],
+        cmd=[ExecutableInPackage("dem-ros", "dem_ros"), "rig", "--url", RIG_URL, "--params", params,
+             "--scenario", LaunchConfiguration("scenario")],
         output="screen",
         condition=IfCondition(is_rig),
     )
-    bag = PythonExpression(["'", LaunchConfiguration("bag_dir"), "/' + __import__('time').strftime('%Y%m%d-%H%M%S') + '_hw'"])
+    bag = PythonExpression(["'", LaunchConfiguration("bag_dir"),
+                            "/' + __import__('time').strftime('%Y%m%d-%H%M%S') + '_hw'"])
     recorder = ExecuteProcess(
         cmd=["ros2", "run", "dem_ros", "recorder", "--bag", bag],
         output="screen",

@@ -200,8 +200,9 @@ class HwDriverNode:
         # (the DDS node's is time.time_ns(); the rclpy node's clock is gone with its node after shutdown).
         # A backlog (frames queued while the process started or stalled) is drained DRAIN_BATCH frames at a
         # time, each batch followed by a real sleep: drained in one go it held the lock throughout, so the
-        # executor could forward no command on a loaded host (the board never left OFF), and at SCHED_FIFO it never slept: the RT budget (200 ms) put the process back to normal
-        # scheduling, where it fell further behind.
+        # executor could forward no command on a loaded host (the board never left OFF), and at SCHED_FIFO it
+        # never slept: the RT budget (200 ms) put the process back to normal scheduling, where it fell further
+        # behind.
         while not self.stop.is_set():
             ready = poller.poll(5)
             batch = 0

@@ -23,8 +23,8 @@ domain (:class:`Injector`); nodes are killed with SIGKILL and restarted by the l
 hardware driver, and the emulated board and rig ``dem-ros rig`` as its own free-running 1 kHz process, over UDP on
 loopback; ``controller.command_delay=2``), one row per rig fault (``dem-ros rig --fault``, scheduled on the board's
 clock at the experiment's t = ``--at``), an e-stop on ``/dem/hw/estop`` or a killed controller (for that row the
-controller runs in a process of its own beside the container: ``--apart controller``). A rig has no truth topic, so the
-plate's truth is the emulator's own (its ``RIG`` summary in ``rig.log``: smallest true gap since the release,
+controller runs in a process of its own beside the container: ``--apart controller``). A rig has no truth topic, so
+the plate's truth is the emulator's own (its ``RIG`` summary in ``rig.log``: smallest true gap since the release,
 fastest descent while the board landed it, rail contact):
 
 * **outcome**: ``failed`` on rail contact (the emulated plant's failure, or a true gap at ``gap_min``), a board
@@ -703,10 +703,22 @@ def _judge_hw(bag: Path, t_fault_s: float, cfg: dict, spec: FaultSpec, rig: dict
     return out
 
 
+def _apart(spec: FaultSpec) -> tuple[str, ...]:
+    """The rig rows' killed node runs in a process of its own beside the container (``--apart``), the rest
+    composed: the rig does not hold with a process per node on a 2-core host (docs/manual/faults.md)."""
+    return (spec.kill,) if spec.hardware and spec.kill is not None else ()
+
+
+def _how(spec: FaultSpec, compose: bool) -> str:
+    """The row's processes as the table and the progress lines say them."""
+    apart = _apart(spec)
+    return f"composed, {', '.join(apart)} apart" if apart else "composed" if compose else "per process"
+
+
 def run_row(spec: FaultSpec, *, compose: bool, scenario: str, duration: float, at: float, free_run: bool,
             workdir: Path, domain_id: int, sets: list[str]) -> Row:
     """Launch the graph, inject ``spec`` at ``at`` s, judge the bag (a disk row: on a small tmpfs)."""
-    how = "composed" if compose else "per process"
+    how = _how(spec, compose)
     os.environ["ROS_DOMAIN_ID"] = str(domain_id)
     workdir.mkdir(parents=True, exist_ok=True)
     if spec.hardware:
@@ -859,11 +871,8 @@ def _run_hw_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, dura
     from the bag, the node logs and the emulator's own figures (rig.log)."""
     from .launcher import _config_from_args
 
-    # a killed node runs in a process of its own beside the container (the rest composed, as on a rig: with a
-    # process per node the emulated board and five node processes need ~190 % of a 2-core host)
-    apart = (spec.kill,) if spec.kill is not None else ()
-    if apart:
-        compose, how = True, f"composed, {spec.kill} apart"
+    apart = _apart(spec)
+    compose = compose or bool(apart)
     args = _launch_args(scenario, duration, compose, False, workdir, domain_id, [*HW_SETS, *sets], hardware="rig",
                         apart=apart)
     cfg, _, _ = _config_from_args(args)
@@ -931,7 +940,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "rig, UDP on loopback, controller.command_delay=2; rig faults, an e-stop, a killed controller)")
     p.add_argument("--processes", choices=("per-process", "composed", "both"), default=None,
                    help="the graph as a process per node, composed in one process, or both (default: both; with "
-                        "--hardware rig each row once, composed; a killed controller in a process of its own beside the container)")
+                        "--hardware rig each row once, composed; a killed controller in a process of its own "
+                        "beside the container)")
     p.add_argument("--scenario", default="S1")
     p.add_argument("--duration", type=float, default=4.0, help="seconds of each run (default 4)")
     p.add_argument("--at", type=float, default=1.5, help="inject at this experiment time [s] (default 1.5)")
@@ -984,9 +994,7 @@ def cmd_faults(args: argparse.Namespace) -> int:
     domain = args.domain_id if args.domain_id is not None else 1 + os.getpid() % 100
     rows: list[Row] = []
     for spec, compose in _plan(specs, args.processes, bool(args.hardware)):
-        how = (f"composed, {spec.kill} apart" if spec.hardware and spec.kill else "composed" if compose
-               else "per process")
-        print(f"dem-ros faults: {spec.name} ({how}): {spec.description}", file=sys.stderr, flush=True)
+        print(f"dem-ros faults: {spec.name} ({_how(spec, compose)}): {spec.description}", file=sys.stderr, flush=True)
         row = run_row(spec, compose=compose, scenario=args.scenario, duration=max(args.duration, spec.min_duration),
                       at=args.at, free_run=args.free_run,
                       workdir=work / spec.name / ("composed" if compose else "processes"), domain_id=domain, sets=args.set)

@@ -9,12 +9,10 @@ the writers' (100 samples, 100 ms) a 0.6 s stall lost 254 consecutive plant samp
 a 4 MiB host); with the writers' 1 s (``QOS_STREAM.writer_depth``) the stall plus the recovery fit.
 """
 
-import os
-import signal
-import threading
 import time
 
 import numpy as np
+from process_stop import StopOnce
 
 from dem_ros import contract
 from dem_ros.bag import BagReader
@@ -33,29 +31,14 @@ def test_a_stalled_recorder_loses_no_plant_sample(tmp_path, domain_id):
     cfg = get_scenario("S1").config()
     bag = tmp_path / "run"
     meta = {"scenario": "S1", "controller": "adaptive", "estimator": "kf", "transport": "dds", "config": cfg}
-    stall: dict = {}
-
-    def stop_and_continue(pid: int) -> None:
-        os.kill(pid, signal.SIGSTOP)
-        t0 = time.monotonic()
-        time.sleep(STALL_S)
-        os.kill(pid, signal.SIGCONT)
-        stall["stopped_s"] = time.monotonic() - t0
-
-    def supervise(t, procs, _restart):
-        if t is not None and t >= STALL_AT_S and "thread" not in stall:
-            stall["thread"] = threading.Thread(target=stop_and_continue, args=(procs["recorder"].pid,))
-            stall["thread"].start()
-        return ()
-
+    stall = StopOnce("recorder", STALL_AT_S, STALL_S)
     try:
         launcher.run_graph(cfg, duration=DURATION, transport="dds", bag=bag, meta=meta, domain_id=domain_id,
-                           status=False, workdir=tmp_path / "logs", supervise=supervise)
+                           status=False, workdir=tmp_path / "logs", supervise=stall)
     finally:
-        if "thread" in stall:
-            stall["thread"].join()
-    assert "thread" in stall, "the run ended before the recorder was stopped"
-    assert stall["stopped_s"] >= STALL_S
+        stall.join()
+    assert stall.stopped_s is not None, "the run ended before the recorder was stopped"
+    assert stall.stopped_s >= STALL_S
 
     m = BagReader(bag).joint_state_arrays(contract.MEASUREMENT.name)
     stamps = np.sort(m["stamp_ns"])

@@ -13,6 +13,17 @@ What each setting is for (a Python loop on a stock, non-RT Linux kernel):
   get ``priority - 1``, and so do the process's other Python threads (the bag writer): they share the GIL
   with the loop, and a helper thread preempted by a busy neighbour while it holds the GIL
   would keep the loop waiting for it (priority inversion); they sleep between their bursts.
+* **off the loop's path** (``priority`` 0; the recorder): normal scheduling at nice
+  :data:`OFF_LOOP_NICE`, every other setting as for the loop. A process that is not on the
+  sample path must not spend the CPUs' real-time budget: the kernel lets real-time threads
+  use at most ``sched_rt_runtime_us`` of each CPU per ``sched_rt_period_us`` (950 of 1000 ms)
+  and then runs the starved normal threads for the rest of the period, so that *every*
+  real-time thread on that CPU waits up to 50 ms. One process per node on the rig (driver,
+  estimator, controller, reference, the emulated board and a recorder at SCHED_FIFO) took
+  ~180 % of the 2 cores at real-time priority; its loop stalled for 50 ms ("runnable") about
+  ten times in a 30 s run and the board's watchdog landed the plate; with the recorder at nice
+  -10 instead, nothing stalled that long (docs/results.md). At nice -10 a busy normal
+  process (weight 1024) still cannot take more than a tenth of a core from it (9548).
 * **mlockall** (``lock_memory``; ``MCL_CURRENT | MCL_FUTURE | MCL_ONFAULT``): no page the process
   has touched is paged out (or reclaimed and faulted in again) while the loop runs.
   ``MCL_ONFAULT`` (Linux >= 4.4) locks pages as they are used instead of populating every
@@ -62,7 +73,7 @@ container alike (``dem-ros launch/bench --rt/--no-rt`` set it for their children
 variable                    default        meaning
 ==========================  =============  ============================================
 ``DEM_ROS_RT``              ``1``          ``0``: leave the process as it is
-``DEM_ROS_RT_PRIORITY``     ``50``         SCHED_FIFO priority (1..99)
+``DEM_ROS_RT_PRIORITY``     ``50``         SCHED_FIFO priority (1..99); 0: off the loop's path
 ``DEM_ROS_RT_LOCK_MEMORY``  ``1``          ``0``: no mlockall
 ``DEM_ROS_RT_CPUS``         (none)         e.g. ``1`` or ``0,1``: pin the loop's threads
 ``DEM_ROS_RT_STALL_MS``     ``5``          report loop stalls longer than this (ms)
@@ -112,7 +123,7 @@ from typing import Any
 
 from .core.params import ConfigError
 
-__all__ = ["ENV", "REPORT_PREFIX", "STALLS_PREFIX", "Granted", "RtConfig", "RtConfigError", "StallMonitor", "apply",
+__all__ = ["ENV", "OFF_LOOP_NICE", "REPORT_PREFIX", "STALLS_PREFIX", "Granted", "RtConfig", "RtConfigError", "StallMonitor", "apply",
            "config_from_env", "enter_loop", "granted", "leave_loop", "loop_monitor", "tty_workers_fifo"]
 
 #: environment variables read by :func:`config_from_env`
@@ -137,6 +148,9 @@ STALLS_PREFIX = "STALLS "
 STALL_LINES_PER_S = 5
 #: a real-time thread that runs this long without sleeping puts the process back to normal scheduling
 RT_BUDGET_MS = 200
+#: nice value of a process off the loop's path (``priority`` 0): above every busy normal process, at no
+#: cost to the CPUs' real-time budget
+OFF_LOOP_NICE = -10
 #: how to grant what is missing (one line)
 HOW_TO_GRANT = ("grant it with '@realtime - rtprio 99' and '@realtime - memlock unlimited' in "
                 "/etc/security/limits.conf (user in group realtime), or in a container "
@@ -161,8 +175,9 @@ class RtConfig:
     def __post_init__(self) -> None:
         if not self.stall_ms > 0:
             raise RtConfigError(f"stall threshold must be > 0 ms, got {self.stall_ms}")
-        if not 1 <= self.priority <= 99:
-            raise RtConfigError(f"SCHED_FIFO priority must be 1..99, got {self.priority}")
+        if not 0 <= self.priority <= 99:
+            raise RtConfigError(f"SCHED_FIFO priority must be 1..99 (0: normal scheduling, off the loop's path),"
+                                f" got {self.priority}")
         if self.timer_slack_ns < 1:
             raise RtConfigError(f"timer slack must be >= 1 ns, got {self.timer_slack_ns}")
         n = os.cpu_count() or 1
@@ -179,6 +194,7 @@ class Granted:
         requested: the settings asked for (False: DEM_ROS_RT=0).
         fifo_priority: SCHED_FIFO priority of the loop's thread, or None (normal scheduling).
         fifo_threads: threads set to SCHED_FIFO (names, the loop's thread first).
+        nice: the process's threads' nice value when off the loop's path (priority 0), or None.
         memory_locked: mlockall succeeded.
         timer_slack_ns: the loop thread's timer slack (ns), or None if not set.
         cpus: cores the loop's threads are pinned to, or None.
@@ -191,6 +207,7 @@ class Granted:
     requested: bool = False
     fifo_priority: int | None = None
     fifo_threads: list[str] = field(default_factory=list)
+    nice: int | None = None
     memory_locked: bool = False
     timer_slack_ns: int | None = None
     cpus: list[int] | None = None
@@ -233,7 +250,7 @@ def config_from_env(env: Mapping[str, str] | None = None) -> RtConfig:
     try:
         priority = int(p) if p else 50
     except ValueError:
-        raise RtConfigError(f"{ENV['priority']}={p!r}: not an integer (1..99)") from None
+        raise RtConfigError(f"{ENV['priority']}={p!r}: not an integer (1..99, or 0)") from None
     c = env.get(ENV["cpus"], "").strip()
     try:
         cpus = tuple(int(x) for x in c.split(",") if x.strip()) if c else ()
@@ -311,6 +328,20 @@ def _set_fifo(priority: int, threads: list[tuple[int, str, int]], g: Granted) ->
             g.fifo_threads.append(n if p == priority else f"{n} ({p})")
         except OSError:  # the thread has ended
             pass
+
+
+def _set_nice(nice: int, g: Granted) -> None:
+    """Every thread of this process (and so the threads they start) at ``nice``, normal scheduling."""
+    for tid, _ in _threads():
+        try:
+            os.setpriority(os.PRIO_PROCESS, tid, nice)  # Linux: a thread's own nice value
+        except PermissionError:
+            lim = resource.getrlimit(resource.RLIMIT_NICE)[0]
+            g.missing.append(f"nice {nice} (no CAP_SYS_NICE, RLIMIT_NICE {lim})")
+            return
+        except OSError:  # the thread has ended
+            pass
+    g.nice = nice
 
 
 def _lock_memory(libc: ctypes.CDLL, g: Granted) -> None:
@@ -420,7 +451,10 @@ def apply(cfg: RtConfig, *, warn=None) -> Granted:
             g.missing.append(f"CPU pinning to {list(cfg.cpus)} ({exc.strerror})")
     if cfg.lock_memory:
         _lock_memory(libc, g)
-    _set_fifo(cfg.priority, threads, g)
+    if cfg.priority == 0:
+        _set_nice(OFF_LOOP_NICE, g)
+    else:
+        _set_fifo(cfg.priority, threads, g)
     if g.fifo_priority is not None:
         g.rt_budget_ms = _arm_rt_budget(RT_BUDGET_MS)
     if g.missing:

@@ -80,6 +80,7 @@ GRAPH: frozenset[str] = frozenset({
     "test_domains.py::test_ids_held_by_another_process_are_leased_only_after_it_dies",
     "test_realtime.py::test_without_rt_permission_one_warning_line_and_the_loop_runs",
     "test_realtime.py::test_granted_where_permitted",
+    "test_realtime.py::test_priority_0_is_off_the_loop_s_path_normal_scheduling_at_nice_minus_10",
     "test_realtime.py::test_blas_computes_on_the_loop_thread_only",
     "test_realtime.py::test_rt_off_leaves_the_process_alone",
     "test_realtime.py::test_graph_without_rt_permission_warns_once_runs_and_leaves_no_cyclic_garbage",

@@ -20,7 +20,7 @@ from pathlib import Path
 import domains
 import pytest
 
-from dem_ros.realtime import ENV, REPORT_PREFIX, RtConfig, RtConfigError, StallMonitor, config_from_env
+from dem_ros.realtime import ENV, OFF_LOOP_NICE, REPORT_PREFIX, RtConfig, RtConfigError, StallMonitor, config_from_env
 
 ROOT = Path(__file__).resolve().parents[1]
 #: as an ordinary user: no CAP_SYS_NICE / CAP_IPC_LOCK, RLIMIT_RTPRIO 0, RLIMIT_MEMLOCK 64 KiB
@@ -70,7 +70,7 @@ def test_config_from_env_defaults_and_values():
 
 @pytest.mark.parametrize("name, value, says", [
     ("priority", "high", "DEM_ROS_RT_PRIORITY='high'"),
-    ("priority", "0", "1..99"),
+    ("priority", "-1", "1..99"),
     ("priority", "100", "1..99"),
     ("enabled", "maybe", "DEM_ROS_RT='maybe'"),
     ("cpus", "0;1", "DEM_ROS_RT_CPUS='0;1'"),
@@ -109,6 +109,26 @@ def test_granted_where_permitted():
     assert r.stderr.strip() == ""
     assert g["fifo_priority"] == 50 and g["memory_locked"] and g["timer_slack_ns"] == 1000
     assert _line(r.stdout, "CHILD ")["policy"] == os.SCHED_FIFO
+
+
+def test_priority_0_is_off_the_loop_s_path_normal_scheduling_at_nice_minus_10():
+    """The recorder's setting: no SCHED_FIFO (its CPU time would come out of the real-time budget), nice -10 on
+    every thread the process has and starts, and the rest of the settings as for a loop process."""
+    code = LOOP_CHILD + textwrap.dedent("""
+        t = threading.Thread(target=lambda: None)  # a thread started after enter_loop inherits the nice value
+        t.start(); t.join()
+        nices = {int(tid): os.getpriority(os.PRIO_PROCESS, int(tid)) for tid in os.listdir("/proc/self/task")}
+        print("NICE " + json.dumps({"nices": sorted(set(nices.values())), "started": t.native_id is not None}))
+    """)
+    r = _run_child(code, {ENV["priority"]: "0"})
+    assert r.returncode == 0, r.stderr
+    g = _line(r.stdout, REPORT_PREFIX)
+    if g["missing"]:
+        pytest.skip(f"this process may not use real-time settings here: {g['missing']}")
+    assert g["fifo_priority"] is None and g["fifo_threads"] == [] and g["nice"] == OFF_LOOP_NICE == -10
+    assert g["memory_locked"] and g["timer_slack_ns"] == 1000 and g["rt_budget_ms"] is None
+    assert _line(r.stdout, "CHILD ")["policy"] == os.SCHED_OTHER
+    assert _line(r.stdout, "NICE ")["nices"] == [-10]
 
 
 def test_blas_computes_on_the_loop_thread_only():

@@ -33,8 +33,10 @@ __all__ = ["RecorderNode", "main", "parse_recorder_args"]
 #: streams' writers (contract.QOS_STREAM.writer_depth), so that what they resend after a stall of this
 #: process is not pushed out of the reader's history before this node's thread takes it
 RECORDER_DEPTH = 3000
-#: SCHED_FIFO priority of a recorder process (the loop's nodes: 50, dem_ros.realtime) unless DEM_ROS_RT_PRIORITY is set
-RECORDER_PRIORITY = 40
+#: a recorder process's DEM_ROS_RT_PRIORITY unless set: 0, off the loop's path (normal scheduling at nice -10,
+#: dem_ros.realtime): at SCHED_FIFO its ~20 % of a core came out of the CPUs' real-time budget, which one process
+#: per node on the rig then overran (the kernel stopped every real-time thread for up to 50 ms)
+RECORDER_PRIORITY = 0
 
 
 class RecorderNode:
@@ -136,8 +138,7 @@ def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
 
 
 def main(args=None) -> int:
-    # a process of its own: not on the loop's path, so below the loop's nodes (dem_ros.realtime);
-    # with SCHED_FIFO at their priority it would take their core for its ~30 % of one
+    # a process of its own: not on the loop's path, so below the loop's nodes (RECORDER_PRIORITY)
     own_priority = RT_ENV["priority"] not in os.environ
     if own_priority:
         os.environ[RT_ENV["priority"]] = str(RECORDER_PRIORITY)

@@ -65,7 +65,7 @@ $(ARM_STAMP): $(STAMP) Makefile
 test: $(STAMP) $(ROS_STAMP) $(ARM_STAMP)
 	@grep -q '^installed' $(ROS_STAMP) || echo "make: no rclpy, the rclpy tests skip: $$(cat $(ROS_STAMP))"
 	@grep -q '^installed' $(ARM_STAMP) || echo "make: no Cortex-M toolchain, the firmware's ARM test skips: $$(cat $(ARM_STAMP))"
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q --durations=25 tests
 
 # the unit tier (tests/conftest.py marks the tiers): no process, no DDS; a change is checked in a few minutes
 test-fast: $(STAMP)

@@ -13,7 +13,8 @@ topic's real writer with its own, stamped as the *next* sample (first in line), 
 
 A row passes when the plate kept tracking (max |truth - y_m| < 50 um from the rogue's start to the end, y_m the
 reference model run offline from the run's own start, checked against the bag before the rogue), did not land,
-and some ``<node>: inputs`` status on /diagnostics in the bag went ERROR naming the rogue's writer GID.
+some ``<node>: inputs`` status on /diagnostics in the bag went ERROR naming the rogue's writer GID, and the run's
+verdict (from the bag, as ``dem-ros replay`` gives it) is degraded with a reason naming that GID.
 """
 
 from __future__ import annotations
@@ -143,9 +144,20 @@ def judge(bag: Path, cfg: dict, at: float, gid: str) -> dict[str, Any]:
     errors = [(name, msg) for level, name, msg, _v in b["inputs"] if level >= 2 and gid and gid in msg]
     refused = max((int(v.get("refused", 0)) for _l, _n, _m, v in b["inputs"]), default=0)
     malformed = max((int(v.get("malformed", 0)) for _l, _n, _m, v in b["inputs"]), default=0)
+    verdict, reasons = _verdict(bag)
+    named = any(gid[:8] in why for why in reasons) if gid else False  # the reason names the refused writer
     return {"max_error_um": round(max_err, 2), "model_check_um": round(model_err * 1e6, 3), "landed": landed,
             "reported": sorted({n for n, _m in errors}), "refused": refused, "malformed": malformed,
-            "ok": bool(max_err < 50.0 and not landed and errors)}
+            "verdict": verdict, "verdict_reasons": reasons,
+            "ok": bool(max_err < 50.0 and not landed and errors and verdict == "degraded" and named)}
+
+
+def _verdict(bag: Path) -> tuple[str, list[str]]:
+    """The run's verdict and its reasons as ``dem-ros replay`` computes them from the bag alone."""
+    from dem_ros.tools.runmetrics import load_run
+
+    m, _series = load_run(bag)
+    return m.verdict, list(m.verdict_reasons)
 
 
 def run_row(topic: str, kind: str, *, compose: bool, free_run: bool, duration: float, at: float, samples: int,
@@ -195,11 +207,12 @@ def run_row(topic: str, kind: str, *, compose: bool, free_run: bool, duration: f
 
 def table(rows: list[dict[str, Any]]) -> str:
     lines = ["| topic | rogue | processes | timing | max \\|truth - y_m\\| [um] | landed | reported (ERROR) | "
-             "refused | malformed | pass |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "refused | malformed | verdict | pass |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| `{r['topic']}` | {r['kind']} ({r['writer']}) | {r['processes']} | {r['timing']} | "
                      f"{r.get('max_error_um', '-')} | {r.get('landed', '-')} | {', '.join(r.get('reported', [])) or '-'}"
-                     f" | {r.get('refused', '-')} | {r.get('malformed', '-')} | {'yes' if r.get('ok') else 'NO'} |")
+                     f" | {r.get('refused', '-')} | {r.get('malformed', '-')} | {r.get('verdict', '-')}"
+                     f" | {'yes' if r.get('ok') else 'NO'} |")
     return "\n".join(lines)
 
 

@@ -29,7 +29,8 @@ from dataclasses import dataclass, replace
 #: (Cyclone DDS maps higher ids to UDP ports that can collide with the ephemeral range on Linux/macOS)
 DOMAIN_ID_MAX = 101
 
-__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "HW_LOOP_STATUS", "LOOP_STATUS", "MAGNETS", "RECORDER_STATUS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic", "markdown_table", "status_level"]
+__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "HW_LOOP_STATUS", "LOOP_STATUS", "MAGNETS",
+           "RECORDER_STATUS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic", "markdown_table", "status_level"]
 
 FRAME = "dem"
 FRAME_PREROLL = "dem/preroll"
@@ -110,7 +111,8 @@ ESTIMATE = Topic(
     "/dem/state_estimate", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "estimator",
     ("controller", "recorder"),
     "position: estimated gaps [m]; velocity: estimated gap rates [m/s]; effort: estimated currents [A]; "
-    "none after a (re)start until the filter has converged (a start confirmed by the next sample; in the pre-roll that is all)",
+    "none after a (re)start until the filter has converged (a start confirmed by the next sample; in the pre-roll "
+    "that is all)",
 )
 REFERENCE = Topic(
     "/dem/reference", "sensor_msgs/msg/JointState", QOS_STREAM, 1000.0, "reference",
@@ -166,8 +168,8 @@ HW_ESTOP = Topic(
     "emergency stop: any message latches a fault and lands the plate; data = the reason",
 )
 
-TOPICS = (MEASUREMENT, TRUTH, APPLIED, ESTIMATE, REFERENCE, COMMAND, CONTROLLER_STATE, DIAGNOSTICS, RUN_INFO, PARAMETER_EVENTS,
-          HW_STATE, HW_REQUEST, HW_ESTOP)
+TOPICS = (MEASUREMENT, TRUTH, APPLIED, ESTIMATE, REFERENCE, COMMAND, CONTROLLER_STATE, DIAGNOSTICS, RUN_INFO,
+          PARAMETER_EVENTS, HW_STATE, HW_REQUEST, HW_ESTOP)
 
 
 def markdown_table() -> str:
@@ -179,7 +181,8 @@ def markdown_table() -> str:
     lines = ["| topic | type | fields (SI) | rate | QoS | publisher | subscribers |", "|---|---|---|---|---|---|---|"]
     for t in TOPICS:
         q = t.qos
-        qos = f"{'reliable' if q.reliable else 'best effort'}, {'transient local' if q.transient_local else 'volatile'}, depth {q.depth}"
+        qos = (f"{'reliable' if q.reliable else 'best effort'}, "
+               f"{'transient local' if q.transient_local else 'volatile'}, depth {q.depth}")
         if q.writer_depth is not None:
             qos += f" (writers {q.writer_depth})"
         rate = f"{t.rate_hz:g} Hz" if t.rate_hz else "on change"

@@ -123,8 +123,9 @@ from typing import Any
 
 from .core.params import ConfigError
 
-__all__ = ["ENV", "OFF_LOOP_NICE", "REPORT_PREFIX", "STALLS_PREFIX", "Granted", "RtConfig", "RtConfigError", "StallMonitor", "apply",
-           "config_from_env", "enter_loop", "granted", "leave_loop", "loop_monitor", "tty_workers_fifo"]
+__all__ = ["ENV", "OFF_LOOP_NICE", "REPORT_PREFIX", "STALLS_PREFIX", "Granted", "RtConfig", "RtConfigError",
+           "StallMonitor", "apply", "config_from_env", "enter_loop", "granted", "leave_loop", "loop_monitor",
+           "tty_workers_fifo"]
 
 #: environment variables read by :func:`config_from_env`
 ENV = {"enabled": "DEM_ROS_RT", "priority": "DEM_ROS_RT_PRIORITY", "lock_memory": "DEM_ROS_RT_LOCK_MEMORY",
@@ -688,7 +689,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error("give --tty-workers-fifo 1..99 and a command after --")
     with tty_workers_fifo(a.tty_workers_fifo) as changed:
         print(f"tty workers: {len(changed)} kworker/u thread(s) at SCHED_FIFO {a.tty_workers_fifo}" if changed
-              else "tty workers: not permitted (needs root / CAP_SYS_NICE); running the command anyway", file=sys.stderr)
+              else "tty workers: not permitted (needs root / CAP_SYS_NICE); running the command anyway",
+              file=sys.stderr)
         try:
             return subprocess.call(cmd)
         except OSError as exc:

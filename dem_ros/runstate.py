@@ -4,8 +4,9 @@
 the environment (:data:`ENV`). A node then says what the launcher waits for with :func:`announce`: that it
 is set up (``ready``), that the board answered (``board``), that the experiment's t = 0 came (``t0``), that
 the driver latched a fault (``fault``), that the run is over (``finished``). Each event is one JSON object
-on one line (with ``time_ns``, the node's ROS time of the event), written with one ``write`` below ``PIPE_BUF`` bytes (atomic: several processes share the
-pipe). Without the variable (a node started by hand or by ``ros2 run``), :func:`announce` does nothing.
+on one line (with ``time_ns``, the node's ROS time of the event), written with one ``write`` below ``PIPE_BUF`` bytes
+(atomic: several processes share the pipe). Without the variable (a node started by hand or by ``ros2 run``),
+:func:`announce` does nothing.
 
 The launcher reads these events, never the nodes' log text (a log line is for people).
 """
@@ -29,7 +30,8 @@ def announce(event: str, node: str, **values: Any) -> None:
     fd = os.environ.get(ENV)
     if not fd:
         return
-    line = json.dumps({"event": event, "node": node, "time_ns": time.time_ns(), **values}, default=str)[:_MAX - 1] + "\n"
+    line = json.dumps({"event": event, "node": node, "time_ns": time.time_ns(), **values},
+                      default=str)[:_MAX - 1] + "\n"
     with contextlib.suppress(OSError, ValueError):  # the launcher is gone, or not a descriptor of ours
         os.write(int(fd), line.encode())
 

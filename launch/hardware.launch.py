@@ -59,7 +59,8 @@ def generate_launch_description():
                                                 compose, "'.lower() != 'true'"])),
     )
     return LaunchDescription([
-        DeclareLaunchArgument("params_file", default_value=default_params, description="ROS 2 params file for every node"),
+        DeclareLaunchArgument("params_file", default_value=default_params,
+                              description="ROS 2 params file for every node"),
         DeclareLaunchArgument("link", default_value="rig",
                               description="udp://HOST:PORT, serial:///dev/PATH[?baud=N], or rig (start the emulator)"),
         DeclareLaunchArgument("auto_arm", default_value="false", description="arm the driver at start-up"),

@@ -47,12 +47,14 @@ def generate_launch_description():
     default_params = os.path.join(get_package_share_directory("dem_ros"), "config", "dem_ros.yaml")
     recorder = ExecuteProcess(
         cmd=["ros2", "run", "dem_ros", "recorder", "--bag",
-             PythonExpression(["'", LaunchConfiguration("bag_dir"), "/' + __import__('time').strftime('%Y%m%d-%H%M%S') + '_ros2'"])],
+             PythonExpression(["'", LaunchConfiguration("bag_dir"),
+                               "/' + __import__('time').strftime('%Y%m%d-%H%M%S') + '_ros2'"])],
         output="screen",
         condition=IfCondition(LaunchConfiguration("record")),
     )
     return LaunchDescription([
-        DeclareLaunchArgument("params_file", default_value=default_params, description="ROS 2 params file for every node"),
+        DeclareLaunchArgument("params_file", default_value=default_params,
+                              description="ROS 2 params file for every node"),
         DeclareLaunchArgument("record", default_value="false", description="record every topic to a bag"),
         DeclareLaunchArgument("bag_dir", default_value="bags", description="directory for the bag"),
         DeclareLaunchArgument("compose", default_value="false",

@@ -9,7 +9,8 @@ DOC = Path(__file__).resolve().parents[1] / "docs" / "manual" / "topics.md"
 
 def test_manual_table_is_generated_from_the_contract():
     text = DOC.read_text()
-    start = text.index("<!-- generated: contract.markdown_table() -->\n") + len("<!-- generated: contract.markdown_table() -->\n")
+    start = (text.index("<!-- generated: contract.markdown_table() -->\n")
+             + len("<!-- generated: contract.markdown_table() -->\n"))
     end = text.index("<!-- end generated -->")
     assert text[start:end] == contract.markdown_table(), "regenerate docs/manual/topics.md from dem_ros/contract.py"
 

@@ -147,7 +147,8 @@ def test_blas_computes_on_the_loop_thread_only():
                 if hasattr(h, name):
                     n[os.path.basename(lib)] = getattr(h, name)()
                     break
-        print("CHILD " + json.dumps({"set": g.blas_single_thread, "threads": n, "env": os.environ["OPENBLAS_NUM_THREADS"]}))
+        print("CHILD " + json.dumps({"set": g.blas_single_thread, "threads": n,
+                                     "env": os.environ["OPENBLAS_NUM_THREADS"]}))
     """)
     r = _run_child(code, {"OPENBLAS_NUM_THREADS": "4"})
     assert r.returncode == 0, r.stderr
@@ -330,7 +331,8 @@ def test_tty_workers_run_at_fifo_meanwhile_and_get_their_policy_back():
         pytest.skip("this kernel has no kworker/u threads right now")
     assert all(during[t] == os.SCHED_FIFO for t in changed if t in during), during
     post = workers()
-    assert {t: post[t] for t in changed if t in post and t in pre} == {t: pre[t] for t in changed if t in post and t in pre}
+    assert ({t: post[t] for t in changed if t in post and t in pre}
+            == {t: pre[t] for t in changed if t in post and t in pre})
 
 
 def test_the_tty_workers_wrapper_runs_the_command_and_passes_its_exit_code():
@@ -339,5 +341,6 @@ def test_the_tty_workers_wrapper_runs_the_command_and_passes_its_exit_code():
                        text=True, timeout=120, cwd=ROOT)
     assert r.returncode == 7 and "tty workers:" in r.stderr, r.stderr
     r = subprocess.run([sys.executable, "-m", "dem_ros.realtime", "--tty-workers-fifo", "1"],
-                       env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=120, cwd=ROOT)
+                       env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=120,
+                       cwd=ROOT)
     assert r.returncode == 2 and "a command after --" in r.stderr and "Traceback" not in r.stderr

@@ -90,7 +90,8 @@ class CheckReport:
         lines.append("topics:")
         w = max([len(t.name) for t in self.topics] + [5])
         for t in self.topics:
-            meta = "" if t.count_metadata is None or t.count_metadata == t.count else f" (metadata.yaml: {t.count_metadata})"
+            meta = ("" if t.count_metadata is None or t.count_metadata == t.count
+                    else f" (metadata.yaml: {t.count_metadata})")
             rate = ""
             if t.first_ns is not None and t.last_ns is not None and t.count > 1 and t.last_ns > t.first_ns:
                 rate = f"  {(t.count - 1) / ((t.last_ns - t.first_ns) / 1e9):8.1f} Hz"

@@ -77,9 +77,9 @@ noise on d_j' nor on beta_j: the contact force, not a bias, explains the missing
 driven nor walks while it cannot be observed. As soon as the magnets carry the load (lift-off) the free
 prediction moves the gap toward the rail and the model is the flying one again. Where the sensor puts the
 support is measured, not assumed: a gap on its support whose reading the innovation gate rejects, the last
-``SUPPORT_REINIT`` rejected readings in a row steady (each within 2 sqrt(chi2) sigma_gap of the first), is re-initialised from the
-reading (d_j = z_j, d_j' = 0, their covariance rows cleared, P_jj = sigma_gap^2; counted, no fault): a
-plate that dropped onto its support, or a support a little off d_s. Off the support a steady rejected
+``SUPPORT_REINIT`` rejected readings in a row steady (each within 2 sqrt(chi2) sigma_gap of the first), is
+re-initialised from the reading (d_j = z_j, d_j' = 0, their covariance rows cleared, P_jj = sigma_gap^2; counted, no
+fault): a plate that dropped onto its support, or a support a little off d_s. Off the support a steady rejected
 reading is never taken over (a stuck sensor on a moving plate must latch its fault).
 
 Numerical guard: the update is skipped (counted) when S is not finite or singular, and a state or
@@ -477,7 +477,8 @@ class KalmanEstimator:
                f" {g[G_LO]:g}..{g[G_HI]:g} m: {int(g[G_RANGE + j])}, innovation: {int(g[G_INNOV + j])} so far)"
                for j in range(2) if g[G_FAULT + j] > 0]
         out += [f"gap sensor {j + 1} or the load: acceleration bias {self.s[6 + j]:.2f} m/s^2 beyond bias_max"
-                f" {g[G_BMAX]:g} m/s^2 for {int(g[G_NFAULT])} samples (a stuck sensor, or a load the model cannot carry)"
+                f" {g[G_BMAX]:g} m/s^2 for {int(g[G_NFAULT])} samples"
+                " (a stuck sensor, or a load the model cannot carry)"
                 for j in range(2) if g[G_BFAULT + j] > 0]
         return out
 

@@ -503,5 +503,6 @@ def _validate(d: RunData, geo: Mapping[str, float], n_fit: int, theta: np.ndarra
     hr = (Ah @ theta - bh) / wphi
     return Validation(float(hold.t[0]), float(hold.t[-1]), (float(rms[0]), float(rms[1])),
                       (float(fitp[0]), float(fitp[1])),
-                      (float(rms[0] / max(abs(ic[:, 0].mean()), 1e-300)), float(rms[1] / max(abs(ic[:, 1].mean()), 1e-300))),
+                      (float(rms[0] / max(abs(ic[:, 0].mean()), 1e-300)),
+                       float(rms[1] / max(abs(ic[:, 1].mean()), 1e-300))),
                       float(np.sqrt(np.mean(hr ** 2))))

@@ -167,7 +167,8 @@ def rk4(x: np.ndarray, u: np.ndarray, p: np.ndarray, T: float, n: int) -> None:
 
 @njit(cache=True)
 def theta_of(phi: np.ndarray, cA: float, cC: float, theta: np.ndarray) -> None:
-    """theta(phi) for phi = (1/m, R, K[, rho]) (docs/manual/controllers.md, A2 i); cA = Ll/I, cC = L^2/I; theta (8,) or (10,)."""
+    """theta(phi) for phi = (1/m, R, K[, rho]) (docs/manual/controllers.md, A2 i); cA = Ll/I, cC = L^2/I;
+    theta (8,) or (10,)."""
     mu, R, K = phi[0], phi[1], phi[2]
     Ap = mu + cA
     Bp = mu - cA
@@ -276,7 +277,8 @@ def hover_forces(cfg: Mapping[str, Any], m: float | None = None) -> tuple[float,
     return F1, F2
 
 
-def equilibrium(cfg: Mapping[str, Any], d1: float, d2: float, R: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+def equilibrium(cfg: Mapping[str, Any], d1: float, d2: float,
+                R: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(x0, u0): the exact equilibrium with gaps (d1, d2) (m) and the voltages (V) that hold it.
 
     Currents i_j = delta_j sqrt(F_j / K) with F_j of :func:`hover_forces` and delta_j of Eq. 6;

@@ -36,7 +36,8 @@ def cache_dir() -> str:
 
 
 def configure() -> str:
-    """Point numba (and child processes) at :func:`cache_dir` unless ``NUMBA_CACHE_DIR`` is set; returns the directory."""
+    """Point numba (and child processes) at :func:`cache_dir` unless ``NUMBA_CACHE_DIR`` is set;
+    returns the directory."""
     if "NUMBA_CACHE_DIR" not in os.environ:
         os.environ["NUMBA_CACHE_DIR"] = cache_dir()
     numba = sys.modules.get("numba")

@@ -36,7 +36,8 @@ def command(cfg: Mapping[str, Any], t: np.ndarray | float) -> np.ndarray:
 
 
 @njit(cache=True)
-def _ref_step(z: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, c: np.ndarray, b0: float, r: np.ndarray, out: np.ndarray) -> None:
+def _ref_step(z: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, c: np.ndarray, b0: float, r: np.ndarray,
+              out: np.ndarray) -> None:
     """Write the reference for the current sample into ``out`` and advance ``z`` (3 x 2)."""
     for j in range(2):
         out[j] = z[0, j]
@@ -52,7 +53,8 @@ def _ref_step(z: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, c: np.ndarray, b0: 
 
 
 @njit(cache=True)
-def _ref_run(z: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, c: np.ndarray, b0: float, r: np.ndarray, out: np.ndarray) -> None:
+def _ref_run(z: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, c: np.ndarray, b0: float, r: np.ndarray,
+             out: np.ndarray) -> None:
     for k in range(r.shape[0]):
         _ref_step(z, Ad, Bd, c, b0, r[k], out[k])
 
@@ -104,8 +106,10 @@ class ReferenceModel:
         return out
 
 
-def reference_trajectory(cfg: Mapping[str, Any], n: int, start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(r, yd): command (n, 2) and reference (n, 8) at t_k = k dt, k = 0..n-1; the model rests at ``start`` (2,) first."""
+def reference_trajectory(cfg: Mapping[str, Any], n: int,
+                         start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(r, yd): command (n, 2) and reference (n, 8) at t_k = k dt, k = 0..n-1;
+    the model rests at ``start`` (2,) first."""
     t = np.arange(n) * cfg["dt"]
     r = command(cfg, t)
     model = ReferenceModel(cfg)

@@ -1,4 +1,5 @@
-r"""Scenarios of docs/manual/scenarios.md (S1, S2, S3a-c, S4a-c) and rig conditions (S5, S6): named overrides of the schema.
+r"""Scenarios of docs/manual/scenarios.md (S1, S2, S3a-c, S4a-c) and rig conditions (S5, S6):
+named overrides of the schema.
 
 The definitions live in ``config/scenarios.yaml``; this module finds and
 validates them and builds what a scenario implies, all seeded:
@@ -56,7 +57,8 @@ def config_dir() -> Path:
     for c in candidates:
         if (c / "scenarios.yaml").is_file():
             return c
-    raise ConfigError("cannot find the dem_ros config directory (scenarios.yaml); looked in " + ", ".join(map(str, candidates)))
+    raise ConfigError("cannot find the dem_ros config directory (scenarios.yaml); looked in "
+                      + ", ".join(map(str, candidates)))
 
 
 @dataclass(frozen=True)
@@ -85,7 +87,8 @@ def load_scenarios(path: str | Path | None = None) -> dict[str, Scenario]:
             raise ConfigError(f"{path}: scenario {name!r} must be a mapping")
         duration = body.get("duration", 100.0)
         if not isinstance(duration, (int, float)) or duration <= 0:
-            raise ConfigError(f"{path}: scenario {name}.duration: got {duration!r}, expected a positive number of seconds")
+            raise ConfigError(f"{path}: scenario {name}.duration: got {duration!r}, expected a positive number "
+                              "of seconds")
         sc = Scenario(str(name), str(body.get("description", "")), float(duration), body.get("overrides") or {})
         sc.config()  # validate now, naming the scenario
         out[sc.name] = sc

@@ -264,8 +264,8 @@ class Preroll:
     gaps: np.ndarray
 
 
-def preroll(pc: Mapping[str, Any], est: KalmanEstimator | PassThrough, x0: np.ndarray, u0: np.ndarray, sg: np.ndarray, sb: np.ndarray,
-            window: float, seed: int | None = None) -> Preroll:
+def preroll(pc: Mapping[str, Any], est: KalmanEstimator | PassThrough, x0: np.ndarray, u0: np.ndarray, sg: np.ndarray,
+            sb: np.ndarray, window: float, seed: int | None = None) -> Preroll:
     """The graph's pre-roll, offline: the plate rests at x0 under u0 for ``preroll`` s before t = 0.
 
     The estimator runs on the sensor readings z = G x0 + b + noise (noise from a separate stream,
@@ -345,7 +345,8 @@ def simulate(
     D = np.full((n, CK.NDIAG), np.nan)
     plant = PlantArgs(x, pp, pc["L"], pc["l"], dist.schedule, sg, sb, dist.noise, dist.pert, dt, pc["substeps"],
                       pc["gap_min"], pc["gap_max"], pc["u_max"], int(delay), u0.copy())
-    k_fail = _closed_loop(_law_args(ctrl), _estimator_args(est, pc["measure_velocity"]), plant, ref, Logs(X, U, D, True))
+    k_fail = _closed_loop(_law_args(ctrl), _estimator_args(est, pc["measure_velocity"]), plant, ref,
+                          Logs(X, U, D, True))
     mass = dist.schedule[:, SM]
     pert = dist.pert
     failed = k_fail >= 0
@@ -361,8 +362,8 @@ def simulate(
 
 
 @njit(cache=True, parallel=True)
-def _batch(law: LawArgs, states: CK.CEState, integ: np.ndarray, plant: PlantArgs, scheds: np.ndarray, ref: np.ndarray, start: int,
-           out: np.ndarray) -> None:
+def _batch(law: LawArgs, states: CK.CEState, integ: np.ndarray, plant: PlantArgs, scheds: np.ndarray, ref: np.ndarray,
+           start: int, out: np.ndarray) -> None:
     """Run plant b with schedule ``scheds[b]`` and law state ``states`` row b, for every b in parallel.
 
     ``law`` :class:`LawArgs` (its states unused), ``states`` stacked CEState, ``integ`` (B, 2) PID integrators,
@@ -393,7 +394,8 @@ def _batch(law: LawArgs, states: CK.CEState, integ: np.ndarray, plant: PlantArgs
         out[b, :6] = _batch_metrics(X[:m], ref[:m], start)
 
 
-def simulate_batch(cfg: Mapping[str, Mapping[str, Any]], mass_offsets: np.ndarray, *, controller: str | None = None, duration: float = 100.0) -> np.ndarray:
+def simulate_batch(cfg: Mapping[str, Mapping[str, Any]], mass_offsets: np.ndarray, *, controller: str | None = None,
+                   duration: float = 100.0) -> np.ndarray:
     """Run ``len(mass_offsets)`` plants (added mass, kg) in parallel (no noise, no estimator).
 
     Returns (B, 7): rms e1, rms e2, max e1, max e2, rms e1 after 40 s, rms e2 after 40 s (m),

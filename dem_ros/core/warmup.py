@@ -24,7 +24,8 @@ from .params import default_config
 __all__ = ["warm_up"]
 
 
-def warm_up(progress: Callable[[str], None] | None = None, offline: Sequence[tuple[str | None, str | None]] = ()) -> None:
+def warm_up(progress: Callable[[str], None] | None = None,
+            offline: Sequence[tuple[str | None, str | None]] = ()) -> None:
     """Call every kernel once (compiling it, or loading it from numba's cache).
 
     Args:

@@ -143,7 +143,8 @@ def load_gap_table(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     except (OSError, ValueError) as exc:
         raise DriverError(f"gap_table {path}: cannot read ({exc})") from None
     if data.shape[1] != 3 or data.shape[0] < 2:
-        raise DriverError(f"gap_table {path}: expected rows 'counts, gap1_m, gap2_m' (at least 2), got shape {data.shape}")
+        raise DriverError(f"gap_table {path}: expected rows 'counts, gap1_m, gap2_m' (at least 2), "
+                          f"got shape {data.shape}")
     if not np.all(np.isfinite(data)) or not np.all(np.diff(data[:, 0]) > 0):
         raise DriverError(f"gap_table {path}: counts must be finite and strictly increasing")
     return data[:, 0], data[:, 1], data[:, 2]
@@ -335,7 +336,8 @@ class HwDriver:
         self._over["board"] = self._over.get("board", 0) + 1 if hw else 0
         if self._over["board"] >= c["trip_samples"]:
             self.counters["trips"] += 1
-            self.fault("board reports " + ", ".join(str(f.name) for f in Status if f & hw) + f" for {self._over['board']} samples")
+            self.fault("board reports " + ", ".join(str(f.name) for f in Status if f & hw)
+                       + f" for {self._over['board']} samples")
         elif self._over["current"] >= c["trip_samples"]:
             self.counters["trips"] += 1
             self.fault(f"current limit: |i| = {np.max(np.abs(s.current)):.3f} A > i_max = {c['i_max']:g} A")

@@ -397,7 +397,8 @@ def decode(data: bytes | bytearray | memoryview) -> Frame:
     if ftype not in _SIZES:
         raise LinkError("type", f"unknown frame type {ftype}")
     if n != _SIZES[FrameType(ftype)]:
-        raise LinkError("size", f"a {FrameType(ftype).name.lower()} frame has {_SIZES[FrameType(ftype)]} bytes, not {n}")
+        raise LinkError("size",
+                        f"a {FrameType(ftype).name.lower()} frame has {_SIZES[FrameType(ftype)]} bytes, not {n}")
     if ftype == FrameType.SENSOR:
         seq, t_us, g0, g1, c0, c1, a0, a1, bus, status, mode, res = _SENSOR.unpack_from(b, HEADER.size)
         if res != _ZERO3:

@@ -159,7 +159,8 @@ def run(transport: str, rate: float, duration: float, tty_workers: int = 0) -> d
     if tty_workers > 0:
         with tty_workers_fifo(tty_workers) as changed:
             r = run(transport, rate, duration)
-        r["tty_workers"] = f"SCHED_FIFO {tty_workers} ({len(changed)} kworker/u threads)" if changed else "not permitted"
+        r["tty_workers"] = (f"SCHED_FIFO {tty_workers} ({len(changed)} kworker/u threads)" if changed
+                            else "not permitted")
         return r
     n = int(rate * duration)
     ctx = mp.get_context("fork")
@@ -229,7 +230,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rate", type=float, default=1000.0, help="board sample rate [Hz] (default 1000)")
     p.add_argument("--duration", type=float, default=5.0, help="seconds (default 5)")
     p.add_argument("--tty-workers-fifo", type=int, default=0, metavar="N",
-                   help="serial: run the kernel's tty workers (kworker/u*) at SCHED_FIFO N for the run (root; 0: leave them)")
+                   help="serial: run the kernel's tty workers (kworker/u*) at SCHED_FIFO N for the run "
+                        "(root; 0: leave them)")
     a = p.parse_args(argv)
     if not 0 <= a.tty_workers_fifo <= 99:
         p.error("--tty-workers-fifo must be in [0, 99]")

@@ -422,7 +422,8 @@ class Board:
     def summary(self) -> dict[str, Any]:
         c = self.c
         x = self.plant.x
-        return {"board": self.board_name, "ticks": c.ticks, "sent": c.sent, "rx_frames": c.rx_frames, "rx_rejected": c.rx_rejected,
+        return {"board": self.board_name, "ticks": c.ticks, "sent": c.sent, "rx_frames": c.rx_frames,
+                "rx_rejected": c.rx_rejected,
                 "rx_reasons": dict(c.rx_reasons), "commands_fresh": c.commands_fresh, "hellos": c.hellos,
                 "overruns": c.overruns, "corrupted_tx": c.corrupted_tx, "link_lost_ticks": c.link_lost_ticks,
                 "mode": Mode(self.sup.mode).name, "reason": getattr(self.sup, "reason", ""),
@@ -430,7 +431,8 @@ class Board:
                 "gaps_mm": [round(x[0] * 1e3, 4), round(x[2] * 1e3, 4)], "failed": self.failed or "",
                 "min_gap_mm": round(self.min_gap * 1e3, 4) if math.isfinite(self.min_gap) else None,
                 "landings": self.sup.counters["landings"], "land_speed_max_mm_s": round(self.land_speed_max * 1e3, 3),
-                "faults": [{"kind": f.kind, "channel": f.channel, "start": f.start, "hits": f.hits} for f in self.faults]}
+                "faults": [{"kind": f.kind, "channel": f.channel, "start": f.start, "hits": f.hits}
+                           for f in self.faults]}
 
 
 # -- the process ------------------------------------------------------------------------------------
@@ -534,13 +536,17 @@ def rig_config(scenario: str, params: str | None, sets: list[str]) -> dict[str, 
 
 
 def build_parser(p: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    p = p or argparse.ArgumentParser(prog="dem-ros rig", description="emulate the DEM rig and its I/O board behind the device link")
+    p = p or argparse.ArgumentParser(prog="dem-ros rig",
+                                     description="emulate the DEM rig and its I/O board behind the device link")
     p.add_argument("--url", default=None, help="udp://HOST:PORT or pty:// (default: rig.url)")
     p.add_argument("--scenario", default="S1", help="the true plant and its disturbances (default S1)")
     p.add_argument("--params", default=None, help="ROS 2 params file (the launch's: plant_sim, rig, hw_driver groups)")
-    p.add_argument("--set", action="append", default=[], metavar="GROUP.NAME=VALUE", help="override, e.g. rig.gap_noise=1e-6")
-    p.add_argument("--fault", action="append", default=[], metavar="SPEC", help="inject a fault, e.g. dropout:1@5+0.5 (see --help-faults)")
-    p.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds of board time (0: until Ctrl-C)")
+    p.add_argument("--set", action="append", default=[], metavar="GROUP.NAME=VALUE",
+                   help="override, e.g. rig.gap_noise=1e-6")
+    p.add_argument("--fault", action="append", default=[], metavar="SPEC",
+                   help="inject a fault, e.g. dropout:1@5+0.5 (see --help-faults)")
+    p.add_argument("--duration", type=float, default=0.0,
+                   help="stop after this many seconds of board time (0: until Ctrl-C)")
     p.add_argument("--help-faults", action="store_true", help="describe the fault specifications")
     p.add_argument("--shims", default=None, metavar="MM[,MM]", help="rest the plate on shims of these thicknesses "
                    "(coils off): a calibration session (dem-ros calibrate gaps --url)")

@@ -7,8 +7,9 @@ A gap sensor does not follow its data sheet. The emulator's sensor j reads, for 
     c_1(x) = (1 - x^2)(1 + 0.3 x)          a bow, zero at 4 and 12 mm
     c_2(x) = sin(pi x / 2) - 0.4 x^2       an S-curve with a tilt (not a polynomial)
 
-with a = ``rig.gap_curve`` [m] (the curves are the board's sensor model: :func:`dem_ros.board.rig_io.curve_deviation`) (0: the data sheet's linear errors only); the board's ADC then produces the
-count whose data-sheet gap (``hw_driver.gap{j}_c*``) is nearest to s_j(d) (:class:`dem_ros.hardware.rig.Board`).
+with a = ``rig.gap_curve`` [m] (the curves are the board's sensor model: :func:`dem_ros.board.rig_io.curve_deviation`)
+(0: the data sheet's linear errors only); the board's ADC then produces the count whose data-sheet gap
+(``hw_driver.gap{j}_c*``) is nearest to s_j(d) (:class:`dem_ros.hardware.rig.Board`).
 The curve is monotonic for a < 1.3 mm (ds/dd > 0).
 
 Shims: ``Board.shims`` = (d1, d2) [m] rests the plate on shims of those thicknesses (coils off, gaps held);

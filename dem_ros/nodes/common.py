@@ -185,7 +185,8 @@ class LatencyStats:
         return {"p50": p50, "p99": p99, "max": self.max_ns / 1e3 if self.n else math.nan}
 
 
-def diag_array(cls_array: type, cls_status: type, cls_kv: type, t_ns: int, name: str, level: int, message: str, values: dict) -> Any:
+def diag_array(cls_array: type, cls_status: type, cls_kv: type, t_ns: int, name: str, level: int, message: str,
+               values: dict) -> Any:
     """diagnostic_msgs/DiagnosticArray with one status of key/value pairs."""
     arr = cls_array()
     set_stamp(arr, t_ns)
@@ -219,8 +220,8 @@ class Diagnostics:
       and keeps the node at ERROR until :meth:`clear_fault` (a fault is never reported only once);
     * the node's own condition, :meth:`set_condition` (e.g. ``WARN`` "converging"; back with ``OK``);
     * ``WARN`` for the report after any counter named in ``warn_on`` (in :attr:`counters` or ``values()``)
-      or a callback's exception count increased: the message names the counters and their increase since the previous report. A node
-      that recovers goes back to OK; the counters keep the history.
+      or a callback's exception count increased: the message names the counters and their increase since the previous
+      report. A node that recovers goes back to OK; the counters keep the history.
 
     ``name`` is the status name (default: the node's name); ``hardware_id`` is ``"dem"``.
     """

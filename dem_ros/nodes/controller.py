@@ -317,8 +317,9 @@ class ControllerNode:
             self.started = True
             self.counts["starts"] += 1
             self.counts["liftoffs"] += 1
-            self.node.logger.info(f"off the support at {y[0] * 1e3:.3f} / {y[1] * 1e3:.3f} mm ({ua[0]:.1f} / {ua[1]:.1f} V):"
-                                  f" law {self.ctrl.name} started, lift-off to the reference over {self.liftoff[2]:.2f} s")
+            self.node.logger.info(f"off the support at {y[0] * 1e3:.3f} / {y[1] * 1e3:.3f} mm "
+                                  f"({ua[0]:.1f} / {ua[1]:.1f} V): law {self.ctrl.name} started, lift-off to the "
+                                  f"reference over {self.liftoff[2]:.2f} s")
             return True
         ramp = max(self.echoed - ECHO_SAMPLES, 0) * self.cfg["dt"] * RAMP_RATE
         _, self.u_premag = premagnetise(xh, self.cfg, min(PREMAG_FRACTION + ramp, RAMP_MAX))

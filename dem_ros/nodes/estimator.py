@@ -87,8 +87,8 @@ class EstimatorNode:
         # /diagnostics "estimator", once a second: WARN after rejected or dropped samples, ERROR on a sensor fault
         gates = [f"gap{j}_{why}" for j in (1, 2) for why in ("out_of_range", "innovation")]
         self.diag = Diagnostics(node, "estimator", values=self._values,
-                                warn_on=(*gates, "malformed", "non_finite", "unpaired", "updates_skipped", "reinitialised",
-                                         "repeated"))
+                                warn_on=(*gates, "malformed", "non_finite", "unpaired", "updates_skipped",
+                                         "reinitialised", "repeated"))
         self.counts = self.diag.counters
         self.counts.update(measurements=0, published=0, withheld=0, malformed=0, non_finite=0, unpaired=0, restarts=0,
                            repeated=0)

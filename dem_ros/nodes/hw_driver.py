@@ -226,7 +226,8 @@ class HwDriverNode:
                 if not ready and not poller.poll(0):  # silent, still (a stall after the wait is no silence)
                     self.drv.check(time.monotonic_ns())
             if batch >= DRAIN_BATCH:
-                time.sleep(DRAIN_PAUSE_S)  # the executor's turn for the lock (on_command), and a sleep for the RT budget
+                # the executor's turn for the lock (on_command), and a sleep for the RT budget
+                time.sleep(DRAIN_PAUSE_S)
 
     def _on_frame(self, data: bytes) -> None:
         """One received frame (the lock held): through the driver, its reply to the board, its sample out."""
@@ -364,15 +365,16 @@ class HwDriverNode:
     def stats(self) -> dict:
         with self.lock:
             st = self.drv.status()
-        k = 0 if self.drv.last_sample is None or self.epoch_seq is None else max(self.drv.last_sample.seq - self.epoch_seq, 0)
+        k = (0 if self.drv.last_sample is None or self.epoch_seq is None
+             else max(self.drv.last_sample.seq - self.epoch_seq, 0))
         if self.n_end:
             k = min(k, self.n_end)  # the experiment's samples (the end-of-run landing is not part of it)
         lat = self.lat.summary_us()
         wall = k * self.cfg["dt"]
         cpu = time.process_time() - self.cpu0 if self.cpu0 is not None else 0.0
         epoch = {"epoch_ns": self.epoch_ns} if self.epoch_ns is not None else {}
-        return {"cycles": k, "t_sim_s": round(k * self.cfg["dt"], 3), "deadline_misses": st["lost"] + st["hold_samples"],
-                **epoch, "realtime_factor": 1.0, "lockstep": False,
+        return {"cycles": k, "t_sim_s": round(k * self.cfg["dt"], 3),
+                "deadline_misses": st["lost"] + st["hold_samples"], **epoch, "realtime_factor": 1.0, "lockstep": False,
                 "cpu_s": round(cpu, 3), "wall_s": round(wall, 3),
                 "latency_p50_us": round(lat["p50"], 1), "latency_p99_us": round(lat["p99"], 1),
                 "latency_max_us": round(lat["max"], 1), "failed": bool(self.failed), "fault": self.failed,
@@ -398,7 +400,8 @@ class HwDriverNode:
         g = self.drv.last_sample.gap if self.drv.last_sample is not None else (np.nan, np.nan)
         if self.epoch_ns is not None and not self.finished:
             print(f"t = {s['t_sim_s']:7.1f} s  gaps {g[0] * 1e3:6.3f} / {g[1] * 1e3:6.3f} mm  {s['state']}"
-                  f" (board {s['board_mode']})  lost {s['lost']} late {s['late']} corrupt {s['corrupt']} holds {s['hold_samples']}"
+                  f" (board {s['board_mode']})  lost {s['lost']} late {s['late']} corrupt {s['corrupt']}"
+                  f" holds {s['hold_samples']}"
                   f"  latency p50 {s['latency_p50_us']:.0f} us p99 {s['latency_p99_us']:.0f} us", flush=True)
         self.report_faults()
         self.diag.publish()
@@ -408,7 +411,8 @@ class HwDriverNode:
             return
         self.stop.set()
         s = self.stats()
-        msg = f"finished {self.cfg['duration']:g} s; board {s['board_mode']}" + (f"; fault: {self.failed}" if self.failed else "")
+        msg = (f"finished {self.cfg['duration']:g} s; board {s['board_mode']}"
+               + (f"; fault: {self.failed}" if self.failed else ""))
         self.node.logger.info(msg)
         self.diag.publish(2 if self.failed else 0, "finished: " + msg, s)
         announce("finished", "hw_driver", message=msg, failed=bool(self.failed))
@@ -428,7 +432,8 @@ class HwDriverNode:
 
     def close(self) -> None:
         """After the node is shut down: land the plate before letting go of the link (disarm: LAND in reply to
-        every sensor frame, until the board reports LAND / LANDED / OFF / FAULT or ``STOP_LANDING_S``), then close it."""
+        every sensor frame, until the board reports LAND / LANDED / OFF / FAULT or ``STOP_LANDING_S``),
+        then close it."""
         self.closing = True
         end = time.monotonic() + STOP_LANDING_S
         if self.reader.is_alive():

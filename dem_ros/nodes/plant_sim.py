@@ -268,8 +268,9 @@ class PlantSimNode:
             if self.landing_t is None:
                 self.landing_t = k * self.cfg["dt"]  # the verdict's "landed at t = ..." (negative: in the pre-roll)
             x = self.plant.x
-            (log.error if b.fault else log.warn)(f"{when}: safe landing from gaps {x[0] * 1e3:.3f} / {x[2] * 1e3:.3f} mm to"
-                      f" {self.cfg['landing_gap'] * 1e3:g} mm at <= {self.cfg['landing_speed'] * 1e3:g} mm/s: {b.reason}")
+            (log.error if b.fault else log.warn)(
+                f"{when}: safe landing from gaps {x[0] * 1e3:.3f} / {x[2] * 1e3:.3f} mm to"
+                f" {self.cfg['landing_gap'] * 1e3:g} mm at <= {self.cfg['landing_speed'] * 1e3:g} mm/s: {b.reason}")
             self.diag.publish(ERROR if b.fault else WARN, f"landing: {b.reason}")
         elif b.mode == Mode.LANDED:
             self.finish(f"landed safely at {when}"
@@ -304,8 +305,8 @@ class PlantSimNode:
             "preroll_misses": self.preroll_misses, **self.board_stats(), **self.source.values(),
             "lockstep": self.cfg["lockstep"], "realtime_factor": round(k * self.cfg["dt"] / wall, 3) if k else 0.0,
             "epoch_ns": self.epoch, "cpu_s": round(cpu, 3), "wall_s": round(wall if k else 0.0, 3),
-            "latency_p50_us": round(lat["p50"], 1), "latency_p99_us": round(lat["p99"], 1), "latency_max_us": round(lat["max"], 1),
-            "lateness_p99_us": round(late["p99"], 1),
+            "latency_p50_us": round(lat["p50"], 1), "latency_p99_us": round(lat["p99"], 1),
+            "latency_max_us": round(lat["max"], 1), "lateness_p99_us": round(late["p99"], 1),
             "failed": self.plant.fault is not None, "fault": self.plant.fault or "",
         }
 

@@ -128,8 +128,8 @@ class ReferenceNode:
                 silent = (self.node.now_ns() - seen[0]) * 1e-9
                 at, epoch = seen[1], self.epoch
                 when = f"t = {(at - epoch) * 1e-9:.3f} s" if at is not None and epoch is not None else "before t = 0"
-                self.recording.fault(f"the recorder has sent no status for {silent:.1f} s ({self.recorder_missed} checks"
-                                     f" in a row; its last at {when} of the experiment): it is dead or hung, the"
+                self.recording.fault(f"the recorder has sent no status for {silent:.1f} s ({self.recorder_missed} "
+                                     f"checks in a row; its last at {when} of the experiment): it is dead or hung, the"
                                      " recording is lost from there")
                 return  # (published at once by the fault)
         self.recording.publish()
@@ -141,7 +141,8 @@ class ReferenceNode:
             return {"recorder": "not seen"}
         silent = (self.node.now_ns() - seen[0]) * 1e-9
         state = "alive" if not self.recorder_missed else "silent" if self.recorder_missed >= RECORDER_MISSED else "late"
-        return {"recorder": state, "recorder_missed_checks": self.recorder_missed, "recorder_silent_s": round(silent, 1)}
+        return {"recorder": state, "recorder_missed_checks": self.recorder_missed,
+                "recorder_silent_s": round(silent, 1)}
 
     def _refuse(self, why: str) -> None:
         self.refused += 1

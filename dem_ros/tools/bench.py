@@ -10,8 +10,8 @@ typestore, and our MCAP writer/reader against the ``mcap`` package's.
 ``bench sim``: the 100 s S1 scenario at 1 kHz control with 0.1 ms RK4 sub-steps:
 single-run wall time (and CPU time) and x real time, the controller's per-call step time as
 the nodes call it (p50, p99), both again for the law of 42edb28 (the adaptive law with the
-session-3 terms off, :data:`TERMS_OFF`: the figures to compare across #8 and #9), batch throughput, and the same closed loop run
-by scipy's ``solve_ivp`` (what a Python user would otherwise write: the plant
+session-3 terms off, :data:`TERMS_OFF`: the figures to compare across #8 and #9), batch throughput, and the same closed
+loop run by scipy's ``solve_ivp`` (what a Python user would otherwise write: the plant
 as a numpy right-hand side, integrated sample by sample under the same ZOH
 controller) with the speed ratio and the largest trajectory difference.
 """
@@ -215,11 +215,13 @@ def bench_sim(batch: int = 64, peer_duration: float = 5.0, bar: Any = None) -> d
             t = time.perf_counter_ns()
             ctrl.step(xs[k], ref[k])
             times[k] = time.perf_counter_ns() - t
-        r["controller_step_us"] = {"p50": float(np.percentile(times, 50) / 1e3), "p99": float(np.percentile(times, 99) / 1e3)}
+        r["controller_step_us"] = {"p50": float(np.percentile(times, 50) / 1e3),
+                                   "p99": float(np.percentile(times, 99) / 1e3)}
         return r
 
     simulate(cfg, controller="adaptive", estimator="none", duration=1.0)  # compile / load the cache
-    out = {"machine": machine(), "scenario": "S1", "duration_s": 100.0, "control_rate_hz": 1000, "plant_substep_s": 1e-4}
+    out = {"machine": machine(), "scenario": "S1", "duration_s": 100.0, "control_rate_hz": 1000,
+           "plant_substep_s": 1e-4}
     out.update(single_and_step(cfg, ""))
     out["terms_off"] = {"controller": TERMS_OFF, **single_and_step(old, ", the law of 42edb28")}
 
@@ -250,15 +252,17 @@ def bench_sim(batch: int = 64, peer_duration: float = 5.0, bar: Any = None) -> d
 def _print_sim(r: dict) -> None:
     m = r["machine"]
     print(f"dem-ros bench sim on {m['cpu']} ({m['cores']} cores), Python {m['python']}")
-    print(f"  S1, 100 s, 1 kHz control, 0.1 ms RK4: {r['single_run_wall_s']:.3f} s wall ({r['single_run_cpu_s']:.3f} s CPU)"
-          f" = {r['realtime_factor']:.0f}x real time")
+    print(f"  S1, 100 s, 1 kHz control, 0.1 ms RK4: {r['single_run_wall_s']:.3f} s wall"
+          f" ({r['single_run_cpu_s']:.3f} s CPU) = {r['realtime_factor']:.0f}x real time")
     c = r["controller_step_us"]
     print(f"  controller step (adaptive, per call from Python): p50 {c['p50']:.2f} us, p99 {c['p99']:.1f} us")
     o = r["terms_off"]
     c = o["controller_step_us"]
-    print(f"  the law of 42edb28 ({', '.join(f'{k} = {v:g}' for k, v in o['controller'].items())}): {o['single_run_wall_s']:.3f} s"
-          f" wall ({o['single_run_cpu_s']:.3f} s CPU), step p50 {c['p50']:.2f} us, p99 {c['p99']:.1f} us")
-    print(f"  batch: {r['batch']['plants']} plants x 100 s in {r['batch']['wall_s']:.1f} s = {r['batch_runs_per_s']:.2f} runs/s")
+    print(f"  the law of 42edb28 ({', '.join(f'{k} = {v:g}' for k, v in o['controller'].items())}):"
+          f" {o['single_run_wall_s']:.3f} s wall ({o['single_run_cpu_s']:.3f} s CPU), step p50 {c['p50']:.2f} us,"
+          f" p99 {c['p99']:.1f} us")
+    print(f"  batch: {r['batch']['plants']} plants x 100 s in {r['batch']['wall_s']:.1f} s"
+          f" = {r['batch_runs_per_s']:.2f} runs/s")
     p = r["peer"]
     print(f"  peer {p['name']}: {p['realtime_factor']:.2f}x real time over {p['simulated_s']:g} s;"
           f" ours is {p['speedup']:.0f}x faster; max |gap difference| {p['max_abs_diff_um']:.2e} um")
@@ -363,12 +367,15 @@ def _print_loop(r: dict[str, Any], label: str) -> None:
     lat = L["latency_us"]
     cyc = max(L["cycles"], 1)
     failed = f"yes, at t = {r['fail_time_s']:.3f} s" if r["failed"] else "no"
-    print(f"  [{label}] verdict {r['verdict']}" + (f": {'; '.join(r['verdict_reasons'])}" if r["verdict_reasons"] else ""))
+    print(f"  [{label}] verdict {r['verdict']}"
+          + (f": {'; '.join(r['verdict_reasons'])}" if r["verdict_reasons"] else ""))
     print(f"  [{label}] cycles {L['cycles']}, deadline misses {L['deadline_misses']}"
           f" ({100.0 * L['deadline_misses'] / cyc:.3f} %), holds {r['holds'] if r['holds'] is not None else 'n/a'},"
-          f" landing {'n/a' if r['landing'] is None else ('YES: ' + str(r['landing_reason'])) if r['landing'] else 'no'},"
+          " landing "
+          f"{'n/a' if r['landing'] is None else ('YES: ' + str(r['landing_reason'])) if r['landing'] else 'no'},"
           f" failed {failed}")
-    if all(isinstance(lat.get(k), (int, float)) and np.isfinite(lat[k]) for k in ("p50", "p99", "max")):  # none: no command came
+    if all(isinstance(lat.get(k), (int, float)) and np.isfinite(lat[k])
+           for k in ("p50", "p99", "max")):  # none: no command came
         print(f"  [{label}] latency sensor stamp -> command at plant: p50 {lat['p50']:.0f} us, p99 {lat['p99']:.0f} us,"
               f" max {lat['max']:.0f} us")
     print(f"  [{label}] CPU [% of one core]: " + ", ".join(f"{k} {v:.1f}" for k, v in L["cpu_percent"].items())
@@ -381,7 +388,8 @@ def _print_loop(r: dict[str, Any], label: str) -> None:
                else "normal scheduling")
         extra = ", memory locked" if g["memory_locked"] else ""
         miss = f"; refused: {', '.join(g['missing'])}" if g["missing"] else ""
-        print(f"  [{label}] real time {proc}: {got if g['requested'] else 'off (--no-rt)'}{extra if g['requested'] else ''}{miss}")
+        print(f"  [{label}] real time {proc}: "
+              f"{got if g['requested'] else 'off (--no-rt)'}{extra if g['requested'] else ''}{miss}")
     for proc, st in r.get("stalls", {}).items():
         print(f"  [{label}] loop stalls {proc}: {_stall_text(st)}")
 
@@ -412,7 +420,8 @@ def _print_side_by_side(dds: dict[str, Any], rclpy: dict[str, Any]) -> None:
         r["_cpu"] = sum(r["loop"]["cpu_percent"].values())
     row("deadline misses [%]", dds.pop("_miss"), rclpy.pop("_miss"), ".3f")
     row("CPU, all nodes [% core]", dds.pop("_cpu"), rclpy.pop("_cpu"), ".1f")
-    land = {k: ("n/a" if r["landing"] is None else "YES" if r["landing"] else "no") for k, r in (("d", dds), ("r", rclpy))}
+    land = {k: ("n/a" if r["landing"] is None else "YES" if r["landing"] else "no")
+            for k, r in (("d", dds), ("r", rclpy))}
     print(f"    {'landing':<26}{land['d']:>10}{land['r']:>10}")
 
 
@@ -472,10 +481,12 @@ def bench_loop(args: argparse.Namespace) -> dict[str, Any]:
     print(f"  machine floor (a bare 1 kHz sleep loop with the same real-time settings, {FLOOR_S:g} s before the run):"
           f" late p50 {floor['p50_us']:.0f} us, p99 {floor['p99_us']:.0f} us, p99.9 {floor['p99_9_us']:.0f} us,"
           f" max {floor['max_us']:.0f} us; {floor['over_1ms_percent']:.3f} % of wake-ups > 1 ms late;"
-          f" deadline misses it alone would cause (command_delay {floor['command_delay']}): {floor['misses_percent']:.3f} %")
+          f" deadline misses it alone would cause (command_delay {floor['command_delay']}):"
+          f" {floor['misses_percent']:.3f} %")
     print(f"  machine floor stalls: {_stall_text(floor['stalls'])}")
     return {**ours, "machine": m, "transport": transport, "composed": compose, "free_run": free_run,
-            "duration_s": duration, "load_processes": load, "load_average": {"before": up_before[0], "after": up_after[0]},
+            "duration_s": duration, "load_processes": load,
+            "load_average": {"before": up_before[0], "after": up_after[0]},
             "hypervisor_steal_percent": steal, "timer_floor": floor, "peer": peer}
 
 

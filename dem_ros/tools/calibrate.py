@@ -105,7 +105,8 @@ def live_session(url: str, shims_mm: Sequence[float], samples: int, settle: int,
         hello = None
         while hello is None:
             if time.monotonic() > end:
-                raise UsageError(f"no answer from a board at {url} within {timeout:g} s (is it powered, is the URL right?)")
+                raise UsageError(f"no answer from a board at {url} within {timeout:g} s "
+                                 "(is it powered, is the URL right?)")
             data = ch.recv(0.1)
             if data is None:
                 ch.send(encode(HELLO_REQUEST))
@@ -174,7 +175,8 @@ def report_text(fits: Sequence[SensorFit], max_rms: float) -> str:
         out.append(f"sensor {f.sensor} ({f.kind}): RMS residual {f.rms * 1e6:.3g} um, largest {f.max_abs * 1e6:.3g} um "
                    f"over {f.gaps.min() * 1e3:g}-{f.gaps.max() * 1e3:g} mm; "
                    + ("monotonic" if f.monotonic else f"NOT monotonic (slope down to {f.min_slope:.3g} m/count)")
-                   + ("" if f.rms <= max_rms else f"; RMS above {max_rms * 1e6:g} um: a shim misplaced, or use --fit table"))
+                   + ("" if f.rms <= max_rms
+                      else f"; RMS above {max_rms * 1e6:g} um: a shim misplaced, or use --fit table"))
         out += [f"    {g * 1e3:7.3f} mm  counts {n:9.1f}  residual {r * 1e6:+8.3f} um"
                 for g, n, r in zip(f.gaps, f.counts, f.residuals, strict=True)]
     return "\n".join(out)

@@ -124,7 +124,8 @@ def cmd_config(args: argparse.Namespace) -> int:
             print(f"[{g}]")
             for p in specs:
                 ro = " (read-only)" if p.read_only else ""
-                print(f"  {p.name:<24} {p.type.__name__:<5} default {p.default!r:<12} {p.allowed()}{ro}  -- {p.description}")
+                print(f"  {p.name:<24} {p.type.__name__:<5} default {p.default!r:<12} {p.allowed()}{ro}"
+                      f"  -- {p.description}")
         return 0
     if args.group:
         raise UsageError("config params takes no GROUP (it writes every group's defaults)")
@@ -205,19 +206,24 @@ def _add_sim(s: argparse.ArgumentParser) -> None:
     from ..core.scenarios import load_scenarios
     from .common import CONTROLLER_TYPES, ESTIMATOR_TYPES, out_dir, out_file, seconds, seed
 
-    s.add_argument("--scenario", default="S1", help=f"scenario from config/scenarios.yaml: {', '.join(load_scenarios())}"
+    s.add_argument("--scenario", default="S1",
+                   help=f"scenario from config/scenarios.yaml: {', '.join(load_scenarios())}"
                    " (default S1; docs/manual/scenarios.md)")
-    s.add_argument("--controller", default=None, choices=CONTROLLER_TYPES, help="control law (default: config, 'adaptive')")
+    s.add_argument("--controller", default=None, choices=CONTROLLER_TYPES,
+                   help="control law (default: config, 'adaptive')")
     s.add_argument("--estimator", default=None, choices=ESTIMATOR_TYPES, help="state estimator (default: config, 'kf')")
     s.add_argument("--duration", type=seconds, default=None, help="seconds (default: the scenario's, 100)")
     s.add_argument("--seed", type=seed, default=None, help="seed of noise and perturbation (default: config)")
-    s.add_argument("--delay", type=int, default=None, help="command delay in samples for plant and controller (default: config, plant_sim.command_delay = "
+    s.add_argument("--delay", type=int, default=None,
+                   help="command delay in samples for plant and controller (default: config, plant_sim.command_delay = "
                    f"{SCHEMA.spec('plant_sim', 'command_delay').default}, as in the node graph)")
     s.add_argument("--params", default=None, help="ROS 2 params file to load on top of the defaults")
-    s.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE", help="override a parameter, e.g. k1=60 or plant_sim.m=16")
+    s.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE",
+                   help="override a parameter, e.g. k1=60 or plant_sim.m=16")
     s.add_argument("--json", type=out_file, default=None, help="write the metrics as JSON")
     s.add_argument("--plot", type=out_dir, default=None, metavar="DIR", help="write figures (PNG) to DIR")
-    s.add_argument("--record", type=out_dir, default=None, metavar="DIR", help="also write the run as a rosbag2 MCAP bag under DIR")
+    s.add_argument("--record", type=out_dir, default=None, metavar="DIR",
+                   help="also write the run as a rosbag2 MCAP bag under DIR")
     s.set_defaults(func=cmd_sim)
 
 
@@ -234,16 +240,21 @@ def _add_bench(b: argparse.ArgumentParser) -> None:
     from .common import out_file, seconds
 
     b.add_argument("what", choices=["sim", "loop", "record"],
-                   help="sim: offline simulator speed; loop: the 1 kHz node graph's timing; record: the bag writer's throughput")
+                   help="sim: offline simulator speed; loop: the 1 kHz node graph's timing; "
+                        "record: the bag writer's throughput")
     b.add_argument("--json", type=out_file, default=None, help="write the figures as JSON")
     b.add_argument("--batch", type=_positive_int, default=64, help="bench sim: plants in the batch (default 64)")
-    b.add_argument("--peer-duration", type=seconds, default=5.0, help="bench sim: seconds simulated by the peer (default 5)")
+    b.add_argument("--peer-duration", type=seconds, default=5.0,
+                   help="bench sim: seconds simulated by the peer (default 5)")
     b.add_argument("--duration", type=seconds, default=None, help="bench loop/record: seconds (default 60 / 10)")
     b.add_argument("--transport", default="dds", choices=["auto", "rclpy", "dds"],
                    help="bench loop: node transport (default dds; auto: rclpy when it imports)")
-    b.add_argument("--compose", action="store_true", help="bench loop: all nodes in one process (see dem-ros launch --compose)")
-    b.add_argument("--free-run", action="store_true", help="bench loop: the plant does not wait for late commands (plant_sim.lockstep=false)")
-    b.add_argument("--load", type=int, default=0, metavar="N", help="bench loop: N busy processes beside the graph (default 0)")
+    b.add_argument("--compose", action="store_true",
+                   help="bench loop: all nodes in one process (see dem-ros launch --compose)")
+    b.add_argument("--free-run", action="store_true",
+                   help="bench loop: the plant does not wait for late commands (plant_sim.lockstep=false)")
+    b.add_argument("--load", type=int, default=0, metavar="N",
+                   help="bench loop: N busy processes beside the graph (default 0)")
     b.add_argument("--rt", action=argparse.BooleanOptionalAction, default=True,
                    help="bench loop: real-time process settings for the nodes (SCHED_FIFO, mlockall; default on)")
     b.set_defaults(func=cmd_bench)
@@ -279,8 +290,10 @@ def _add_hw(hw: argparse.ArgumentParser) -> None:
 
     hw.add_argument("action", choices=["arm", "disarm", "estop", "status"])
     hw.add_argument("reason", nargs="?", default="", help="estop: why (recorded with the fault)")
-    hw.add_argument("--domain-id", type=domain_id, default=None, help="ROS_DOMAIN_ID of the driver (default: the environment's)")
-    hw.add_argument("--timeout", type=float, default=5.0, help="seconds to find the driver and get its answer (default 5)")
+    hw.add_argument("--domain-id", type=domain_id, default=None,
+                    help="ROS_DOMAIN_ID of the driver (default: the environment's)")
+    hw.add_argument("--timeout", type=float, default=5.0,
+                    help="seconds to find the driver and get its answer (default 5)")
     hw.set_defaults(func=cmd_hw)
 
 
@@ -290,7 +303,8 @@ def _add_node(nd: argparse.ArgumentParser) -> None:
     nd.add_argument("name", choices=NODES, help="the node; container: several in one process (--nodes a,b,...)")
     nd.add_argument("--transport", default="auto", choices=_TRANSPORTS,
                     help="auto (rclpy when it imports) | rclpy | dds; before or after NAME")
-    nd.add_argument("ros_args", nargs=argparse.REMAINDER, help="node options, then --ros-args ... (params file, remaps)")
+    nd.add_argument("ros_args", nargs=argparse.REMAINDER,
+                    help="node options, then --ros-args ... (params file, remaps)")
     nd.set_defaults(func=cmd_node)
 
 
@@ -301,7 +315,8 @@ def _add_replay(rp: argparse.ArgumentParser) -> None:
     rp.add_argument("bag", help="a bag directory (dem-ros launch, dem-ros sim --record) or its .mcap file")
     rp.add_argument("--json", type=out_file, default=None, help="write the metrics as JSON")
     rp.add_argument("--plot", type=out_dir, default=None, metavar="DIR", help="write figures (PNG) to DIR")
-    rp.add_argument("--controller", default=None, choices=CONTROLLER_TYPES, help="what-if: re-run this controller on the recorded measurements")
+    rp.add_argument("--controller", default=None, choices=CONTROLLER_TYPES,
+                    help="what-if: re-run this controller on the recorded measurements")
     rp.add_argument("--set", action="append", metavar="NAME=VALUE", help="what-if: change a controller parameter")
     rp.add_argument("--publish", action="store_true", help="play the bag back onto the graph at its recorded rate")
     rp.set_defaults(func=replay.cmd_replay)
@@ -331,7 +346,8 @@ def _add_param(pm: argparse.ArgumentParser) -> None:
     pm.add_argument("node", help="node name, e.g. controller or /controller")
     pm.add_argument("name", help="parameter name, e.g. k1 (dem-ros config schema lists them)")
     pm.add_argument("value", nargs="?", help="set: the new value, e.g. 60 (validated before the node is asked)")
-    pm.add_argument("--domain-id", type=domain_id, default=None, help="ROS_DOMAIN_ID of the node (default: the environment's)")
+    pm.add_argument("--domain-id", type=domain_id, default=None,
+                    help="ROS_DOMAIN_ID of the node (default: the environment's)")
     pm.add_argument("--timeout", type=float, default=5.0, help="seconds to find the node and get its reply (default 5)")
     pm.set_defaults(func=cmd_param)
 
@@ -393,11 +409,12 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """
     from .. import __version__
 
-    p = _Parser(prog="dem-ros", description="DEM maglev adaptive control: simulation, ROS 2 graph, recording and analysis.",
-                epilog="first steps: 'dem-ros launch --duration 30' (the node graph, recorded to bags/), 'dem-ros replay BAG "
-                       "--plot figs/' (its figures), 'dem-ros sim --scenario S2 --plot figs/' (offline); 'dem-ros COMMAND "
-                       "--help' for each command; the manual is docs/manual/README.md. A mistake ends with one line and "
-                       "exit status 2.")
+    p = _Parser(prog="dem-ros",
+                description="DEM maglev adaptive control: simulation, ROS 2 graph, recording and analysis.",
+                epilog="first steps: 'dem-ros launch --duration 30' (the node graph, recorded to bags/), "
+                       "'dem-ros replay BAG --plot figs/' (its figures), 'dem-ros sim --scenario S2 --plot figs/' "
+                       "(offline); 'dem-ros COMMAND --help' for each command; the manual is docs/manual/README.md. "
+                       "A mistake ends with one line and exit status 2.")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
     for name, (text, add) in _COMMANDS.items():

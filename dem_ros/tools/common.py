@@ -30,8 +30,9 @@ from ..core.params import SCHEMA, ConfigError, apply_overrides, load_params_file
 if TYPE_CHECKING:  # the scenarios (and numpy) load with the first configuration, not with every command
     from ..core.scenarios import Scenario
 
-__all__ = ["CONTROLLER_TYPES", "ESTIMATOR_TYPES", "UsageError", "check_param_value", "domain_id", "env_domain_id", "fmt_pair", "json_safe", "json_text",
-           "load_config", "out_dir", "out_file", "seconds", "seed", "warm_kernels", "write_json", "yaml_scalar"]
+__all__ = ["CONTROLLER_TYPES", "ESTIMATOR_TYPES", "UsageError", "check_param_value", "domain_id", "env_domain_id",
+           "fmt_pair", "json_safe", "json_text", "load_config", "out_dir", "out_file", "seconds", "seed",
+           "warm_kernels", "write_json", "yaml_scalar"]
 
 
 #: the control laws and estimators a run can use: the parameter schema's choices (one source)

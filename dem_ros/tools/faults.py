@@ -101,7 +101,8 @@ class Injector:
         self.events: list[str] = []  # what was done when (experiment time)
         self.counts: dict[str, int] = {}  # injected samples, by outcome
         self.pubs: dict[str, Any] = {}
-        for topic in (contract.COMMAND, contract.MEASUREMENT, contract.ESTIMATE, contract.REFERENCE, contract.APPLIED, *extra):
+        for topic in (contract.COMMAND, contract.MEASUREMENT, contract.ESTIMATE, contract.REFERENCE, contract.APPLIED,
+                      *extra):
             self.pub(topic)  # matched long before t = 0 (a writer made at the fault would miss its first samples)
         self.node.subscribe(contract.MEASUREMENT, self._on_meas)
         self.node.subscribe(contract.ESTIMATE, lambda m: setattr(self, "est", m))
@@ -283,9 +284,11 @@ CATALOGUE: tuple[FaultSpec, ...] = (
     FaultSpec("rogue-command", "1e6 V on /dem/command from a foreign writer, 50 samples", _rogue_command, 50),
     FaultSpec("empty-position", "/dem/measurement and /dem/state_estimate with an empty position, 10 samples",
               _empty_position, 10),
-    FaultSpec("non-utf8-frame", "well-formed CDR with a non-UTF-8 frame_id on measurement, estimate, reference", _non_utf8, 10),
+    FaultSpec("non-utf8-frame", "well-formed CDR with a non-UTF-8 frame_id on measurement, estimate, reference",
+              _non_utf8, 10),
     FaultSpec("bad-cdr", "8 random bytes overwritten in valid samples of five topics, 20 samples", _bad_cdr, 20),
-    FaultSpec("reference-step", "/dem/reference 20 mm off the stream (a foreign writer), 100 samples", _reference_step, 100),
+    FaultSpec("reference-step", "/dem/reference 20 mm off the stream (a foreign writer), 100 samples",
+              _reference_step, 100),
     FaultSpec("spike-10mm", "one foreign /dem/measurement +10 mm at the plant's stamp", _spike(10.0), 1),
     FaultSpec("spike-50mm", "one foreign /dem/measurement +50 mm at the plant's stamp", _spike(50.0), 1),
     FaultSpec("stale-stamps", "estimates stamped 100 ms old and measurements +1 h, 20 samples", _stale, 20),
@@ -327,7 +330,8 @@ RIG_CATALOGUE: tuple[FaultSpec, ...] = (
               rig_fault="dropout:1@{t}+0.0015", reports=("sensor_holds",),
               counts=(("driver", "sensor_holds", 2), ("board", "sensor_gaps", 2))),
     # 300 ms dead: the driver trips after 3 samples, the board after 5 lands with gap 1 from coil 1's flux
-    FaultSpec("dropout-long", "gap sensor 1 reads 0 counts for 300 ms: the driver trips, the board lands on the flux gap",
+    FaultSpec("dropout-long",
+              "gap sensor 1 reads 0 counts for 300 ms: the driver trips, the board lands on the flux gap",
               hardware=True, rig_fault="dropout:1@{t}+0.3", allowed=("landed safely",), reports=("gap sensor 1",),
               counts=(("driver", "sensor_holds", 3), _DRIVER_TRIP, ("board", "sensor_losses", 1))),
     # a plausible frozen reading: the board's flux check finds it contradicting coil 1's flux once the plate moves
@@ -407,7 +411,8 @@ def _kill_hook(spec: FaultSpec, inj: Injector) -> Callable[..., Collection[str]]
     killed: list[float] = []
     restarted: list[bool] = []
 
-    def supervise(_t: float | None, procs: dict[str, subprocess.Popen], restart: Callable[[str], None]) -> Collection[str]:
+    def supervise(_t: float | None, procs: dict[str, subprocess.Popen],
+                  restart: Callable[[str], None]) -> Collection[str]:
         if not killed:
             if inj.t is None or inj.t < inj.at or name not in procs:
                 return ()
@@ -847,7 +852,8 @@ def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duratio
     data_lost = "; ".join(lost) or "none"
     # the plant's loop status is at WARN whenever it waited for a command or held (lockstep on a loaded
     # machine: most runs); it counts as a report of the fault only at ERROR (a landing, a failure)
-    told = [d for d in j["diagnostics"] if not (d.startswith(contract.LOOP_STATUS) and d.split(" (")[0].endswith("WARN"))]
+    told = [d for d in j["diagnostics"]
+            if not (d.startswith(contract.LOOP_STATUS) and d.split(" (")[0].endswith("WARN"))]
     ok = j["outcome"] in spec.allowed and (bool(told) or bool(levels))
     sent = [f"{v} {k}" for k, v in inj.counts.items()]
     if spec.kill and spec.restart_after is not None:  # what the outage was, against the board's hold
@@ -954,8 +960,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _table(rows: list[Row]) -> str:
     hw = any(r.counted for r in rows)  # hardware rows: who counted the fault
-    head = ("fault", "processes", "outcome", "min gap [mm]", "max error [um]", "reported", *(("counted",) if hw else ()),
-            "data lost", "pass")
+    head = ("fault", "processes", "outcome", "min gap [mm]", "max error [um]", "reported",
+            *(("counted",) if hw else ()), "data lost", "pass")
     body = [(r.fault, r.processes, r.outcome + (f" ({r.detail})" if r.detail else ""),
              "-" if r.min_gap_mm is None else f"{r.min_gap_mm:.3f}",
              "-" if r.max_error_um is None else f"{r.max_error_um:.1f}", r.reported, *((r.counted,) if hw else ()),
@@ -987,7 +993,8 @@ def cmd_faults(args: argparse.Namespace) -> int:
     names = {f.name for f in catalogue}
     bad = [n for n in args.only if n not in names]
     if bad:
-        raise UsageError(f"--only: unknown row(s) {', '.join(bad)}; rows{' (--hardware rig)' if args.hardware else ''}: "
+        raise UsageError(f"--only: unknown row(s) {', '.join(bad)}; "
+                         f"rows{' (--hardware rig)' if args.hardware else ''}: "
                          f"{', '.join(sorted(names))}")
     specs = [f for f in catalogue if not args.only or f.name in args.only]
     work = Path(args.bag_dir) if args.bag_dir else Path(tempfile.mkdtemp(prefix="dem_ros_faults_"))
@@ -997,7 +1004,8 @@ def cmd_faults(args: argparse.Namespace) -> int:
         print(f"dem-ros faults: {spec.name} ({_how(spec, compose)}): {spec.description}", file=sys.stderr, flush=True)
         row = run_row(spec, compose=compose, scenario=args.scenario, duration=max(args.duration, spec.min_duration),
                       at=args.at, free_run=args.free_run,
-                      workdir=work / spec.name / ("composed" if compose else "processes"), domain_id=domain, sets=args.set)
+                      workdir=work / spec.name / ("composed" if compose else "processes"), domain_id=domain,
+                      sets=args.set)
         print(f"  -> {row.outcome}, min gap {row.min_gap_mm} mm, {'pass' if row.passed else 'FAIL'}",
               file=sys.stderr, flush=True)
         rows.append(row)

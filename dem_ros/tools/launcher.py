@@ -140,7 +140,8 @@ class _Graph:
             if hardware not in ("rig", "rig-serial"):
                 cfg["hw_driver"]["url"] = hardware
         self.cfg, self.duration, self.transport, self.bag = cfg, duration, transport, bag
-        self.status, self.compose, self.hardware, self.faults, self.supervise = status, compose, hardware, faults, supervise
+        self.status, self.compose, self.hardware, self.faults, self.supervise = (
+            status, compose, hardware, faults, supervise)
         self.node_transports = dict(node_transports or {})  # a node's own transport (e.g. the controller on rclpy)
         self.apart = tuple(apart)  # composed: these loop nodes in processes of their own beside the container
         self.view_port = view_port
@@ -344,7 +345,8 @@ class _Graph:
                     boot.stage("waiting for t = 0 (" + ("the driver's arming and pre-roll" if self.hardware
                                                           else "the plant's pre-roll") + ")")
                     if time.monotonic() > t0_limit:
-                        self.not_started = f"never reached t = 0 within {T0_S:.0f} s of start-up; see {self.logs[self.lead]}"
+                        self.not_started = (f"never reached t = 0 within {T0_S:.0f} s of start-up; "
+                                            f"see {self.logs[self.lead]}")
                         break
                 t = None if self.t_zero is None else time.monotonic() - self.t_zero
                 may_be_down = self.supervise(t, self.procs, self.restart) if self.supervise is not None else ()
@@ -706,7 +708,8 @@ def launch(args: LaunchOptions | argparse.Namespace, *, quiet: bool = False, sup
     cfg = with_board_limit(cfg, "plant_sim" if hardware is None else "hw_driver")  # the law clips where the board does
     if not quiet:
         print(f"dem-ros launch: {sc.name} ({sc.description}), controller {cfg['controller']['type']},"
-              f" estimator {cfg['estimator']['type']}, {duration:g} s, transport {transport}, ROS_DOMAIN_ID {domain_id}",
+              f" estimator {cfg['estimator']['type']}, {duration:g} s, transport {transport},"
+              f" ROS_DOMAIN_ID {domain_id}",
               file=sys.stderr, flush=True)
     # compile once, here, with progress; the nodes then load the cache instead of compiling in parallel
     # and the offline loop of the comparison run (the longest compile of all, else silent at the very end)
@@ -737,7 +740,8 @@ def launch(args: LaunchOptions | argparse.Namespace, *, quiet: bool = False, sup
         meta["hardware"] = hardware
     try:
         facts = run_graph(cfg, duration=duration, transport=transport, bag=bag, meta=meta, domain_id=domain_id,
-                          status=not quiet, workdir=logs_dir or ((bag.parent / (bag.name + "_logs")) if record else None),
+                          status=not quiet,
+                          workdir=logs_dir or ((bag.parent / (bag.name + "_logs")) if record else None),
                           compose=compose, hardware=hardware, faults=opts.fault,
                           supervise=supervise, view_port=opts.view, apart=opts.apart)
         if facts["interrupted"] and not facts["reached_t0"]:  # Ctrl-C while starting: no run, no bag (exit 130)
@@ -761,7 +765,8 @@ def launch(args: LaunchOptions | argparse.Namespace, *, quiet: bool = False, sup
     if metrics.loop is not None:  # the plant's process exits before the launcher can read its CPU time: it reports it
         cpu = dict(facts["cpu_percent"])
         if metrics.loop.plant_cpu_percent is not None:
-            cpu["hw_driver" if hardware is not None else ("container" if compose else "plant_sim")] = metrics.loop.plant_cpu_percent
+            cpu["hw_driver" if hardware is not None else ("container" if compose else "plant_sim")] = (
+                metrics.loop.plant_cpu_percent)
         metrics.loop.cpu_percent = cpu
     ran = duration
     if facts["interrupted"]:  # compare like with like: the offline run over the time the graph ran
@@ -770,7 +775,8 @@ def launch(args: LaunchOptions | argparse.Namespace, *, quiet: bool = False, sup
         bar.stage(f"the offline run to compare with ({ran:g} s, same configuration and timing)")
         offline = simulate(cfg, controller=cfg["controller"]["type"], estimator=cfg["estimator"]["type"], duration=ran,
                            scenario=sc.name).metrics() if ran > 0 else {"rms_error_um": None}
-    info = {"composed": compose, "apart": list(opts.apart), "offline_rms_error_um": offline["rms_error_um"], "offline_duration_s": ran, "bag": str(bag) if record else None,
+    info = {"composed": compose, "apart": list(opts.apart), "offline_rms_error_um": offline["rms_error_um"],
+            "offline_duration_s": ran, "bag": str(bag) if record else None,
             "hardware": hardware, "rig": facts.get("rig"), "cut_short": facts["cut_short"], "events": facts["events"],
             "recorder": facts["recorder"], "interrupted": facts["interrupted"], "exits": facts["exits"]}
     _judge(metrics, facts)
@@ -798,7 +804,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``dem-ros launch`` (also parsed by ``dem-ros faults`` for its runs)."""
     p.add_argument("--scenario", default="S1", help="scenario name from config/scenarios.yaml (default S1; "
                    "see dem-ros sim --scenario): plant truth, reference steps and perturbations of the run")
-    p.add_argument("--controller", default=None, choices=CONTROLLER_TYPES, help="control law (default: config, 'adaptive')")
+    p.add_argument("--controller", default=None, choices=CONTROLLER_TYPES,
+                   help="control law (default: config, 'adaptive')")
     p.add_argument("--estimator", default=None, choices=ESTIMATOR_TYPES, help="state estimator (default: config, 'kf')")
     p.add_argument("--duration", type=seconds, default=None, help="seconds (default: the scenario's)")
     p.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"],
@@ -846,7 +853,8 @@ def cmd_launch(args: argparse.Namespace) -> int:
     extra = [("processes", how)]
     if info["offline_rms_error_um"] is not None:
         extra.append(("offline RMS error e1 / e2 [um]",
-                      f"{fmt_pair(info['offline_rms_error_um'])} (same configuration and timing, first {info['offline_duration_s']:g} s)"))
+                      f"{fmt_pair(info['offline_rms_error_um'])} (same configuration and timing, "
+                      f"first {info['offline_duration_s']:g} s)"))
     if info["recorder"]:
         rc = info["recorder"]
         lost = (rc.get("/dem/measurement") or {}).get("lost")  # the plant's samples the bag lacks (its stamp grid)
@@ -856,7 +864,8 @@ def cmd_launch(args: argparse.Namespace) -> int:
     if info.get("rig"):
         r = info["rig"]
         extra.append(("rig (emulated board)", f"{r['ticks']} samples, {r['late_over_1ms']} ticks > 1 ms late,"
-                                              f" {r['commands_fresh']} fresh commands, board {r.get('board', 'python')}: {r['mode']}"
+                                              f" {r['commands_fresh']} fresh commands,"
+                                              f" board {r.get('board', 'python')}: {r['mode']}"
                                               + (f" ({r['reason']})" if r.get("reason") else "")
                                               + (f", FAILED: {r['failed']}" if r.get("failed") else "")))
         for f in r.get("faults", []):

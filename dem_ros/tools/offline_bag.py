@@ -33,7 +33,8 @@ def record_result(res: Any, root: Path) -> Path:
     from ..transport.dds.msgs import message_class
 
     JS = message_class("sensor_msgs/msg/JointState")
-    DA, DS, KV = (message_class(f"diagnostic_msgs/msg/{n}") for n in ("DiagnosticArray", "DiagnosticStatus", "KeyValue"))
+    DA, DS, KV = (message_class(f"diagnostic_msgs/msg/{n}")
+                  for n in ("DiagnosticArray", "DiagnosticStatus", "KeyValue"))
     String = message_class("std_msgs/msg/String")
     root.mkdir(parents=True, exist_ok=True)
     path = root / f"{datetime.now():%Y%m%d-%H%M%S}_{res.scenario}_{res.controller}_offline"

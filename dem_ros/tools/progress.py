@@ -102,8 +102,8 @@ class Progress:
         self._helper: subprocess.Popen | None = None
         if enabled:
             self._helper = self._start_helper()
-            self._thread = threading.Thread(target=self._feed if self._helper else self._run, name=f"progress: {prefix}",
-                                            daemon=True)
+            self._thread = threading.Thread(target=self._feed if self._helper else self._run,
+                                            name=f"progress: {prefix}", daemon=True)
             self._thread.start()
 
     # -- what the work calls -------------------------------------------------------------------------------------
@@ -157,7 +157,8 @@ class Progress:
         new = self.done - self._start_done
         rate = new / dt if dt > 0 else 0.0
         settled = new >= max(1, self.total // 100)  # a rate from the first few steps is no estimate
-        eta = f", ETA {(self.total - self.done) / rate:.0f} s" if settled and rate > 0 and self.done < self.total else ""
+        eta = (f", ETA {(self.total - self.done) / rate:.0f} s" if settled and rate > 0 and self.done < self.total
+               else "")
         failed = f", {self.failed} failed" if self.failed else ""
         return (f"{self.prefix}: [{'#' * int(30 * frac):<30}] {self.done}/{self.total} {self.unit}, "
                 f"{secs} s{eta}{failed}{what}")
@@ -179,8 +180,9 @@ class Progress:
         period = 0.5 if self.tty else self.every
         self.stream.flush()
         try:
-            return subprocess.Popen([sys.executable, "-I", "-S", "-c", _HELPER, repr(self._t0), str(self.quiet), str(period),
-                                     "1" if self.tty else "0"], stdin=subprocess.PIPE, stdout=fd, stderr=subprocess.DEVNULL)
+            return subprocess.Popen([sys.executable, "-I", "-S", "-c", _HELPER, repr(self._t0), str(self.quiet),
+                                     str(period), "1" if self.tty else "0"],
+                                    stdin=subprocess.PIPE, stdout=fd, stderr=subprocess.DEVNULL)
         except OSError:
             return None
 

@@ -238,8 +238,8 @@ def publish(bag: Path, rate: float = 1.0, progress: bool = True) -> dict:
     total = sum(r.topics[n].count for n in names)
     node = make_node("dem_ros_player", transport="dds", args=[])
     pubs = {n: node.publisher(topics[n]) for n in names}
-    bar = Progress("dem-ros replay --publish", total, "messages", stage="waiting 1 s for subscribers to discover the player",
-                   enabled=progress, quiet=0.0)
+    bar = Progress("dem-ros replay --publish", total, "messages",
+                   stage="waiting 1 s for subscribers to discover the player", enabled=progress, quiet=0.0)
     time.sleep(1.0)  # discovery
     bar.stage(f"playing {len(pubs)} topics at the recorded rate")
     sent = 0
@@ -272,7 +272,8 @@ def cmd_replay(args: Any) -> int:
     if args.controller or args.set:
         res = what_if(bag, args.controller, args.set, progress=True)
         verdict = "reproduces the recorded commands" if res["reproduces_recording"] else "differs from the recording"
-        print(f"what-if replay of {bag}: law {res['law']} (recorded: {res['recorded_law']}), changes {res['changes'] or 'none'}")
+        print(f"what-if replay of {bag}: law {res['law']} (recorded: {res['recorded_law']}), "
+              f"changes {res['changes'] or 'none'}")
         print(f"  {res['samples']} samples; max |u_replayed - u_recorded| = {res['max_abs_diff_v']:.3e} V,"
               f" RMS {res['rms_diff_v']:.3e} V: {verdict}")
         if res["parameters_not_recorded"]:

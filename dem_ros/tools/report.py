@@ -87,7 +87,8 @@ def _paper_figures(out: Path, duration: float | None) -> dict[str, str]:
     fig, ax = figure(1, 1)
     ax[0].plot(t, s1.r * 1e3, ":", lw=1)
     overlay(ax[0], t, [("y_m1", s1.ref[:, 0]), ("y_m2", s1.ref[:, 1])], 1e3)
-    ax[0].set_ylabel("gap [mm]"); ax[0].set_xlabel("t [s]"); ax[0].set_title("Fig. 4/5: command r (dotted) and reference-model output y_m = M(s) r")
+    ax[0].set_ylabel("gap [mm]"); ax[0].set_xlabel("t [s]")
+    ax[0].set_title("Fig. 4/5: command r (dotted) and reference-model output y_m = M(s) r")
     figs["fig04_reference.png"] = "Reference path and model output (paper Figs 4-5)"
     save(fig, out / "fig04_reference.png")
 
@@ -104,9 +105,11 @@ def _paper_figures(out: Path, duration: float | None) -> dict[str, str]:
     for j, lab in enumerate(["m_hat [kg]", "R_hat [ohm]", "K_hat [N m^2/A^2]"]):
         overlay(ax[j], t, [("adaptive (A2)", s1.diag[:, j]), ("paper_fixed (A1)", a1.diag[:, j])])
         ax[j].set_ylabel(lab)
-    ax[0].axhline(14.852, color="k", ls=":"); ax[1].axhline(20.0, color="k", ls=":"); ax[2].axhline(4.374e-4, color="k", ls=":")
+    ax[0].axhline(14.852, color="k", ls=":"); ax[1].axhline(20.0, color="k", ls=":")
+    ax[2].axhline(4.374e-4, color="k", ls=":")
     ax[0].set_title("Figs 7-8: S1 estimates (dotted: true); m and K need not converge (no PE)")
-    save(fig, out / "fig07_estimates_S1.png"); figs["fig07_estimates_S1.png"] = "S1 parameter estimates (paper Figs 7-8)"
+    save(fig, out / "fig07_estimates_S1.png")
+    figs["fig07_estimates_S1.png"] = "S1 parameter estimates (paper Figs 7-8)"
 
     a0 = run("S1", "paper")
     fig, ax = figure(1, 1)
@@ -125,10 +128,12 @@ def _paper_figures(out: Path, duration: float | None) -> dict[str, str]:
     overlay(ax[0], t2, [(c, r.error[:, 0]) for c, r in s2.items()], 1e6)
     ax[0].set_ylabel("e1 [um]"); ax[0].set_yscale("symlog", linthresh=10)
     sel = (t2 >= 20) & (t2 <= 80)
-    overlay(ax[1], t2[sel], [("adaptive e1", s2["adaptive"].error[sel, 0]), ("adaptive e2", s2["adaptive"].error[sel, 1])], 1e6)
+    overlay(ax[1], t2[sel], [("adaptive e1", s2["adaptive"].error[sel, 0]),
+                             ("adaptive e2", s2["adaptive"].error[sel, 1])], 1e6)
     ax[1].set_ylabel("e [um], 20-80 s"); ax[1].set_xlabel("t [s]")
     ax[0].set_title("Figs 10-11: S2 tracking error; adaptive rejects the unknown mass, FL keeps an offset")
-    save(fig, out / "fig10_tracking_S2.png"); figs["fig10_tracking_S2.png"] = "S2 tracking with unknown mass (paper Figs 10-11)"
+    save(fig, out / "fig10_tracking_S2.png")
+    figs["fig10_tracking_S2.png"] = "S2 tracking with unknown mass (paper Figs 10-11)"
     fig, ax = figure(3, 1, 2.2)
     r = s2["adaptive"]
     for j, lab in enumerate(["m_hat [kg]", "R_hat [ohm]", "K_hat [N m^2/A^2]"]):
@@ -137,7 +142,8 @@ def _paper_figures(out: Path, duration: float | None) -> dict[str, str]:
     ax[0].set_title("Figs 12-13: S2 estimates, adaptive (A2)")
     save(fig, out / "fig12_estimates_S2.png"); figs["fig12_estimates_S2.png"] = "S2 estimates (paper Figs 12-13)"
 
-    for name, figno, text in (("S3a", "14", "noise of Eq. 47"), ("S3b", "17", "10x Eq. 47 noise"), ("S4a", "22", "+-20 V input perturbation")):
+    for name, figno, text in (("S3a", "14", "noise of Eq. 47"), ("S3b", "17", "10x Eq. 47 noise"),
+                              ("S4a", "22", "+-20 V input perturbation")):
         fig, ax = figure(2, 1)
         series = []
         for c in ("adaptive", "adaptive_enhanced", "nonlinear_decoupling", "decentralized_pid"):
@@ -166,24 +172,31 @@ def _claims(results: list[dict]) -> list[tuple[str, str, str]]:
     a0 = g("S1", "paper")
     claims.append(("The adaptive law as printed (Eq. 36, Table 1) tracks the reference",
                    "not reproduced" if a0 and a0["failed"] else "reproduced",
-                   f"A0 fails at t = {a0['fail_time_s']} s (wrong sign of P', normalisation caps adaptation at ~1 1/s; docs/manual/errata.md)" if a0 and a0["failed"] else "A0 did not fail"))
+                   (f"A0 fails at t = {a0['fail_time_s']} s (wrong sign of P', "
+                    "normalisation caps adaptation at ~1 1/s; docs/manual/errata.md)")
+                   if a0 and a0["failed"] else "A0 did not fail"))
     s1 = g("S1", "adaptive")
     ok = s1 and not s1["failed"] and max(s1["rms_error_um"]) < 5 and max(s1["max_error_um"]) < 20
     claims.append(("Satisfactory tracking of the reference model (Figs 5-6), corrected design",
                    "reproduced" if ok else "not reproduced",
-                   f"S1 adaptive: RMS {_fmt(s1['rms_error_um'])} um, max {_fmt(s1['max_error_um'])} um (target < 5 / < 20)"))
+                   f"S1 adaptive: RMS {_fmt(s1['rms_error_um'])} um, max {_fmt(s1['max_error_um'])} um "
+                   "(target < 5 / < 20)"))
     fe = s1["final_estimates"] if s1 else None
     if fe:
         claims.append(("Estimates do not converge to the true values (W not PE; Figs 7-8)", "reproduced",
-                       f"final m_hat = {fe['m_kg']:.2f} kg (true 14.852), K_hat = {fe['K']:.3e} (true 4.374e-4); R_hat = {fe['R_ohm']:.4f} ohm converges (hover initialisation)"))
+                       f"final m_hat = {fe['m_kg']:.2f} kg (true 14.852), K_hat = {fe['K']:.3e} (true 4.374e-4); "
+                       f"R_hat = {fe['R_ohm']:.4f} ohm converges (hover initialisation)"))
     s2 = g("S2", "adaptive")
     ok = s2 and not s2["failed"] and max(s2["max_error_um"]) < 250 and max(s2["rms_error_after_40s_um"]) < 15
-    claims.append(("Complete tracking with an unknown mass change (Figs 10-11)", "reproduced" if ok else "not reproduced",
-                   f"S2 adaptive: max {_fmt(s2['max_error_um'])} um, RMS after 40 s {_fmt(s2['rms_error_after_40s_um'])} um (target < 250 / < 15)"))
+    claims.append(("Complete tracking with an unknown mass change (Figs 10-11)",
+                   "reproduced" if ok else "not reproduced",
+                   f"S2 adaptive: max {_fmt(s2['max_error_um'])} um, RMS after 40 s "
+                   f"{_fmt(s2['rms_error_after_40s_um'])} um (target < 250 / < 15)"))
     fl = g("S2", "nonlinear_decoupling")
     if fl:
         claims.append(("Fixed nonlinear decoupling keeps a steady-state error under a mass change", "reproduced",
-                       f"S2 nonlinear_decoupling: RMS after 40 s {_fmt(fl['rms_error_after_40s_um'])} um (analytic k1 g dm/(m k3) = 11.56 mm)"))
+                       f"S2 nonlinear_decoupling: RMS after 40 s {_fmt(fl['rms_error_after_40s_um'])} um "
+                       "(analytic k1 g dm/(m k3) = 11.56 mm)"))
     for s, text in (("S3a", "Robust to the measurement noise of Eq. 47 (Fig. 14)"),
                     ("S3b", "Enhanced law (leakage + dead zone, Eq. 48) robust to 10x that noise (Fig. 18)"),
                     ("S4a", "Satisfactory tracking under +-20 V input perturbation (Fig. 22)")):
@@ -196,8 +209,10 @@ def _claims(results: list[dict]) -> list[tuple[str, str, str]]:
                 continue
             ok = (not m["failed"]) and max(m["rms_error_um"]) < 100
             best |= ok
-            parts.append(f"{ctl}/{e}: " + (f"FAIL @ {m['fail_time_s']:.2f} s" if m["failed"] else f"RMS {_fmt(m['rms_error_um'])} um"))
-        claims.append((text, "reproduced" if best else "not reproduced", "; ".join(parts) + " (criterion: no failure and RMS < 100 um)"))
+            parts.append(f"{ctl}/{e}: " + (f"FAIL @ {m['fail_time_s']:.2f} s" if m["failed"]
+                                           else f"RMS {_fmt(m['rms_error_um'])} um"))
+        claims.append((text, "reproduced" if best else "not reproduced",
+                       "; ".join(parts) + " (criterion: no failure and RMS < 100 um)"))
     e2 = g("S2", "adaptive_enhanced")
     if e2:
         ok = not e2["failed"] and max(e2["max_error_um"]) < 250 and max(e2["rms_error_after_40s_um"]) < 15
@@ -218,11 +233,12 @@ def _claims(results: list[dict]) -> list[tuple[str, str, str]]:
             return f"FAIL @ {m['fail_time_s']:.2f} s" if m["failed"] else f"RMS {_fmt(m['rms_error_um'])} um"
 
         ok = not s5a["failed"] and max(s5a["rms_error_um"]) < 10
-        claims.append((f"(rig, not in the paper) coil heating S5, estimator {e}: the adaptive law tracks R1 +20 %, R2 +10 %",
+        claims.append((f"(rig, not in the paper) coil heating S5, estimator {e}: "
+                       "the adaptive law tracks R1 +20 %, R2 +10 %",
                        "reproduced" if ok else "not reproduced",
                        f"adaptive: {res(s5a)}; nonlinear_decoupling (fixed R): {res(s5n)}: its offset grows with the"
-                       " drift (5.6 mm of gap per volt of unmodelled coil voltage, R error x current) until the plate is lost"
-                       " (target for adaptive: RMS < 10 um)"))
+                       " drift (5.6 mm of gap per volt of unmodelled coil voltage, R error x current) until the plate"
+                       " is lost (target for adaptive: RMS < 10 um)"))
     return claims
 
 
@@ -235,7 +251,8 @@ def make_report(out: Path, duration: float | None = None, jobs: int | None = Non
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     warm_kernels("dem-ros report")  # once, here, with progress: the worker processes then load the cache
-    print(f"dem-ros report: {len(load_scenarios()) * len(ORDER) * len(ESTIMATORS)} closed-loop runs ...", file=sys.stderr)
+    print(f"dem-ros report: {len(load_scenarios()) * len(ORDER) * len(ESTIMATORS)} closed-loop runs ...",
+          file=sys.stderr)
     results = run_matrix(duration, jobs)
     write_json(out / "results.json", results)
     print("dem-ros report: the figures ...", file=sys.stderr)
@@ -245,8 +262,10 @@ def make_report(out: Path, duration: float | None = None, jobs: int | None = Non
     lines = [
         "# dem_ros report: adaptive control of a double-electromagnet suspension",
         "",
-        f"Generated by `dem-ros report` in {time.perf_counter() - t0:.0f} s. Every number below comes from `results.json`",
-        "in this directory; the verdicts are computed from those numbers. Runs: 1 kHz control (ZOH), plant RK4 at 0.1 ms,",
+        f"Generated by `dem-ros report` in {time.perf_counter() - t0:.0f} s. "
+        "Every number below comes from `results.json`",
+        "in this directory; the verdicts are computed from those numbers. "
+        "Runs: 1 kHz control (ZOH), plant RK4 at 0.1 ms,",
         "start in hover at 8 mm, r1: 8 -> 5 mm at 1 s, r2: 8 -> 5 mm at 10 s; e = true gap - M(s) r.",
         "",
         "## Scenarios",
@@ -257,10 +276,12 @@ def make_report(out: Path, duration: float | None = None, jobs: int | None = Non
         "",
         _table(results, scen),
         "",
-        "Controllers: `adaptive` = corrected design A2; `adaptive_enhanced` = A2 + corrected leakage/dead zone (Eq. 48);",
+        "Controllers: `adaptive` = corrected design A2; "
+        "`adaptive_enhanced` = A2 + corrected leakage/dead zone (Eq. 48);",
         "`paper` = the law as printed (A0); `paper_fixed` = minimal errata fixes (A1); `nonlinear_decoupling` = CE",
         "feedback linearisation with the nominal parameters; `decentralized_pid` = one cascade PID per magnet.",
-        "Estimator `none` feeds the raw measurement to the law; `kf` is the EKF on the nominal model, told the scenario's noise level.",
+        "Estimator `none` feeds the raw measurement to the law; "
+        "`kf` is the EKF on the nominal model, told the scenario's noise level.",
         "",
         "## Claims of the paper",
         "",
@@ -269,9 +290,12 @@ def make_report(out: Path, duration: float | None = None, jobs: int | None = Non
     ] + [f"| {c} | **{v}** | {e} |" for c, v, e in _claims(results)] + [
         "",
         "Why the noise and perturbation claims fail here: the feedback-linearising law differentiates the gap through",
-        "(L_f^2 h)_e ~ i^2/delta^2 with k1 = 70, amplifying gap noise ~25x beyond the k3 path, and has no inner current loop.",
-        "The adaptive laws' integral action (ki) and coil-equation rows remove slow offsets (S5, S6; without them 5.6 mm of gap",
-        "error per volt of low-frequency input offset, docs/manual/errata.md), not fast ones. A model-based estimator reduces the noise",
+        "(L_f^2 h)_e ~ i^2/delta^2 with k1 = 70, amplifying gap noise ~25x beyond the k3 path, "
+        "and has no inner current loop.",
+        "The adaptive laws' integral action (ki) and coil-equation rows remove slow offsets "
+        "(S5, S6; without them 5.6 mm of gap",
+        "error per volt of low-frequency input offset, docs/manual/errata.md), not fast ones. "
+        "A model-based estimator reduces the noise",
         "reaching the law (compare the `none` and `kf` rows) but cannot remove a physical input disturbance; the",
         "decentralised PID with its inner current loop is far less sensitive to both.",
         "",

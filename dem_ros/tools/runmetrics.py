@@ -309,7 +309,8 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     m = RunMetrics(
         scenario=run.get("scenario"), controller=run.get("controller"), estimator=run.get("estimator"),
         transport=run.get("transport"), error_source="truth" if truth is not None else "measurement",
-        samples=int(ts.size), failed=failed, fail_time_s=float(last.get("fail_time_s", last.get("t_sim_s", "nan"))) if failed else None,
+        samples=int(ts.size), failed=failed,
+        fail_time_s=float(last.get("fail_time_s", last.get("t_sim_s", "nan"))) if failed else None,
         rms_error_um=em["rms_error_um"], max_error_um=em["max_error_um"],
         rms_error_after_40s_um=em["rms_error_after_40s_um"], loop=loop,
         duration_s=float(run["duration_s"]) if "duration_s" in run else None,
@@ -317,7 +318,8 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     )
     if len(laws) == 1:
         m.controller = laws[0]
-    series: dict[str, Any] = {"t": t, "gaps": gaps, "ref": ref["position"][i_r, :2], "e": e, "config": run.get("config")}
+    series: dict[str, Any] = {"t": t, "gaps": gaps, "ref": ref["position"][i_r, :2], "e": e,
+                              "config": run.get("config")}
     cmd = arrays(contract.COMMAND.name)
     if cmd is not None and cmd["effort"].size:
         m.peak_voltage_v = float(np.nanmax(np.abs(cmd["effort"])))

@@ -186,7 +186,8 @@ def _axis_target(name: str) -> tuple[ParamSpec | None, Derived | None]:
             try:
                 SCHEMA.spec(g, n)
             except ConfigError:
-                raise ConfigError(f"axis {name}: needs {g}.{n}, which this build's parameter schema does not have") from None
+                raise ConfigError(f"axis {name}: needs {g}.{n}, "
+                                  "which this build's parameter schema does not have") from None
         return None, d
     group, dot, pname = name.partition(".")
     if not dot or not pname:
@@ -253,7 +254,8 @@ def parse_axis(text: str, base: Mapping[str, Mapping[str, Any]], monte_carlo: bo
             return Axis(name, unit, kind, low=coerce(lo), high=coerce(hi))
         if len(parts) == 2:
             if kind is not int:
-                raise ConfigError(f"axis {name}: a grid axis needs a count, e.g. {parts[0]}:{parts[1]}:4 (or use --samples)")
+                raise ConfigError(f"axis {name}: a grid axis needs a count, e.g. {parts[0]}:{parts[1]}:4 "
+                                  "(or use --samples)")
             vals = tuple(coerce(v) for v in range(math.ceil(lo), math.floor(hi) + 1))
         else:
             try:
@@ -351,7 +353,8 @@ def plan_runs(spec: StudySpec) -> list[dict[str, Any]]:
             jobs.append({
                 "run_id": _run_id(cfg, ctl, estimator, spec.duration),
                 "controller": ctl, "estimator": estimator, "seed": seed, "duration": spec.duration,
-                "scenario": spec.scenario, "values": dict(zip((a.name for a in spec.axes), vals, strict=True)), "cfg": cfg,
+                "scenario": spec.scenario, "values": dict(zip((a.name for a in spec.axes), vals, strict=True)),
+                "cfg": cfg,
             })
     return jobs
 
@@ -486,9 +489,11 @@ def run_study(spec: StudySpec, out: Path, *, workers: int = 1, scheduler: str | 
         # (client.run would execute in that loop and block it)
         bar.stage("the workers load the compiled kernels (on a first run: compile them, minutes)")
         try:
-            client.gather([client.submit(_warm_worker, workers=[a], allow_other_workers=False, pure=False) for a in addrs])
+            client.gather([client.submit(_warm_worker, workers=[a], allow_other_workers=False, pure=False)
+                           for a in addrs])
         except (OSError, KilledWorker) as exc:
-            raise StudyError(f"lost the Dask cluster while its workers loaded the kernels ({type(exc).__name__}: {exc})") from None
+            raise StudyError("lost the Dask cluster while its workers loaded the kernels "
+                             f"({type(exc).__name__}: {exc})") from None
         t_ready = time.perf_counter()
         size = chunk or max(1, min(16, len(todo) // (8 * max(n_workers, 1))))
         chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
@@ -502,7 +507,8 @@ def run_study(spec: StudySpec, out: Path, *, workers: int = 1, scheduler: str | 
                     try:
                         rows = fut.result()
                     except ModuleNotFoundError as exc:
-                        raise StudyError(f"a Dask worker cannot import {exc.name} (start the workers with dem_ros on their PYTHONPATH)") from None
+                        raise StudyError(f"a Dask worker cannot import {exc.name} "
+                                         "(start the workers with dem_ros on their PYTHONPATH)") from None
                     except (OSError, KilledWorker) as exc:
                         raise StudyError(f"lost the Dask cluster ({type(exc).__name__}: {exc}); "
                                          f"{bar.done} rows are saved, run the same command to resume") from None
@@ -562,7 +568,8 @@ def _worst_rms(r: Mapping[str, str]) -> float:
     return max(_f(r["rms_e1_um"]), _f(r["rms_e2_um"]))
 
 
-def robustness_rows(rows: Iterable[Mapping[str, str]], controllers: Sequence[str], rms_limit: float) -> list[dict[str, Any]]:
+def robustness_rows(rows: Iterable[Mapping[str, str]], controllers: Sequence[str],
+                    rms_limit: float) -> list[dict[str, Any]]:
     """Per controller: runs, survived, passed, worst / median RMS (um), worst max |e| (um), failing cells."""
     rows = list(rows)
     out = []
@@ -595,7 +602,8 @@ def robustness_table(out: Path, rms_limit: float | None = None, run_ids: set[str
         run_ids = set(doc["run_ids"])
     rows = [r for r in rows if all(a in r for a in axes) and (run_ids is None or r["run_id"] in run_ids)]
     lines = [
-        f"| controller | runs | survived | pass (RMS < {limit:g} um) | worst RMS [um] | median RMS [um] | worst max [um] |",
+        f"| controller | runs | survived | pass (RMS < {limit:g} um) | worst RMS [um] | median RMS [um]"
+        " | worst max [um] |",
         "|---|---|---|---|---|---|---|",
     ]
     fails = []
@@ -613,7 +621,8 @@ def robustness_table(out: Path, rms_limit: float | None = None, run_ids: set[str
     ax_text = "; ".join(
         f"{a['name']} in {{{vals(a['values'])}}} {a['unit']}" if a["values"] is not None
         else f"{a['name']} ~ U[{vals(a['range'])}] {a['unit']}" for a in doc["axes"])
-    head = (f"{doc['mode'].replace('_', ' ')} over {ax_text}; scenario {doc['scenario']}, estimator {doc['estimator']}, "
+    head = (f"{doc['mode'].replace('_', ' ')} over {ax_text}; scenario {doc['scenario']}, "
+            f"estimator {doc['estimator']}, "
             f"{doc['duration_s']:g} s runs, seed {doc['seed']}. Survived: the plate never left (0.1 mm, 30 mm).")
     return "\n".join([head, "", *lines, *(["", *fails] if fails else [])])
 
@@ -627,7 +636,8 @@ def report_section(study_dir: Path) -> list[str]:
     head = ["## Robustness over plant truth (`dem-ros study`)", ""]
     if not ((study_dir / "study.json").is_file() and (study_dir / "results.csv").is_file()):
         return [*head, f"No study in `{study_dir.name}/` beside this report. Run "
-                       f"`dem-ros study --preset acceptance --controllers adaptive,nonlinear_decoupling --out <report dir>/{study_dir.name}`, "
+                       "`dem-ros study --preset acceptance --controllers adaptive,nonlinear_decoupling "
+                       f"--out <report dir>/{study_dir.name}`, "
                        "then `dem-ros report` again.", ""]
     maps = sorted(study_dir.glob("map_*.png"))
     return [*head, robustness_table(study_dir), "",
@@ -704,14 +714,16 @@ def draw_maps(spec: StudySpec, out: Path, rms_limit: float, map_axes: Sequence[s
             finite = grid[np.isfinite(grid)]
             vmin = max(float(finite.min()), 1e-3) if finite.size else 1e-3
             vmax = max(float(finite.max()), vmin * 10) if finite.size else 1.0
-            im = ax.imshow(np.where(np.isfinite(grid), np.clip(grid, vmin, None), np.nan), origin="lower", aspect="auto",
-                           cmap="viridis", norm=LogNorm(vmin=vmin, vmax=vmax))
-            fig.colorbar(im, ax=ax, label="RMS error, worst output and cell [um]" if rest else "RMS error, worst output [um]")
+            im = ax.imshow(np.where(np.isfinite(grid), np.clip(grid, vmin, None), np.nan), origin="lower",
+                           aspect="auto", cmap="viridis", norm=LogNorm(vmin=vmin, vmax=vmax))
+            fig.colorbar(im, ax=ax,
+                         label="RMS error, worst output and cell [um]" if rest else "RMS error, worst output [um]")
             for iy in range(len(ys)):
                 for ix in range(len(xs)):
                     if nf[iy, ix]:
                         ax.add_patch(plt.Rectangle((ix - 0.5, iy - 0.5), 1, 1, color="red", alpha=0.85))
-                        ax.text(ix, iy, f"FAIL\n{nf[iy, ix]}/{nt[iy, ix]}", ha="center", va="center", fontsize=7, color="white")
+                        ax.text(ix, iy, f"FAIL\n{nf[iy, ix]}/{nt[iy, ix]}", ha="center", va="center", fontsize=7,
+                                color="white")
                     elif nt[iy, ix] and len(xs) * len(ys) <= 400:
                         v = grid[iy, ix]
                         mark = "" if v < rms_limit else "\n> limit"
@@ -753,10 +765,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", default=None, help="seed of noise and sampling (default: plant_sim.seed)")
     p.add_argument("--out", default="study", help="results directory (default ./study); re-running resumes")
     p.add_argument("--workers", default=None, help="local cluster: worker processes (default: cores)")
-    p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="use this Dask scheduler instead of a local cluster")
+    p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                   help="use this Dask scheduler instead of a local cluster")
     p.add_argument("--chunk", default=None, help="runs per Dask task (default: about 8 tasks per worker, at most 16)")
     p.add_argument("--rms-limit", default="100", help="pass criterion: RMS error < this (um, default 100)")
-    p.add_argument("--map", default=None, metavar="X,Y", help="axes drawn in the maps (default: the first two that vary)")
+    p.add_argument("--map", default=None, metavar="X,Y",
+                   help="axes drawn in the maps (default: the first two that vary)")
     p.add_argument("--timeout", default="30", help="seconds to reach the scheduler and its workers (default 30)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -806,7 +820,8 @@ def cmd_study(args: argparse.Namespace) -> int:
     spec = spec_from_args(args)
     if args.scheduler is not None:
         if args.workers is not None:
-            raise ConfigError("--workers applies to the local cluster; with --scheduler the cluster's own workers run the study")
+            raise ConfigError("--workers applies to the local cluster; "
+                              "with --scheduler the cluster's own workers run the study")
         if not _SCHED_RE.fullmatch(args.scheduler):
             raise ConfigError(f"--scheduler: got {args.scheduler!r}, expected tcp://HOST:PORT")
     workers = _num(args.workers, "--workers", int, 1, 1024) if args.workers is not None else (os.cpu_count() or 1)

@@ -66,11 +66,13 @@ def _seconds(text: str) -> float:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--port", type=port, default=8765, help="TCP port of the WebSocket server (default 8765; 0: any free)")
+    p.add_argument("--port", type=port, default=8765,
+                   help="TCP port of the WebSocket server (default 8765; 0: any free)")
     p.add_argument("--host", default="127.0.0.1",
                    help="address to listen on (default 127.0.0.1, this machine only; another address lets anyone who "
                         "reaches it set parameters and arm / e-stop a rig)")
-    p.add_argument("--domain-id", type=domain_id, default=None, help="ROS_DOMAIN_ID of the graph (default: the environment's)")
+    p.add_argument("--domain-id", type=domain_id, default=None,
+                   help="ROS_DOMAIN_ID of the graph (default: the environment's)")
     p.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"],
                    help="how to join the graph (default auto: rclpy when it imports, else dds); parameters and "
                         "services need dds, as dem-ros param does")

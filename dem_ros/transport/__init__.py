@@ -27,8 +27,8 @@ Transports:
 
 Messages: assign Python lists (``array.tolist()``) to sequence fields; the DDS
 classes do not take numpy arrays. Environment for the dds transport:
-``DEM_ROS_TRANSPORT`` (what ``auto`` means), ``ROS_DOMAIN_ID`` (0..101), ``DEM_ROS_DISTRO`` (jazzy | humble | iron, sets the
-GID size and type hashes), ``ROS_AUTOMATIC_DISCOVERY_RANGE`` (default
+``DEM_ROS_TRANSPORT`` (what ``auto`` means), ``ROS_DOMAIN_ID`` (0..101), ``DEM_ROS_DISTRO`` (jazzy | humble | iron, sets
+the GID size and type hashes), ``ROS_AUTOMATIC_DISCOVERY_RANGE`` (default
 LOCALHOST), ``ROS_STATIC_PEERS``, ``CYCLONEDDS_URI``.
 """
 

@@ -265,7 +265,8 @@ class LoopExecutor:
         if triggered:
             self._take()
         for t in self.timers:  # rate-monotonic: what a timer sets off runs before any slower timer
-            if t.next_ns <= woke and not t.cancelled and t.node not in bg and not (t.node is not None and t.node.is_shutdown):
+            if t.next_ns <= woke and not t.cancelled and t.node not in bg \
+                    and not (t.node is not None and t.node.is_shutdown):
                 t.fire()
                 self._deliver(bg)
         self._deliver(bg)
@@ -277,7 +278,8 @@ class LoopExecutor:
         if bg:  # best-effort nodes: after the loop's chain
             now = time.monotonic_ns()
             for t in self.timers:
-                if t.next_ns <= now and not t.cancelled and t.node is not None and t.node in bg and not t.node.is_shutdown:
+                if t.next_ns <= now and not t.cancelled and t.node is not None and t.node in bg \
+                        and not t.node.is_shutdown:
                     t.fire()
             while later or queue:
                 sub, arg = later.popleft() if later else queue.popleft()

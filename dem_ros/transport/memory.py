@@ -187,7 +187,8 @@ class MemoryNode:
 
     def declare_parameters(self, group: str, on_change: OnChange | None = None) -> dict[str, Any]:
         if self._params is not None:
-            raise TransportError(f"{self.fully_qualified_name}: parameters already declared (group {self._params.group!r})")
+            raise TransportError(f"{self.fully_qualified_name}: parameters already declared "
+                                 f"(group {self._params.group!r})")
         values = initial_parameters(group, self._ros_args, self.name, strict=not self._ignore_undeclared)
         self._params = ParameterStore(group, values, on_change)
         return dict(values)
@@ -240,7 +241,8 @@ class MemoryBus:
         return MemoryNode(self, name, args, ignore_undeclared=ignore_undeclared)
 
     # -- messages ------------------------------------------------------------------------
-    def _enqueue(self, topic: str, msg: Any, data: bytes | None, type_name: str | None = None, gid: bytes = b"") -> None:
+    def _enqueue(self, topic: str, msg: Any, data: bytes | None, type_name: str | None = None,
+                 gid: bytes = b"") -> None:
         subs = self.subscriptions.get(topic)
         if not subs:
             return

@@ -202,7 +202,8 @@ class FoxgloveClient:
 
     async def set_parameters(self, values: dict[str, Any]) -> dict[str, Any]:
         """``setParameters``: the values the server answers with."""
-        got = await self._ask({"op": "setParameters", "parameters": [{"name": n, "value": v} for n, v in values.items()]})
+        got = await self._ask({"op": "setParameters",
+                               "parameters": [{"name": n, "value": v} for n, v in values.items()]})
         return {p["name"]: p.get("value") for p in got}
 
     async def call_service(self, name: str, payload: bytes, encoding: str = "cdr") -> bytes:

@@ -49,7 +49,8 @@ def _plot(title: str, series: list[fl.PlotSeries], y_label: str) -> fl.PlotPanel
 def _loop_script() -> str:
     names = json.dumps([contract.LOOP_STATUS, contract.HW_LOOP_STATUS])
     fields = "\n".join(f"      {k}: num(\"{k}\")," for k in LOOP_KEYS)
-    return f"""// The loop's status on /diagnostics ({contract.LOOP_STATUS} | {contract.HW_LOOP_STATUS}) as numbers to plot.
+    return f"""// The loop's status on /diagnostics ({contract.LOOP_STATUS} | {contract.HW_LOOP_STATUS}) \
+as numbers to plot.
 import {{ Input }} from "./types";
 
 export const inputs = ["{contract.DIAGNOSTICS.name}"];

@@ -41,7 +41,8 @@ else:
         d = deadline - time.perf_counter()
         if d > 0:
             time.sleep(d)
-        rec.on_message(MEASUREMENT.name, 10**9 + k * 10**6, joint_state_cdr(names, [k * 1e-3, 0.0], [], [1.0, 2.0], k * 10**6))
+        rec.on_message(MEASUREMENT.name, 10**9 + k * 10**6,
+                       joint_state_cdr(names, [k * 1e-3, 0.0], [], [1.0, 2.0], k * 10**6))
         k += 1
         if k == 300:
             print("recording", flush=True)

@@ -55,8 +55,8 @@ def diagnostics(k: int) -> Any:
 def param_event(k: int) -> Any:
     pv = T["rcl_interfaces/msg/ParameterValue"](
         type=3, bool_value=False, integer_value=0, double_value=0.5 * k, string_value="",
-        byte_array_value=np.array([], np.uint8), bool_array_value=np.array([], bool), integer_array_value=np.array([], np.int64),
-        double_array_value=np.array([]), string_array_value=[])
+        byte_array_value=np.array([], np.uint8), bool_array_value=np.array([], bool),
+        integer_array_value=np.array([], np.int64), double_array_value=np.array([]), string_array_value=[])
     p = T["rcl_interfaces/msg/Parameter"](name="gain", value=pv)
     return T["rcl_interfaces/msg/ParameterEvent"](stamp=stamp(k), node="/controller", new_parameters=[],
                                                   changed_parameters=[p], deleted_parameters=[])

@@ -36,7 +36,8 @@ def test_check_stamp_gaps(tmp_path: Path) -> None:
     with BagWriter(tmp_path / "g") as w:
         w.add_topic(MEASUREMENT.name, MEASUREMENT.type, MEASUREMENT.qos)
         for k in [*range(0, 100), *range(105, 200), *range(250, 300)]:
-            w.write(MEASUREMENT.name, k * 10**6, joint_state_cdr(["magnet_1", "magnet_2"], [0, 0], [], [0, 0], k * 10**6))
+            w.write(MEASUREMENT.name, k * 10**6,
+                    joint_state_cdr(["magnet_1", "magnet_2"], [0, 0], [], [0, 0], k * 10**6))
     rep = check(tmp_path / "g")
     (t,) = rep.topics
     assert (t.gaps, t.missing_samples, t.largest_gap_ns) == (2, 5 + 50, 51 * 10**6)
@@ -126,7 +127,8 @@ def test_missing_and_foreign_inputs(tmp_path: Path) -> None:
         BagReader(tmp_path / "json.mcap")
     with BagWriter(tmp_path / "other") as w:
         w.add_topic("/chatter", "std_msgs/msg/String", QOS_STREAM)
-        w.write("/chatter", 1, bytes(STORE.serialize_cdr(STORE.types["std_msgs/msg/String"](data="hi"), "std_msgs/msg/String")))
+        w.write("/chatter", 1, bytes(STORE.serialize_cdr(STORE.types["std_msgs/msg/String"](data="hi"),
+                                                         "std_msgs/msg/String")))
     rep = check(tmp_path / "other")
     assert any("none of the dem_ros contract topics" in p for p in rep.problems)
     with BagReader(tmp_path / "other") as r, pytest.raises(BagError, match=r"/dem/measurement.*not in"):

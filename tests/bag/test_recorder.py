@@ -114,7 +114,8 @@ def test_the_plant_samples_the_bag_lacks_are_counted_lost(tmp_path: Path) -> Non
     stamps = [*range(0, 100), *range(150, 200), 120, 120, 3_600_000, *range(200, 210)]
     with Recorder(tmp_path / "g", [MEASUREMENT, COMMAND]) as rec:
         for k in stamps:
-            rec.on_message(MEASUREMENT.name, k, joint_state_cdr(["magnet_1", "magnet_2"], [0, 0], [], [0, 0], k * 10**6))
+            rec.on_message(MEASUREMENT.name, k,
+                           joint_state_cdr(["magnet_1", "magnet_2"], [0, 0], [], [0, 0], k * 10**6))
             rec.on_message(COMMAND.name, k, joint_state_cdr(["magnet_1", "magnet_2"], [], [], [1, 1], k * 10**6))
     c = rec.counters()
     assert c[MEASUREMENT.name].lost == 50 - 1 and c[MEASUREMENT.name].dropped == 0  # 100..149 but 120

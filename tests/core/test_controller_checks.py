@@ -25,7 +25,8 @@ MS = 1_000_000
 
 
 def test_the_default_speed_bound_is_the_bound_of_the_default_reference_model():
-    v = reference_speed_bound((RC["a0"], RC["a1"], RC["a2"]), RC["b0"], CC["reference_gap_min"], CC["reference_gap_max"])
+    v = reference_speed_bound((RC["a0"], RC["a1"], RC["a2"]), RC["b0"], CC["reference_gap_min"],
+                              CC["reference_gap_max"])
     assert v == pytest.approx(1.538e-3, rel=1e-3)
     assert v <= CC["reference_max_speed"] <= 1.03 * v  # the schema's default: the bound, rounded up
 

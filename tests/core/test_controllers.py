@@ -1,4 +1,5 @@
-"""Control laws (dem_ros.core.controllers): exact linearisation, augmented error, adaptation laws (docs/manual/controllers.md, docs/manual/errata.md, docs/manual/model.md)."""
+"""Control laws (dem_ros.core.controllers): exact linearisation, augmented error, adaptation laws
+(docs/manual/controllers.md, docs/manual/errata.md, docs/manual/model.md)."""
 
 from __future__ import annotations
 

@@ -91,7 +91,8 @@ def test_modulating_function_moves_both_derivatives_onto_phi():
     t = np.arange(0, 2.0001, 1e-3)
     d1, d2 = _gaps(t)
     w1, w2, w3 = 2 * np.pi * 0.7, 2 * np.pi * 2.3, 2 * np.pi * 0.5
-    acc = 0.5 * (-1e-3 * w1 ** 2 * np.sin(w1 * t) - 0.3e-3 * w2 ** 2 * np.sin(w2 * t) - 0.8e-3 * w3 ** 2 * np.sin(w3 * t + 1.0))
+    acc = 0.5 * (-1e-3 * w1 ** 2 * np.sin(w1 * t) - 0.3e-3 * w2 ** 2 * np.sin(w2 * t)
+                 - 0.8e-3 * w3 ** 2 * np.sin(w3 * t + 1.0))
     data = RunData(t, np.column_stack([d1, d2]), np.ones((t.size, 2)), np.zeros((t.size, 2)))
     A, _, wphi = heave_rows(data, GEO, 200)
     for r, a in enumerate(range(0, t.size - 200, 200)):
@@ -107,7 +108,8 @@ def test_heave_balance_gives_m_with_K_known():
     t = np.arange(0, 4.0001, 1e-3)
     d1, d2 = _gaps(t)
     w1, w2, w3 = 2 * np.pi * 0.7, 2 * np.pi * 2.3, 2 * np.pi * 0.5
-    acc = 0.5 * (-1e-3 * w1 ** 2 * np.sin(w1 * t) - 0.3e-3 * w2 ** 2 * np.sin(w2 * t) - 0.8e-3 * w3 ** 2 * np.sin(w3 * t + 1.0))
+    acc = 0.5 * (-1e-3 * w1 ** 2 * np.sin(w1 * t) - 0.3e-3 * w2 ** 2 * np.sin(w2 * t)
+                 - 0.8e-3 * w3 ** 2 * np.sin(w3 * t + 1.0))
     m, K = 13.1, 4.1e-4
     qs = (m * (GEO["g"] - acc) + GEO["N1"] + GEO["N2"]) / K
     de = np.column_stack([P * d1 + Q * d2, Q * d1 + P * d2])

@@ -1,4 +1,5 @@
-"""ZOH discretisation and the all-pole filters F(s), M(s) (dem_ros.core.lti; docs/manual/controllers.md) against scipy.signal."""
+"""ZOH discretisation and the all-pole filters F(s), M(s) (dem_ros.core.lti; docs/manual/controllers.md) against
+scipy.signal."""
 
 from __future__ import annotations
 

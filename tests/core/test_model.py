@@ -1,4 +1,5 @@
-"""Plant model (dem_ros.core.model) against an independent sympy derivation (docs/manual/errata.md, docs/manual/model.md)."""
+"""Plant model (dem_ros.core.model) against an independent sympy derivation (docs/manual/errata.md,
+docs/manual/model.md)."""
 
 from __future__ import annotations
 
@@ -132,7 +133,8 @@ def test_ydddot_equals_W3_theta():
 
 
 def test_flux_conservation_along_f6():
-    """L_f6 (i1^2/delta1^2) = 0 (erratum 16), f6 the kinematic drift vector of Eq. 37, and dF/dt = (i/delta)(u - R i)."""
+    """L_f6 (i1^2/delta1^2) = 0 (erratum 16), f6 the kinematic drift vector of Eq. 37,
+    and dF/dt = (i/delta)(u - R i)."""
     sym = plant()
     x1, x2, x3, x4, x5, x6 = sym.x
     _m, _I, _L, _l, K, R, _N1, _N2, g = sym.params

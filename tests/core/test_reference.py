@@ -1,4 +1,5 @@
-"""Reference generator (dem_ros.core.reference): M(s) = 0.25/((s+1)(s+0.5)^2), staggered steps (docs/manual/controllers.md, docs/manual/scenarios.md)."""
+"""Reference generator (dem_ros.core.reference): M(s) = 0.25/((s+1)(s+0.5)^2), staggered steps
+(docs/manual/controllers.md, docs/manual/scenarios.md)."""
 
 from __future__ import annotations
 
@@ -85,7 +86,8 @@ def test_matches_analytic_step_response(traj):
             expected = STEP * fn(tau) + (CFG["initial"] if order == 0 else 0.0)
             got = yd[after, 2 * order + j]
             scale = np.abs(expected - (CFG["initial"] if order == 0 else 0.0)).max()
-            np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9 * scale, err_msg=f"output {j}, derivative {order}")
+            np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9 * scale,
+                                       err_msg=f"output {j}, derivative {order}")
 
 
 def test_derivatives_consistent_with_finite_differences(traj):

@@ -52,7 +52,8 @@ def test_S1_adaptive_with_default_kf_estimator_15s(scenarios, s1_adaptive_15s):
 
 
 def test_S1_paper_law_fails_without_exception(scenarios):
-    """A0 (the printed law) loses the plate at ~0.08 s (docs/manual/errata.md.1: 77 ms); reported, not raised. 1 s run."""
+    """A0 (the printed law) loses the plate at ~0.08 s (docs/manual/errata.md.1: 77 ms); reported, not raised.
+    1 s run."""
     res = simulate(scenarios["S1"].config(), controller="paper", estimator="none", duration=1.0, delay=0,
                    scenario="S1")
     m = res.metrics()
@@ -86,7 +87,8 @@ def test_S2_adaptive_acceptance_100s(s2_adaptive):
 
 
 def test_S2_nonlinear_decoupling_offset_60s(scenarios):
-    """FL-known under +3 kg: offset = k1 g dm/(m k3) (3.85 mm/kg, docs/manual/errata.md.2), within 10 %. 60 s run (ramp ends at 40 s)."""
+    """FL-known under +3 kg: offset = k1 g dm/(m k3) (3.85 mm/kg, docs/manual/errata.md.2), within 10 %.
+    60 s run (ramp ends at 40 s)."""
     cfg = scenarios["S2"].config()
     c, p = cfg["controller"], cfg["plant_sim"]
     per_kg = c["k1"] * p["g"] / (c["m_nominal"] * c["k3"])
@@ -140,7 +142,8 @@ def test_delay_compensation_is_exact_with_the_true_model_15s(scenarios):
 
 
 def test_S1_adaptive_acceptance_with_graph_timing_15s(scenarios):
-    """S1, A2, the configuration's own timing (graph: command_delay = 1), 15 s: the docs/manual/controllers.md bounds still hold."""
+    """S1, A2, the configuration's own timing (graph: command_delay = 1), 15 s: the docs/manual/controllers.md bounds
+    still hold."""
     cfg = scenarios["S1"].config()
     res = simulate(cfg, controller="adaptive", estimator="none", duration=15.0, scenario="S1")
     assert res.extra["delay"] == cfg["plant_sim"]["command_delay"] == 1

@@ -210,7 +210,8 @@ def table(rows: list[dict[str, Any]]) -> str:
              "refused | malformed | verdict | pass |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| `{r['topic']}` | {r['kind']} ({r['writer']}) | {r['processes']} | {r['timing']} | "
-                     f"{r.get('max_error_um', '-')} | {r.get('landed', '-')} | {', '.join(r.get('reported', [])) or '-'}"
+                     f"{r.get('max_error_um', '-')} | {r.get('landed', '-')} | "
+                     f"{', '.join(r.get('reported', [])) or '-'}"
                      f" | {r.get('refused', '-')} | {r.get('malformed', '-')} | {r.get('verdict', '-')}"
                      f" | {'yes' if r.get('ok') else 'NO'} |")
     return "\n".join(lines)

@@ -1,8 +1,8 @@
 """The command source lock with real processes over real DDS on loopback (issue #12 item 3).
 
 * A rogue process publishes 1e6 V on /dem/command for every measurement of the run, stamped as that
-  measurement (the worst case: it can arrive before the controller's command for the same sample). The plant applies only the
-  controller's commands: the plate tracks S1 as without the rogue (truth from the bag, read back with rosbags),
+  measurement (the worst case: it can arrive before the controller's command for the same sample). The plant applies
+  only the controller's commands: the plate tracks S1 as without the rogue (truth from the bag, read back with rosbags),
   and the plant reports the rogue (commands_foreign, WARN on /diagnostics, one log line).
 * A free-running plant_sim does not start its run before the controller's /dem/command writer is on the
   graph (last session a per-process free run landed because the plant started first).
@@ -132,13 +132,15 @@ def test_a_rogue_publisher_of_1e6_volts_changes_nothing_and_is_reported(tmp_path
     assert foreign >= rogue_cmds // 2, (foreign, rogue_cmds)  # what the plant saw (the bag: what the recorder saw)
     warned = [d for d in r["diags"] if d[0] >= 1 and "commands_foreign +" in d[1]]
     assert warned, [d[:2] for d in r["diags"]]
-    assert plant_log.count("/dem/command from writer") == 1 and "refused: not the bound writer of 'controller'" in plant_log
+    assert (plant_log.count("/dem/command from writer") == 1
+            and "refused: not the bound writer of 'controller'" in plant_log)
     # the run's verdict says so: degraded (exit 3), naming the node that refused and the writer's GID
     from dem_ros.tools.runmetrics import load_run
 
     m, _ = load_run(bag)
     reasons = [x for x in m.verdict_reasons if "refused" in x]
-    assert m.verdict == "degraded" and reasons and reasons[0].startswith("plant_sim refused"), (m.verdict, m.verdict_reasons)
+    assert m.verdict == "degraded" and reasons and reasons[0].startswith("plant_sim refused"), (
+        m.verdict, m.verdict_reasons)
     print(f"\nrogue: {rogue_cmds} commands of 1e6 V in the bag, {foreign} dropped by the plant; max applied "
           f"{r['applied'].max():.2f} V; gaps {r['gaps'].min() * 1e3:.3f}..{r['gaps'].max() * 1e3:.3f} mm")
 

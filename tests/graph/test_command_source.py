@@ -42,7 +42,8 @@ def _graph(*extra: str, source_name: str = "controller"):
     probe = bus.node("probe")
     probe.subscribe(contract.APPLIED, lambda m: applied.append(list(m.effort)))
     probe.subscribe(contract.DIAGNOSTICS, lambda m: diags.extend(
-        (_level(s), s.message, {kv.key: kv.value for kv in s.values}) for s in m.status if s.name == contract.LOOP_STATUS))
+        (_level(s), s.message, {kv.key: kv.value for kv in s.values})
+        for s in m.status if s.name == contract.LOOP_STATUS))
     return bus, plant, u0, applied, diags
 
 
@@ -161,7 +162,8 @@ def test_a_second_writer_named_controller_is_refused_while_the_bound_one_lives()
     inputs: list[tuple[int, str, dict[str, str]]] = []
     probe = bus.node("probe2")
     probe.subscribe(contract.DIAGNOSTICS, lambda m: inputs.extend(
-        (_level(s), s.message, {kv.key: kv.value for kv in s.values}) for s in m.status if s.name == "plant_sim: inputs"))
+        (_level(s), s.message, {kv.key: kv.value for kv in s.values})
+        for s in m.status if s.name == "plant_sim: inputs"))
     _run(bus, applied, 100)
     bound = plant.source.binding.bound
     JS = bus.msg("sensor_msgs/msg/JointState")

@@ -110,10 +110,12 @@ def test_parameters_served_while_the_loop_runs(composed_run):
 
 
 def test_remote_subscriber_and_recorder_see_every_sample(composed_run):
-    assert len(composed_run["remote"]) >= 200 and set(composed_run["remote"]) <= {contract.FRAME, contract.FRAME_PREROLL}
+    assert (len(composed_run["remote"]) >= 200
+            and set(composed_run["remote"]) <= {contract.FRAME, contract.FRAME_PREROLL})
     counts = composed_run["facts"]["recorder"]
     assert counts is not None
     assert all(v["dropped"] == 0 and v["received"] == v["written"] for v in counts.values()), counts
     pre = int(composed_run["cfg"]["plant_sim"]["preroll"] * 1000)
-    for topic in ("/dem/measurement", "/dem/applied_voltage", "/dem/plant/truth", "/dem/command", "/dem/state_estimate"):
+    for topic in ("/dem/measurement", "/dem/applied_voltage", "/dem/plant/truth", "/dem/command",
+                  "/dem/state_estimate"):
         assert counts[topic]["written"] >= int(DURATION * 1000) + pre, (topic, counts[topic])

@@ -85,7 +85,8 @@ def test_hover_window_holds_the_applied_voltage_then_initialises_from_it():
         t = t0 + k * T
         bus.now_ns = t
         publish(bus, contract.APPLIED, joint_state(JS, t, effort=(80.0, 80.0), frame=contract.FRAME_PREROLL))
-        publish(bus, contract.REFERENCE, named_vector(JS, t, contract.REFERENCE_NAMES, REF, frame=contract.FRAME_PREROLL))
+        publish(bus, contract.REFERENCE,
+                named_vector(JS, t, contract.REFERENCE_NAMES, REF, frame=contract.FRAME_PREROLL))
         publish(bus, contract.ESTIMATE, joint_state(JS, t, position=(0.008, 0.008), velocity=(0.0, 0.0),
                                                    effort=(4.0, 4.0), frame=contract.FRAME_PREROLL))
         bus.spin_once()
@@ -112,7 +113,8 @@ def test_an_applied_voltage_with_a_refused_stamp_is_not_taken_as_the_applied_vol
         if k == bad:  # the injected fault: the measurement's copy, stamped an hour ahead
             publish(bus, contract.APPLIED, joint_state(JS, t + 3600 * 10**9, position=(0.008, 0.008),
                                                       effort=(4.0, 4.0), frame=contract.FRAME_PREROLL))
-        publish(bus, contract.REFERENCE, named_vector(JS, t, contract.REFERENCE_NAMES, REF, frame=contract.FRAME_PREROLL))
+        publish(bus, contract.REFERENCE,
+                named_vector(JS, t, contract.REFERENCE_NAMES, REF, frame=contract.FRAME_PREROLL))
         publish(bus, contract.ESTIMATE, joint_state(JS, t, position=(0.008, 0.008), velocity=(0.0, 0.0),
                                                    effort=(4.0, 4.0), frame=contract.FRAME_PREROLL))
         bus.spin_once()

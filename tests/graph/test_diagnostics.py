@@ -94,6 +94,7 @@ def test_the_reference_node_reports_refused_measurements():
     publish(bus, contract.MEASUREMENT, joint_state(JS, bus.now_ns, position=(0.008,)))  # one gap: rejected
     bus.advance(1.0)
     ref = [s for s in seen if s[1] == "reference: inputs"]
-    assert ref and ref[-1][0] == WARN and "malformed +1" in ref[-1][2] and ref[-1][3]["measurement_malformed"] == "1", ref
+    assert (ref and ref[-1][0] == WARN and "malformed +1" in ref[-1][2]
+            and ref[-1][3]["measurement_malformed"] == "1"), ref
     bus.advance(1.0)
     assert [s for s in seen if s[1] == "reference: inputs"][-1][0] == OK

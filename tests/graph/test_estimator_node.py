@@ -49,7 +49,8 @@ def test_a_restart_without_measured_rates_publishes_only_once_converged():
     bus, node, est, _ = _graph()
     n = EC["converge_samples"]
     stamps = [_feed(bus, k, rates=()) for k in range(n + 10)]
-    assert sorted(est) == stamps[n - 1:], (len(est), n)  # the n-th sample in a row that passed the gates is the first out
+    # the n-th sample in a row that passed the gates is the first out
+    assert sorted(est) == stamps[n - 1:], (len(est), n)
     assert node.counts["withheld"] == n - 1
     assert any("converged after" in line[2] for line in bus.log)
 
@@ -209,7 +210,8 @@ def test_a_voltage_or_measurement_with_a_stamp_already_taken_is_dropped():
             t = _feed(bus, k)
             if inject and k == 40:
                 publish(bus, contract.APPLIED, joint_state(JS, t, effort=(X0[4], X0[5])))  # 4 "volts"
-                publish(bus, contract.MEASUREMENT, joint_state(JS, t, position=(X0[0] + 1e-3, X0[2]), velocity=(0.0, 0.0),
+                publish(bus, contract.MEASUREMENT,
+                        joint_state(JS, t, position=(X0[0] + 1e-3, X0[2]), velocity=(0.0, 0.0),
                                                               effort=(X0[4], X0[5])))
                 bus.spin_once()
         runs.append((dict(est), node.counts["repeated"], node.counts["measurements"]))

@@ -186,7 +186,8 @@ def test_a_30ms_stall_is_held_without_landing(short_stall):
     # the physics margin: the longest hold (stall + the controller's catch-up) against hold_timeout
     assert float(last["longest_hold_ms"]) >= 25.0, (why, last)
     print(f"\n30 ms stall: measured {why}, holds {last['holds']}, longest hold {last['longest_hold_ms']} ms"
-          f" (hold_timeout {r['cfg']['plant_sim']['hold_timeout'] * 1e3:g} ms), misses {last['deadline_misses']}, landing no")
+          f" (hold_timeout {r['cfg']['plant_sim']['hold_timeout'] * 1e3:g} ms), misses {last['deadline_misses']},"
+          " landing no")
     gaps, _ = _truth(r["bag"])
     assert gaps.min() > 0.0045, why  # S1 never goes below 5 mm; the hold did not push the plate to the rail
 

@@ -164,7 +164,8 @@ def _drive(t, out, dp, reader, domain, root, bag, cfg) -> dict:
     time.sleep(0.5)
     raw += [m for m in reader.take(20000) if isinstance(m, RJointState)]
     del gate
-    return {"bag": bag, "facts": out["facts"], "changes": changes, "cfg": cfg, "logs": root / "logs", "raw_commands": raw}
+    return {"bag": bag, "facts": out["facts"], "changes": changes, "cfg": cfg, "logs": root / "logs",
+            "raw_commands": raw}
 
 
 def test_closed_loop_levitates_and_tracks_like_offline(graph_run):

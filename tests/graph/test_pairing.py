@@ -27,7 +27,8 @@ def test_estimator_uses_the_voltage_of_each_measurements_stamp():
     # sample's voltage (the plant runs one sample ahead with command_delay 1), never two samples off
     events = [(k + rng.uniform(-0.9, 0.3), pa, joint_state(JS, k * T, effort=u[k])) for k in range(n)]
     # pre-roll frames: a filter started in the pre-roll publishes from its first sample (no convergence wait)
-    events += [(k + rng.uniform(-0.1, 0.9), pm, joint_state(JS, k * T, position=z[k], effort=i[k], frame=contract.FRAME_PREROLL))
+    events += [(k + rng.uniform(-0.1, 0.9), pm,
+                joint_state(JS, k * T, position=z[k], effort=i[k], frame=contract.FRAME_PREROLL))
                for k in range(n)]
     events.sort(key=lambda e: e[0])
     assert events[0][1] is pa  # (the very first voltage comes first: the filter starts from it)

@@ -72,7 +72,8 @@ def _run(transport: str, offset: int, tmp_path_factory) -> dict:
     # prints its REALTIME line when its set-up is done and it starts spinning (dem_ros.realtime)
     marks = {root / "logs" / "controller.log": "ready", root / "logs" / "plant_sim.log": "REALTIME"}
     end = time.monotonic() + 180
-    while time.monotonic() < end and not all(p.exists() and m in p.read_text(errors="replace") for p, m in marks.items()):
+    while time.monotonic() < end and not all(p.exists() and m in p.read_text(errors="replace")
+                                             for p, m in marks.items()):
         time.sleep(0.1)
     # the first command the controller sends, as `ros2 topic echo` shows it (started before the loop)
     echo = subprocess.Popen(["ros2", "topic", "echo", "--once", contract.COMMAND.name], stdout=subprocess.PIPE,

@@ -21,7 +21,8 @@ import time
 import domains
 import pytest
 
-pytest.importorskip("rclpy", reason="rclpy not importable: pip install -e '.[ros]' (make test does where the wheels exist)")
+pytest.importorskip("rclpy",
+                    reason="rclpy not importable: pip install -e '.[ros]' (make test does where the wheels exist)")
 
 from dem_ros import contract
 from dem_ros.bag import BagReader
@@ -107,7 +108,8 @@ for w in sys.argv[2:]:
         ex.spin_once(timeout_sec=0.005)
     took = time.monotonic() - t0
     res = fut.result().results[0] if fut.done() else None
-    out.append({"w": float(w), "s": took, "ok": bool(res and res.successful), "reason": res.reason if res else "no answer"})
+    out.append({"w": float(w), "s": took, "ok": bool(res and res.successful),
+                "reason": res.reason if res else "no answer"})
 print(json.dumps({"calls": out}), flush=True)
 node.destroy_node()
 rclpy.shutdown()

@@ -44,7 +44,8 @@ def _record(tmp_path, sig, n_msgs, stop_after):
     domain = _domain(3 if sig == signal.SIGINT else 4)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     bag = tmp_path / "bag"
-    rec = subprocess.Popen([sys.executable, "-m", "dem_ros.tools.node_main", "recorder", "--transport", "dds", "--bag", str(bag)],
+    rec = subprocess.Popen([sys.executable, "-m", "dem_ros.tools.node_main", "recorder", "--transport", "dds",
+                            "--bag", str(bag)],
                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     end = time.monotonic() + 60
     while time.monotonic() < end and not (bag / "metadata.yaml").exists():
@@ -85,7 +86,8 @@ def test_sigkill_leaves_a_bag_readable_up_to_its_last_chunk(tmp_path):
     msgs = [m for _, _, m in r.messages(["/dem/measurement"])]
     assert len(msgs) >= 500  # at least the chunks flushed before the kill (flushed every second)
     # and the CLI says the same, without a traceback
-    res = subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", "bag", "check", str(bag)], capture_output=True, text=True)
+    res = subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", "bag", "check", str(bag)], capture_output=True,
+                         text=True)
     assert "truncated" in res.stdout and "Traceback" not in res.stderr
 
 

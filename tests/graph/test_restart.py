@@ -59,7 +59,8 @@ class RigLoop:
     def start(self, name: str) -> None:
         args = ["--ros-args", *[a for x in self.ref_args for a in ("-p", x)]] if name == "reference" else None
         node = self.bus.node(name, args)
-        self.nodes[name] = {"estimator": EstimatorNode, "reference": ReferenceNode, "controller": ControllerNode}[name](node)
+        self.nodes[name] = {"estimator": EstimatorNode, "reference": ReferenceNode,
+                            "controller": ControllerNode}[name](node)
 
     def kill(self, name: str) -> None:
         self.nodes.pop(name).node.shutdown()  # type: ignore[attr-defined]
@@ -83,7 +84,8 @@ class RigLoop:
                 self.epoch_seq = s.seq + self.n_pre
             frame = contract.FRAME if self.epoch_seq is not None and s.seq >= self.epoch_seq else contract.FRAME_PREROLL
             publish(bus, contract.APPLIED, joint_state(self.JS, s.stamp_ns, effort=s.applied, frame=frame))
-            publish(bus, contract.MEASUREMENT, joint_state(self.JS, s.stamp_ns, position=s.gap, effort=s.current, frame=frame))
+            publish(bus, contract.MEASUREMENT,
+                    joint_state(self.JS, s.stamp_ns, position=s.gap, effort=s.current, frame=frame))
             bus.spin_once()
             u = self.cmds.get(s.stamp_ns)
             if u is not None:

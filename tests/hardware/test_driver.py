@@ -16,12 +16,14 @@ N_GAP = 19283
 N_CUR = 32768 + 8192
 
 
-def sensor(seq: int, *, gap=(N_GAP, N_GAP), cur=(N_CUR, N_CUR), mode=Mode.RUN, applied=(50.0, 50.0), bus=200.0) -> bytes:
+def sensor(seq: int, *, gap=(N_GAP, N_GAP), cur=(N_CUR, N_CUR), mode=Mode.RUN, applied=(50.0, 50.0),
+           bus=200.0) -> bytes:
     return encode(SensorFrame(seq, seq * 1000, gap, cur, applied, bus, 0, mode))
 
 
 def synced(cfg=None, frames: int | None = None) -> tuple[HwDriver, int]:
-    """A driver past its clock sync (frames 0..n-1 received 200 us after they were taken); returns (driver, next seq)."""
+    """A driver past its clock sync (frames 0..n-1 received 200 us after they were taken);
+    returns (driver, next seq)."""
     cfg = {**CFG, **(cfg or {})}
     d = HwDriver(cfg)
     d.on_bytes(encode(Hello(1, 7, 1000, 16, 10.0, 20)), 0, 0)
@@ -275,7 +277,8 @@ def test_estop_latches_and_disarm_lands_a_levitating_board():
     assert decode(feed(d, k + 2, mode=Mode.RUN)[1]).mode == Mode.LAND  # still levitating: land it
     assert feed(d, k + 3, mode=Mode.LANDED)[1] is None  # landed: nothing more to say
     d.arm()
-    assert decode(feed(d, k + 4, mode=Mode.LANDED)[1]) == CommandFrame(k + 4, (0.0, 0.0), Mode.OFF)  # arming clears the board
+    # arming clears the board
+    assert decode(feed(d, k + 4, mode=Mode.LANDED)[1]) == CommandFrame(k + 4, (0.0, 0.0), Mode.OFF)
 
 
 def test_arm_re_arms_an_active_driver_whose_board_landed_on_its_own():

@@ -106,7 +106,8 @@ def test_clamped_until_the_first_run_command_then_the_loop_holds_the_hover():
     assert b.released_at is not None and Mode(b.sup.mode) == Mode.RUN
     assert b.c.commands_fresh >= 590
     # levitating near the hover (the adaptive law's start-up transient is a few 0.1 mm at most)
-    assert abs(b.plant.x[0] - cfg["plant_sim"]["gap0"]) < 0.5e-3 and abs(b.plant.x[2] - cfg["plant_sim"]["gap0"]) < 0.5e-3
+    assert (abs(b.plant.x[0] - cfg["plant_sim"]["gap0"]) < 0.5e-3
+            and abs(b.plant.x[2] - cfg["plant_sim"]["gap0"]) < 0.5e-3)
 
 
 def test_without_commands_the_board_holds_then_lands_on_its_support_and_never_nears_the_rail():
@@ -132,11 +133,14 @@ def landed(b, d):
 
 @pytest.mark.parametrize("spec, check", [
     # a dead sensor: held by the driver, then a trip; the board (NaN for that channel) rides its observer, lands
-    ("dropout:1@0.1+0.05", lambda b, d: landed(b, d) and "gap sensor 1" in d.reason and d.counters["sensor_holds"] >= 3),
+    ("dropout:1@0.1+0.05", lambda b, d: landed(b, d) and "gap sensor 1" in d.reason
+     and d.counters["sensor_holds"] >= 3),
     # one saturated sample: held for that sample, counted, no trip
-    ("spike:2@0.1", lambda b, d: d.status_counts["GAP1_RANGE"] == 1 == d.counters["sensor_holds"] and d.state.name == "ACTIVE"),
+    ("spike:2@0.1", lambda b, d: d.status_counts["GAP1_RANGE"] == 1 == d.counters["sensor_holds"]
+     and d.state.name == "ACTIVE"),
     # corrupted sensor frames: every one rejected by CRC and counted, the loop goes on
-    ("corrupt@0.1+0.05:0.5", lambda b, d: d.corrupt_reasons.get("crc") == b.c.corrupted_tx > 5 and d.state.name == "ACTIVE"),
+    ("corrupt@0.1+0.05:0.5", lambda b, d: d.corrupt_reasons.get("crc") == b.c.corrupted_tx > 5
+     and d.state.name == "ACTIVE"),
     # 50 ms without a link: lost frames counted; the board's watchdog lands the plate
     ("linkloss@0.1+0.05", lambda b, d: d.counters["lost"] >= 49 and Mode(b.sup.mode) == Mode.LANDED
      and b.faults[0].hits == b.c.link_lost_ticks == 50),
@@ -144,7 +148,8 @@ def landed(b, d):
     ("sag@0.1+0.05:60", lambda b, d: landed(b, d) and "BUS_UNDERVOLTAGE" in d.reason),
     # a coil driver fails: reported by the board, the driver trips, the board lands; the board's flux check
     # integrates what the bridges applied (0 V on the failed one), so it does not take the fault for a sensor's
-    ("coil:1@0.1+0.02", lambda b, d: landed(b, d) and "DRIVER0_FAULT" in d.reason and b.sup.counters["implausible"] == 0),
+    ("coil:1@0.1+0.02", lambda b, d: landed(b, d) and "DRIVER0_FAULT" in d.reason
+     and b.sup.counters["implausible"] == 0),
     # a sensor stuck while the plate holds still: nothing moves that the coils' fluxes could contradict (a
     # stuck sensor on a moving plate: test_a_stuck_gap_sensor_is_found_by_the_flux_check_and_the_plate_landed)
     ("stuck:1@0.1+0.05", lambda b, d: b.faults[0].hits >= 50 and d.state.name == "ACTIVE"),
@@ -247,7 +252,8 @@ def test_s1_through_the_board_models_in_lockstep_tracks_as_offline():
     e, drv = s1_lockstep(b, cfg, duration)
     assert b.failed is None and Mode(b.sup.mode) == Mode.RUN and drv.state.name == "ACTIVE"
     rms = np.sqrt(np.mean(np.square(e), axis=0)) * 1e6
-    off = np.array(simulate(cfg, controller="adaptive", estimator="kf", duration=duration, scenario="S1").metrics()["rms_error_um"])
+    off = np.array(simulate(cfg, controller="adaptive", estimator="kf", duration=duration,
+                            scenario="S1").metrics()["rms_error_um"])
     print(f"lockstep rig RMS {rms} um, offline {off} um")
     assert np.all(rms <= np.maximum(2 * off, off + 10.0)), (rms, off)
 
@@ -292,4 +298,5 @@ def test_a_stuck_gap_sensor_is_found_by_the_flux_check_and_the_plate_landed(spec
     assert s["supervisor"]["implausible"] == 1 and b.sup.implausible == [j == 0, j == 1]
     assert f"gap sensor {j + 1} implausible" in s["supervisor"]["fault"]
     assert s["min_gap_mm"] > 3.0 and s["land_speed_max_mm_s"] <= pc["landing_speed"] * 1e3, s
-    print(f"\n{spec}: {s['supervisor']['fault']}; closest {s['min_gap_mm']:.2f} mm, descent {s['land_speed_max_mm_s']:.1f} mm/s")
+    print(f"\n{spec}: {s['supervisor']['fault']}; closest {s['min_gap_mm']:.2f} mm, "
+          f"descent {s['land_speed_max_mm_s']:.1f} mm/s")

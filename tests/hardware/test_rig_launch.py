@@ -2,8 +2,8 @@
 back with rosbags. Whether the plate levitates free-running depends on the machine's load (docs/results.md:
 hardware in the loop), so this asserts what does not: the run ends by itself with a metrics summary
 and no traceback, an end-of-run landing (the driver disarms first, the board lands the plate, then
-the graph stops) is told from a failure, the bag holds plant_sim's contract without a truth topic plus the driver's state
-and loop statistics, and the emulator reports its summary."""
+the graph stops) is told from a failure, the bag holds plant_sim's contract without a truth topic plus the driver's
+state and loop statistics, and the emulator reports its summary."""
 
 from __future__ import annotations
 
@@ -24,8 +24,8 @@ def test_launch_hardware_rig_runs_records_and_summarises(tmp_path, domain_id):
     env = dict(os.environ, PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(domain_id))
     out = tmp_path / "summary.json"
     p = subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", "launch", "--hardware", "rig", "--compose",
-                        "--scenario", "S1", "--duration", "3", "--transport", "dds", "--bag-dir", str(tmp_path / "bags"),
-                        "--set", "controller.command_delay=2", "--json", str(out)],
+                        "--scenario", "S1", "--duration", "3", "--transport", "dds",
+                        "--bag-dir", str(tmp_path / "bags"), "--set", "controller.command_delay=2", "--json", str(out)],
                        cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert p.returncode in (0, 1, 3), p.stderr[-3000:]  # 1: the plate was lost, 3: samples lost (load-dependent)
     assert "Traceback" not in p.stderr
@@ -53,4 +53,5 @@ def test_launch_hardware_rig_runs_records_and_summarises(tmp_path, domain_id):
         assert contract.HW_LOOP_STATUS in names
         states = [r.deserialize(raw, c.msgtype) for c, _, raw in
                   r.messages([c for c in r.connections if c.topic == contract.HW_STATE.name])]
-        assert states and {kv.key for kv in states[-1].values} >= {"lost", "late", "corrupt", "hold_samples", "board_mode"}
+        assert states and {kv.key for kv in states[-1].values} >= {"lost", "late", "corrupt", "hold_samples",
+                                                                   "board_mode"}

@@ -47,9 +47,9 @@ def rig(request, tmp_path):
     with open(log, "w") as out:
         proc = subprocess.Popen([sys.executable, "-m", "dem_ros.hardware.rig", "--url", url, "--duration", "60",
                                  "--fault", "corrupt@0.0+5:0.05", "--set", f"hw_driver.command_delay={DELAY}"],
-                                cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, env={"PYTHONPATH": str(ROOT), "DEM_ROS_RT": "0",
-                                                                                     "PATH": "/usr/bin:/bin",
-                                                                                     "NUMBA_CACHE_DIR": os.environ["NUMBA_CACHE_DIR"]})
+                                cwd=ROOT, stdout=out, stderr=subprocess.STDOUT,
+                                env={"PYTHONPATH": str(ROOT), "DEM_ROS_RT": "0", "PATH": "/usr/bin:/bin",
+                                     "NUMBA_CACHE_DIR": os.environ["NUMBA_CACHE_DIR"]})
     peer = None
     end = time.monotonic() + 60
     while peer is None and time.monotonic() < end and proc.poll() is None:

@@ -18,7 +18,8 @@ ROOT = Path(__file__).resolve().parents[2]
 def _bench(tmp_path: Path, *flags: str) -> tuple[subprocess.CompletedProcess, dict | None]:
     out = tmp_path / "bench.json"
     r = subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", "bench", "loop", *flags, "--json", str(out)],
-                       env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=600, cwd=ROOT)
+                       env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=600,
+                       cwd=ROOT)
     return r, (json.loads(out.read_text()) if out.exists() else None)
 
 

@@ -11,7 +11,8 @@ landing came before the e-stop (the e-stop then lands nothing). The other rig ro
 dropout-short, spike and linkloss-20ms are "levitating" rows, which a stall makes land (a timing property:
 the catalogue run measures them); linkloss-50ms sits at the hold_timeout by design; dropout-long, stuck, sag,
 sag-sustained, coil and kill-controller land by design like the e-stop and add nothing to what it proves here
-but minutes (the stuck sensor's landing is tested in lockstep: tests/hardware/test_rig.py) (kill-controller runs the controller in a process of its own beside the container: --apart).
+but minutes (the stuck sensor's landing is tested in lockstep: tests/hardware/test_rig.py)
+(kill-controller runs the controller in a process of its own beside the container: --apart).
 """
 
 from __future__ import annotations
@@ -59,7 +60,8 @@ def test_the_plants_last_word_and_a_restart_outage_are_read_from_the_run_state_e
 
     events = [{"event": "ready", "node": "estimator", "time_ns": 90 * 10**9},
               {"event": "t0", "node": "plant_sim", "time_ns": 101 * 10**9},
-              {"event": "finished", "node": "plant_sim", "time_ns": 104_500_000_000, "message": "landed safely at t = 2.1 s"},
+              {"event": "finished", "node": "plant_sim", "time_ns": 104_500_000_000,
+               "message": "landed safely at t = 2.1 s"},
               {"event": "ready", "node": "estimator", "time_ns": 106_250_000_000}]
     (tmp_path / RUN_STATE_FILE).write_text("".join(json.dumps(e) + "\n" for e in events))
     info = {"events": run_events({}, tmp_path)}  # a run whose summary failed: the events from the file
@@ -116,10 +118,12 @@ def test_the_rig_catalogue_covers_issue_11():
     # ridden through: fewer samples than the driver's trip and the board's blind limit
     assert _ticks(rows["dropout-short"].rig_fault) == 2 < min(hw["trip_samples"], SENSOR_BLIND_SAMPLES)
     assert rows["dropout-short"].allowed == ("levitating",) and _ticks(rows["spike"].rig_fault) == 1
-    assert _ticks(rows["dropout-long"].rig_fault) > SENSOR_BLIND_SAMPLES and rows["dropout-long"].allowed == ("landed safely",)
+    assert (_ticks(rows["dropout-long"].rig_fault) > SENSOR_BLIND_SAMPLES
+            and rows["dropout-long"].allowed == ("landed safely",))
     # the 50 ms link loss is the board's (and the driver's) hold_timeout: held, then landed, both the design's
     loss = _rig(rows["linkloss-50ms"].rig_fault)
-    assert math.isclose(loss.end - loss.start, pc["hold_timeout"]) and math.isclose(hw["hold_timeout"], pc["hold_timeout"])
+    assert (math.isclose(loss.end - loss.start, pc["hold_timeout"])
+            and math.isclose(hw["hold_timeout"], pc["hold_timeout"]))
     assert set(rows["linkloss-50ms"].allowed) == {"levitating", "landed safely"}
     short = _rig(rows["linkloss-20ms"].rig_fault)
     assert short.end - short.start < pc["hold_timeout"] / 2 and rows["linkloss-20ms"].allowed == ("levitating",)
@@ -168,7 +172,8 @@ def test_rig_rows_estop_and_corrupt_frames_are_counted_reported_and_never_unsafe
     corrupt = out["corrupt"]
     sent = corrupt.counts["emulator corrupt"]  # 10 % of the 500 frames of 0.5 s (binomial: 50 +- 7)
     assert 22 <= sent <= 78 and 1 <= corrupt.counts["driver corrupt"] <= sent, corrupt  # CRC: each one at most once
-    assert "'corrupt' in " in corrupt.reported and "hw_driver: loop" in corrupt.reported.split("'corrupt' in ")[1], corrupt
+    assert ("'corrupt' in " in corrupt.reported
+            and "hw_driver: loop" in corrupt.reported.split("'corrupt' in ")[1]), corrupt
     if corrupt.outcome == "landed safely":  # not the fault's (a few 1-ms holds): a host stall over hold_timeout
         assert "watchdog" in corrupt.detail or "no command" in corrupt.detail, corrupt
     else:

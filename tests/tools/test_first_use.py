@@ -62,7 +62,8 @@ def test_the_first_command_says_what_it_compiles_and_is_never_silent_long(cold_c
     assert rc == 0, "\n".join(x for _, x in lines)
     text = [x for _, x in lines]
     first = next((i for i, x in enumerate(text)
-                  if x.startswith("dem-ros sim: compiling numba kernels (first run only; cached for later runs): ")), None)
+                  if x.startswith("dem-ros sim: compiling numba kernels "
+                                  "(first run only; cached for later runs): ")), None)
     assert first is not None, text  # it says it compiles, and that it will not again
     ready = next((i for i, x in enumerate(text) if x.startswith("dem-ros sim: kernels ready in ")), None)
     assert ready is not None and ready > first, text

@@ -46,7 +46,8 @@ COMMANDS = _doc_commands()
 
 def test_the_docs_show_commands():
     assert len(COMMANDS) >= 30, COMMANDS  # the extraction itself works
-    assert {c.split()[0] for _, c, _ in COMMANDS} >= {"sim", "launch", "replay", "report", "study", "bag", "config", "hw"}
+    assert {c.split()[0] for _, c, _ in COMMANDS} >= {"sim", "launch", "replay", "report", "study", "bag",
+                                                      "config", "hw"}
 
 
 @pytest.mark.parametrize(("doc", "cmd", "kind"), COMMANDS, ids=[f"{d}: {c}"[:80] for d, c, _ in COMMANDS])

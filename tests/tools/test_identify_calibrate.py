@@ -114,7 +114,8 @@ def live_session(tmp_path_factory):
         shims = [4, 5, 6, 7, 8, 9, 10, 11, 12]
         cal = subprocess.Popen([sys.executable, "-m", "dem_ros.tools.cli", "calibrate", "gaps", "--url", url,
                                 "--shims", ",".join(map(str, shims)), "--samples", "200", "--settle", "50",
-                                "--timeout", "60", "--out", "gaps.yaml", "--session", "shims.csv", "--json", "fit.json"],
+                                "--timeout", "60", "--out", "gaps.yaml", "--session", "shims.csv",
+                                "--json", "fit.json"],
                                cwd=tmp, env=env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                stderr=subprocess.STDOUT, text=True, bufsize=1)
         cq: queue.Queue = queue.Queue()
@@ -180,7 +181,8 @@ def test_s1_with_the_calibration_tracks_within_the_hardware_bound_and_without_it
     cal = dict(cfg["hw_driver"]) | load_params_file(tmp / "gaps.yaml")["hw_driver"]
     _, err = emulated_run(cfg, duration, driver=cal)
     rms = np.sqrt(np.mean(err ** 2, axis=0)) * 1e6
-    off = np.array(simulate(cfg, controller="adaptive", estimator="kf", duration=duration, scenario="S1").metrics()["rms_error_um"])
+    off = np.array(simulate(cfg, controller="adaptive", estimator="kf", duration=duration,
+                            scenario="S1").metrics()["rms_error_um"])
     _, err0 = emulated_run(cfg, duration)
     rms0 = np.sqrt(np.mean(err0 ** 2, axis=0)) * 1e6
     print(f"calibrated {rms} um, data sheet {rms0} um, offline {off} um")

@@ -82,7 +82,8 @@ def test_an_excited_rig_run_gives_R1_R2_K_m_within_tolerance_and_inside_the_inte
     assert cfg["controller"]["m_init"] == pytest.approx(res["estimates"]["m"]["value"], rel=1e-5)
     assert cfg["plant_sim"]["R1"] == pytest.approx(res["estimates"]["R1"]["value"], rel=1e-5)
     assert cfg["estimator"]["R"] == pytest.approx(0.5 * (TRUTH["R1"] + TRUTH["R2"]), rel=0.01)
-    assert sorted(f.name for f in (tmp_path / "figs").iterdir()) == ["identify_estimates.png", "identify_validation.png"]
+    assert sorted(f.name for f in (tmp_path / "figs").iterdir()) == ["identify_estimates.png",
+                                                                     "identify_validation.png"]
 
 
 def test_a_hover_only_run_names_what_it_cannot_identify_and_writes_no_number_for_it(tmp_path):
@@ -90,7 +91,8 @@ def test_a_hover_only_run_names_what_it_cannot_identify_and_writes_no_number_for
     cfg["reference"]["step_time_1"] = cfg["reference"]["step_time_2"] = 1e5  # no steps: hover only
     d, _ = emulated_run(cfg, 10.0)
     bag = write_bag(d, cfg, tmp_path)
-    p = identify_cli(str(bag), "--json", str(tmp_path / "id.json"), "--params", str(tmp_path / "rig.yaml"), cwd=tmp_path)
+    p = identify_cli(str(bag), "--json", str(tmp_path / "id.json"), "--params", str(tmp_path / "rig.yaml"),
+                     cwd=tmp_path)
     print(p.stdout)
     assert p.returncode == 1, p.stdout + p.stderr
     assert "K  : not determined" in p.stdout and "m  : not determined" in p.stdout and "flux" in p.stdout
@@ -102,7 +104,8 @@ def test_a_hover_only_run_names_what_it_cannot_identify_and_writes_no_number_for
         assert e["determined"] and abs(e["value"] / TRUTH[k] - 1) < 0.01 and e["ci95"][0] <= TRUTH[k] <= e["ci95"][1]
     text = (tmp_path / "rig.yaml").read_text()
     assert "K_init" not in text and "m_init" not in text and "not determined by this run" in text
-    assert load_params_file(tmp_path / "rig.yaml")["plant_sim"]["R2"] == pytest.approx(res["estimates"]["R2"]["value"], rel=1e-5)
+    assert load_params_file(tmp_path / "rig.yaml")["plant_sim"]["R2"] == pytest.approx(
+        res["estimates"]["R2"]["value"], rel=1e-5)
 
 
 def test_bad_input_is_one_line_and_exit_2(tmp_path):

@@ -27,7 +27,8 @@ def test_identify_a_recorded_rig_run_of_the_whole_graph(tmp_path, domain_id):
                                                                 "controller.command_delay=2"]
     sets += [f"{g}.{k}={v}" for g, vals in EXCITATION.items() for k, v in vals.items()]
     p = subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", "launch", "--hardware", "rig", "--compose",
-                        "--scenario", "S1", "--duration", "14", "--transport", "dds", "--bag-dir", str(tmp_path / "bags"),
+                        "--scenario", "S1", "--duration", "14", "--transport", "dds",
+                        "--bag-dir", str(tmp_path / "bags"),
                         *[a for s in sets for a in ("--set", s)], "--json", str(tmp_path / "run.json")],
                        cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
     assert p.returncode in (0, 1, 3), p.stderr[-3000:]

@@ -65,12 +65,14 @@ def test_what_if_on_a_bag_of_an_earlier_version_names_the_parameters_it_lacked()
 
 
 def test_replay_cli_writes_json_and_figures(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", "replay", str(SAMPLE), "--json", str(tmp_path / "m.json"),
+    r = subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", "replay", str(SAMPLE),
+                        "--json", str(tmp_path / "m.json"),
                         "--plot", str(tmp_path / "fig")], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["samples"] == 8001 and m["scenario"] == "S1"
-    assert {p.name for p in (tmp_path / "fig").iterdir()} >= {"tracking.png", "error.png", "inputs.png", "loop.png", "estimates.png"}
+    assert {p.name for p in (tmp_path / "fig").iterdir()} >= {"tracking.png", "error.png", "inputs.png", "loop.png",
+                                                              "estimates.png"}
 
 
 @pytest.mark.parametrize("make", ["missing", "text", "truncated", "foreign"])
@@ -97,6 +99,7 @@ def test_corrupt_or_foreign_input_is_a_clear_error(tmp_path, make):
             w.add_topic("/chatter", "std_msgs/msg/String", QoS())
             w.write("/chatter", 1, ts.serialize_cdr(String(data="hi"), "std_msgs/msg/String"))
     for cmd in (["replay", str(path)], ["replay", str(path), "--controller", "adaptive"]):
-        r = subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", *cmd], capture_output=True, text=True, timeout=120)
+        r = subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", *cmd], capture_output=True, text=True,
+                           timeout=120)
         assert r.returncode == 2, (make, r.stdout, r.stderr)
         assert "Traceback" not in r.stderr and "error:" in r.stderr, r.stderr

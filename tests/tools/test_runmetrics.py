@@ -42,7 +42,8 @@ def test_the_table_and_the_json_carry_the_same_figures(offline_run):
     text = m.format(extra=[("bag", "/x")])
     rms = " / ".join(f"{v:.2f}" for v in m.rms_error_um)
     assert f"RMS error e1 / e2 [um]             {rms}" in text
-    assert "deadline misses 3 (0.300 %)" in text and "total 60.0" in text and text.endswith("bag                                /x")
+    assert ("deadline misses 3 (0.300 %)" in text and "total 60.0" in text
+            and text.endswith("bag                                /x"))
     d = json.loads(json.dumps(m.to_dict()))
     assert d["rms_error_um"] == m.rms_error_um and d["loop"]["latency_us"]["p99"] == 480.0
     assert d["loop"]["cpu_percent"] == {"plant_sim": 40.0, "controller": 20.0}

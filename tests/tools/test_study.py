@@ -96,10 +96,12 @@ def _spec(base, axes, samples=None, controllers=("adaptive",), duration=0.3, see
 
 
 def test_plan_applies_cells_through_the_schema(base):
-    jobs = st.plan_runs(_spec(base, ["plant_sim.m=10:25:4", "plant_sim.R=-20%,+25%"], controllers=("adaptive", "decentralized_pid")))
+    jobs = st.plan_runs(_spec(base, ["plant_sim.m=10:25:4", "plant_sim.R=-20%,+25%"],
+                              controllers=("adaptive", "decentralized_pid")))
     assert len(jobs) == 4 * 2 * 2
     assert len({j["run_id"] for j in jobs}) == len(jobs)
-    j = next(j for j in jobs if j["values"] == {"plant_sim.m": 25.0, "plant_sim.R": 25.0} and j["controller"] == "adaptive")
+    j = next(j for j in jobs
+             if j["values"] == {"plant_sim.m": 25.0, "plant_sim.R": 25.0} and j["controller"] == "adaptive")
     assert j["cfg"]["plant_sim"]["m"] == 25.0 and j["cfg"]["plant_sim"]["R"] == 25.0
     assert j["cfg"]["estimator"]["R"] == 20.0  # truth only: the estimator's model is untouched
     # a cell that breaks a cross-field rule is refused before anything runs, naming the cell
@@ -123,7 +125,8 @@ def test_monte_carlo_is_seeded_and_a_larger_sample_extends_a_smaller_one(base):
 def test_hover_asymmetry_sets_both_gaps(base):
     jobs = st.plan_runs(_spec(base, ["hover_asymmetry=-0.5e-3:0.5e-3:3"]))
     pcs = [j["cfg"]["plant_sim"] for j in jobs]
-    assert [g for p in pcs for g in (p["d1_0"], p["d2_0"])] == pytest.approx([0.0075, 0.0085, 0.008, 0.008, 0.0085, 0.0075])
+    assert [g for p in pcs for g in (p["d1_0"], p["d2_0"])] == pytest.approx(
+        [0.0075, 0.0085, 0.008, 0.008, 0.0085, 0.0075])
 
 
 def test_a_run_is_the_simulator_run_of_its_cell(base):
@@ -142,8 +145,8 @@ def test_a_run_is_the_simulator_run_of_its_cell(base):
 # --- the command on a LocalCluster -----------------------------------------------------------
 def test_study_on_a_local_cluster_writes_rows_maps_and_resumes(tmp_path):
     out = tmp_path / "st"
-    args = ["--axis", "plant_sim.m=10:25:2", "--axis", "plant_sim.R=-20%,+25%", "--controllers", "adaptive,nonlinear_decoupling",
-            "--duration", "0.3", "--workers", "2", "--out", str(out)]
+    args = ["--axis", "plant_sim.m=10:25:2", "--axis", "plant_sim.R=-20%,+25%",
+            "--controllers", "adaptive,nonlinear_decoupling", "--duration", "0.3", "--workers", "2", "--out", str(out)]
     r = _run(args)
     assert r.returncode == 0, r.stderr
     rows = _rows(out)
@@ -191,7 +194,8 @@ def test_study_on_a_local_cluster_writes_rows_maps_and_resumes(tmp_path):
 def test_results_of_another_study_are_not_mixed_in(tmp_path, base):
     out = tmp_path / "st"
     out.mkdir()
-    (out / "results.csv").write_text("run_id,controller,estimator,seed,duration_s,plant_sim.K," + ",".join(st.RESULT_FIELDS) + "\n")
+    (out / "results.csv").write_text("run_id,controller,estimator,seed,duration_s,plant_sim.K,"
+                                     + ",".join(st.RESULT_FIELDS) + "\n")
     r = _run(["--axis", "plant_sim.m=10,12", "--duration", "0.3", "--workers", "1", "--out", str(out)])
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "holds another study (columns plant_sim.K)" in r.stderr
@@ -203,7 +207,8 @@ def _dask_cli() -> Path | None:
     return p if p.is_file() else None
 
 
-@pytest.mark.skipif(_dask_cli() is None, reason="the dask command line (dask scheduler / dask worker) is not installed beside python")
+@pytest.mark.skipif(_dask_cli() is None,
+                    reason="the dask command line (dask scheduler / dask worker) is not installed beside python")
 def test_study_against_a_separate_scheduler_and_worker(tmp_path):
     dask = str(_dask_cli())
     sched_file = tmp_path / "scheduler.json"
@@ -226,7 +231,8 @@ def test_study_against_a_separate_scheduler_and_worker(tmp_path):
         with Client(address, timeout=60) as c:  # both worker processes joined: the count below is fixed
             c.wait_for_workers(2, timeout=60)
         out = tmp_path / "st"
-        r = _run(["--axis", "plant_sim.m=10:25:3", "--duration", "0.3", "--scheduler", address, "--timeout", "60", "--out", str(out)])
+        r = _run(["--axis", "plant_sim.m=10:25:3", "--duration", "0.3", "--scheduler", address, "--timeout", "60",
+                  "--out", str(out)])
         assert r.returncode == 0, r.stderr
         rows = _rows(out)
         assert len(rows) == 3 and all(x["failed"] == "0" for x in rows)
@@ -251,7 +257,8 @@ def test_study_against_a_separate_scheduler_and_worker(tmp_path):
     (["--axis", "plant_sim.m=10,12", "--workers", "0"], ["--workers", "got '0'"]),
     (["--axis", "plant_sim.m=10,12", "--controllers", "adaptive,pd"], ["unknown 'pd'"]),
     (["--axis", "plant_sim.m=10,12", "--scheduler", "localhost:8786"], ["tcp://HOST:PORT"]),
-    (["--axis", "plant_sim.m=10,12", "--scheduler", "tcp://127.0.0.1:8786", "--workers", "2"], ["--workers applies to the local cluster"]),
+    (["--axis", "plant_sim.m=10,12", "--scheduler", "tcp://127.0.0.1:8786", "--workers", "2"],
+     ["--workers applies to the local cluster"]),
     (["--axis", "plant_sim.m=10,12", "--samples", "-3"], ["--samples", "got '-3'"]),
     (["--axis", "plant_sim.m=10,12", "--map", "plant_sim.R"], ["not an axis of this study"]),
     (["--axis", "plant_sim.m=10,12", "--preset", "nope"], ["unknown 'nope'"]),

@@ -29,7 +29,8 @@ def short_run() -> RunMetrics:
 
 def test_metrics_that_do_not_apply_are_omitted_not_nan(short_run):
     assert all(math.isnan(v) for v in short_run.rms_error_after_40s_um)  # the fact: no samples after 40 s
-    short_run.loop = LoopStats(cycles=0, deadline_misses=0, latency_us={"p50": math.nan, "p99": math.nan, "max": math.nan})
+    short_run.loop = LoopStats(cycles=0, deadline_misses=0,
+                               latency_us={"p50": math.nan, "p99": math.nan, "max": math.nan})
     text = short_run.format()
     assert "nan" not in text.lower()
     assert "after 40 s" not in text and "latency" not in text

@@ -53,12 +53,14 @@ def test_forwarded_topics_are_every_dem_topic_and_diagnostics():
 
 
 def test_the_view_never_holds_back_a_1khz_writer():
-    """The 1 kHz streams are subscribed best-effort (a writer never waits for the view); the rest as the contract says."""
+    """The 1 kHz streams are subscribed best-effort (a writer never waits for the view);
+    the rest as the contract says."""
     from dem_ros.view.server import watched
 
     for t in FORWARDED:
         w = watched(t)
-        assert (w.name, w.type, w.qos.depth, w.qos.transient_local) == (t.name, t.type, t.qos.depth, t.qos.transient_local)
+        assert (w.name, w.type, w.qos.depth, w.qos.transient_local) == (t.name, t.type, t.qos.depth,
+                                                                        t.qos.transient_local)
         assert w.qos.reliable is (t.qos.reliable and t.rate_hz != 1000.0)
     assert watched(contract.MEASUREMENT).qos.reliable is False
     assert watched(contract.DIAGNOSTICS).qos == contract.DIAGNOSTICS.qos
@@ -209,7 +211,8 @@ def test_a_foxglove_client_watches_and_tunes_a_composed_free_running_graph(domai
     from dem_ros.bag import BagReader
 
     bag = next(d for d in tmp_path.iterdir() if d.is_dir() and not d.name.endswith("_logs"))
-    changes = [(e.node, p.name, p.value.double_value) for _, _, e in BagReader(bag).messages([contract.PARAMETER_EVENTS.name])
+    changes = [(e.node, p.name, p.value.double_value)
+               for _, _, e in BagReader(bag).messages([contract.PARAMETER_EVENTS.name])
                for p in e.changed_parameters]
     assert changes == [("/controller", "w", 60.0)], changes
     assert f"live view on ws://127.0.0.1:{port}" in out

@@ -85,7 +85,8 @@ def idle(args: list) -> int:
         w0 = time.monotonic()
 
         def report() -> None:
-            print("IDLE " + json.dumps({"cpu_s": time.process_time() - c0, "wall_s": time.monotonic() - w0}), flush=True)
+            print("IDLE " + json.dumps({"cpu_s": time.process_time() - c0, "wall_s": time.monotonic() - w0}),
+                  flush=True)
 
         node.timer(2.0, report)
         print("READY", flush=True)

@@ -110,7 +110,8 @@ def test_remaps_namespace_and_parameters_as_on_the_other_transports(tmp_path):
     assert n.fully_qualified_name == "/dem/controller"
     assert n.publisher(contract.COMMAND).topic == "/x"
     vetoed = []
-    v = n.declare_parameters("controller", lambda new: vetoed.append(new["k1"]) or ("too big" if new["k1"] > 500 else None))
+    v = n.declare_parameters("controller",
+                             lambda new: vetoed.append(new["k1"]) or ("too big" if new["k1"] > 500 else None))
     assert (v["k1"], v["k2"]) == (80.0, 1700.0)
     assert "Hurwitz" in n.set_parameters({"k1": 0.5})
     assert n.set_parameters({"k1": 600.0}) == "too big"

@@ -49,7 +49,8 @@ def test_a_stock_rclpy_node_and_ours_read_each_others_joint_states(node):
         stock_pub = stock.create_publisher(RosJointState, contract.MEASUREMENT.name, 10)
         node.subscribe(contract.MEASUREMENT, ours.append)
         pub = node.publisher(contract.COMMAND)
-        _spin_until(_spinners(node, ex), lambda: pub.subscription_count >= 1 and stock_pub.get_subscription_count() >= 1)
+        _spin_until(_spinners(node, ex),
+                    lambda: pub.subscription_count >= 1 and stock_pub.get_subscription_count() >= 1)
         d = msgs.JointState(name=["magnet_1", "magnet_2"], position=[0.008, 0.007], velocity=[], effort=[1.0, -2.5])
         d.header.stamp.sec, d.header.frame_id = 3, "rig"
         pub.publish(d)

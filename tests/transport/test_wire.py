@@ -72,7 +72,8 @@ def test_parameter_event_bytes_equal_rosbags():
     )
     ref = _rb(
         "rcl_interfaces/msg/ParameterEvent", stamp=_time(1, 2), node="/controller",
-        new_parameters=[_rb("rcl_interfaces/msg/Parameter", name="type", value=rb_value(type=4, string_value="adaptive"))],
+        new_parameters=[_rb("rcl_interfaces/msg/Parameter", name="type",
+                            value=rb_value(type=4, string_value="adaptive"))],
         changed_parameters=[_rb("rcl_interfaces/msg/Parameter", name="k1", value=rb_value(type=3, double_value=60.0))],
         deleted_parameters=[],
     )
@@ -135,17 +136,20 @@ def test_discovery_config_localhost_mirrors_rmw_cyclonedds():
     assert wire.rmw_domain_config(s) == rmw
     # Cyclone >= 11 drops SPDP arriving on an unselected interface; rmw_cyclonedds' LOCALHOST
     # announcements arrive on lo, so dem_ros selects it explicitly in front of the rmw string
-    lo = '<CycloneDDS><Domain><General><Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces></General></Domain></CycloneDDS>,'
+    lo = ('<CycloneDDS><Domain><General><Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces></General>'
+          '</Domain></CycloneDDS>,')
     assert wire.domain_config(s) == lo + rmw
 
 
 def test_localhost_interface_fragment_yields_to_user_and_peers(tmp_path):
     peers = wire.settings_from_env(env={"ROS_STATIC_PEERS": "192.0.2.7"})
     assert 'autodetermine="true"' in wire.interface_config(peers) and "127.0.0.1" in wire.interface_config(peers)
-    inline = wire.settings_from_env(env={"CYCLONEDDS_URI": '<General><Interfaces><NetworkInterface name="eth1"/></Interfaces></General>'})
+    inline = wire.settings_from_env(env={"CYCLONEDDS_URI": '<General><Interfaces><NetworkInterface name="eth1"/>'
+                                                           '</Interfaces></General>'})
     assert wire.interface_config(inline) == ""
     f = tmp_path / "cyclone.xml"
-    f.write_text('<CycloneDDS><Domain><General><Interfaces><NetworkInterface name="lo"/></Interfaces></General></Domain></CycloneDDS>')
+    f.write_text('<CycloneDDS><Domain><General><Interfaces><NetworkInterface name="lo"/></Interfaces></General>'
+                 '</Domain></CycloneDDS>')
     assert wire.interface_config(wire.settings_from_env(env={"CYCLONEDDS_URI": f"file://{f}"})) == ""
     for rng in ("SUBNET", "OFF", "SYSTEM_DEFAULT"):
         assert wire.interface_config(wire.settings_from_env(env={"ROS_AUTOMATIC_DISCOVERY_RANGE": rng})) == ""

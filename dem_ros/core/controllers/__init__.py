@@ -103,7 +103,8 @@ def _theta(phi: np.ndarray, cp: np.ndarray) -> np.ndarray:
 def hover_regressors(cp: np.ndarray, meas0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(W3, W2) at the pre-start hover (x0, u0)."""
     ab = np.empty(6)
-    lie_terms(max(meas0[0], cp[kernels.CP_FLOOR]), max(meas0[2], cp[kernels.CP_FLOOR]), meas0[4], meas0[5], cp[kernels.CP_P], cp[kernels.CP_Q], ab)
+    lie_terms(max(meas0[0], cp[kernels.CP_FLOOR]), max(meas0[2], cp[kernels.CP_FLOOR]), meas0[4], meas0[5],
+              cp[kernels.CP_P], cp[kernels.CP_Q], ab)
     W3 = np.empty((8, 2))
     W2 = np.empty((8, 2))
     regressors(ab, np.asarray(u0, float), cp[kernels.CP_N1], cp[kernels.CP_N2], W3, W2)
@@ -163,7 +164,8 @@ class CEController(Controller):
             elif self.mode == kernels.MODE_PAPER_FIX:
                 A0 = phi0[0] + cp[kernels.CP_CA]
                 C0 = phi0[0] + cp[kernels.CP_CC]
-                self.scale[:8] = [A0 * phi0[1] / 2, A0 * phi0[2], A0 * phi0[1] / 2, A0 * phi0[2], A0 / 2, A0 / 2, C0, C0]
+                self.scale[:8] = [A0 * phi0[1] / 2, A0 * phi0[2], A0 * phi0[1] / 2, A0 * phi0[2],
+                                  A0 / 2, A0 / 2, C0, C0]
                 self.v[:] = th0 / self.scale  # entries 8, 9 (rho) stay 0: A1 keeps the paper's 8 thetas
                 self.P[:8, :8] = 1e4 * np.eye(8)
                 if meas0 is not None and u0 is not None and c["hover_init"]:
@@ -194,8 +196,8 @@ class CEController(Controller):
     def _hover_init_a2(self, Zw: np.ndarray, Uw: np.ndarray) -> None:
         """Notes 6 A2 (iv) from a window of pre-roll samples: :func:`.hover.solve_hover`."""
         cp = self.cp
-        geo = {"P": cp[kernels.CP_P], "Q": cp[kernels.CP_Q], "cA": cp[kernels.CP_CA], "cC": cp[kernels.CP_CC], "N1": cp[kernels.CP_N1],
-               "N2": cp[kernels.CP_N2], "g": cp[kernels.CP_G], "floor": cp[kernels.CP_FLOOR]}
+        geo = {"P": cp[kernels.CP_P], "Q": cp[kernels.CP_Q], "cA": cp[kernels.CP_CA], "cC": cp[kernels.CP_CC],
+               "N1": cp[kernels.CP_N1], "N2": cp[kernels.CP_N2], "g": cp[kernels.CP_G], "floor": cp[kernels.CP_FLOOR]}
         lo = np.array([cp[kernels.CP_MU_MIN], cp[kernels.CP_R_MIN], cp[kernels.CP_K_MIN], -cp[kernels.CP_RHO_MAX]])
         hi = np.array([cp[kernels.CP_MU_MAX], cp[kernels.CP_R_MAX], cp[kernels.CP_K_MAX], cp[kernels.CP_RHO_MAX]])
         n = kernels.NPHI

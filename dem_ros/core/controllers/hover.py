@@ -110,7 +110,8 @@ def window_means(Z: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return Z.mean(axis=0), U.mean(axis=0)
 
 
-def hover_residuals(phi: np.ndarray, Z: np.ndarray, U: np.ndarray, geo: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+def hover_residuals(phi: np.ndarray, Z: np.ndarray, U: np.ndarray,
+                    geo: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
     """(r, J): the hover equations per row of Z (n, 6), U (n, 2) -> r (n, 4) = [c1, c2, f1, f2]; J = dr/dphi (n, 4, 4).
 
     ``geo``: P, Q, cA, cC, N1, N2, g, floor (gap floor of the law, m).
@@ -260,7 +261,8 @@ def lift_fraction(z: np.ndarray, cfg: Mapping[str, Any]) -> float:
     return float(f / (cfg["m_nominal"] * cfg["g"] + cfg["N1"] + cfg["N2"]))
 
 
-def premagnetise(z: np.ndarray, cfg: Mapping[str, Any], fraction: float = PREMAG_FRACTION) -> tuple[np.ndarray, np.ndarray]:
+def premagnetise(z: np.ndarray, cfg: Mapping[str, Any],
+                 fraction: float = PREMAG_FRACTION) -> tuple[np.ndarray, np.ndarray]:
     """(i*, u) (2,), (2,) [A], [V]: the currents of ``fraction`` of the nominal hover force at the
     measured gaps, i*_j = delta_j sqrt(fraction F_j / K), and the voltages that hold them,
     u_j = R_nominal i*_j."""

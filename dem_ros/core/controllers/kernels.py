@@ -301,7 +301,8 @@ def _rls_cov_step(P: np.ndarray, G: np.ndarray, X: np.ndarray, n: int, dP: np.nd
 
 
 @njit(cache=True)
-def _update_paper(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, P: np.ndarray, xi: np.ndarray, ec: np.ndarray) -> None:
+def _update_paper(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, P: np.ndarray, xi: np.ndarray,
+                  ec: np.ndarray) -> None:
     """A0: Eq. 36 as printed, Euler-integrated: theta' = -P xi e_c / n, P' = +P xi xi^T P / n."""
     Ts = cp[CP_TS]
     Pp = np.ascontiguousarray(P[:8, :8])
@@ -320,7 +321,8 @@ def _update_paper(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, P: np.ndarra
 
 
 @njit(cache=True)
-def _update_paper_fixed(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np.ndarray, P: np.ndarray, xi: np.ndarray, ec: np.ndarray) -> None:
+def _update_paper_fixed(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np.ndarray, P: np.ndarray,
+                        xi: np.ndarray, ec: np.ndarray) -> None:
     """A1: per-sample RLS on scaled theta, decreasing P, cone projection -v5 >= |v6| + 0.01."""
     X = np.empty((8, 2))
     for i in range(8):
@@ -353,8 +355,8 @@ def _update_paper_fixed(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale:
 
 
 @njit(cache=True)
-def _update_adaptive(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np.ndarray, v0: np.ndarray, P: np.ndarray, xi: np.ndarray, ec: np.ndarray, enhanced: bool,
-                     dz_mode: int, rows: CoilRows) -> float:
+def _update_adaptive(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np.ndarray, v0: np.ndarray, P: np.ndarray,
+                     xi: np.ndarray, ec: np.ndarray, enhanced: bool, dz_mode: int, rows: CoilRows) -> float:
     """A2 / A2e: Gauss-Newton RLS on scaled phi = (1/m, R, K, rho); returns 1.0 if adapting.
 
     The rows are the augmented errors e_c (2) and, when the derivatives in ``rows`` are not all zero,
@@ -434,7 +436,8 @@ def _update_adaptive(cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np
 
 
 @njit(cache=True)
-def _coil_rows(cp: np.ndarray, scale: np.ndarray, v: np.ndarray, coil: np.ndarray, uprev: np.ndarray, i1: float, i2: float, b1: float, b2: float
+def _coil_rows(cp: np.ndarray, scale: np.ndarray, v: np.ndarray, coil: np.ndarray, uprev: np.ndarray,
+               i1: float, i2: float, b1: float, b2: float
                ) -> CoilRows:
     """The coil equations as regression rows of A2 (module docstring, "coil equations").
 
@@ -506,7 +509,8 @@ def _ce_law(theta: np.ndarray, ab: np.ndarray, ve1: float, ve2: float, u: np.nda
 
 
 @njit(cache=True)
-def _predict(mode: int, cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np.ndarray, uh: np.ndarray, delay: int, x: np.ndarray) -> bool:
+def _predict(mode: int, cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np.ndarray, uh: np.ndarray, delay: int,
+             x: np.ndarray) -> bool:
     """Advance ``x`` by ``delay`` samples under uh[delay-1], ..., uh[0] with the estimated model."""
     if mode == MODE_PAPER or mode == MODE_PAPER_FIX:  # noqa: SIM109 (numba)
 
@@ -545,7 +549,8 @@ def _predict(mode: int, cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale:
 
 
 @njit(cache=True)
-def _integral_term(cp: np.ndarray, ydd1: float, ydd2: float, rd: np.ndarray, xd: np.ndarray, E1: float, E2: float) -> tuple[float, float]:
+def _integral_term(cp: np.ndarray, ydd1: float, ydd2: float, rd: np.ndarray, xd: np.ndarray, E1: float,
+                   E2: float) -> tuple[float, float]:
     """(sigma_hat_1, sigma_hat_2): sigma_hat_j = (y_j''_e - y_dj'') + k1 e_j' + k2 e_j + k3 E_j, E_j = int e_j dt
     (module docstring).
 
@@ -559,8 +564,8 @@ def _integral_term(cp: np.ndarray, ydd1: float, ydd2: float, rd: np.ndarray, xd:
 
 
 @njit(cache=True)
-def _advance_error_filters(Z: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, W3: np.ndarray, W2: np.ndarray, theta: np.ndarray,
-                           k1: float, ve1: float, ve2: float) -> None:
+def _advance_error_filters(Z: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, W3: np.ndarray, W2: np.ndarray,
+                           theta: np.ndarray, k1: float, ve1: float, ve2: float) -> None:
     """F(s) bank <- advance with W_p = W3 + k1 W2 (2 NTH channels) and v_e + k1 W2^T theta_hat (2 channels).
 
     :func:`dem_ros.core.lti.filter_step` on those NZ inputs, the same operations in the same order, without
@@ -735,9 +740,9 @@ def ce_step(law: CELaw, st: CEState, meas: np.ndarray, ref: np.ndarray, u: np.nd
 
 
 @njit(cache=True)
-def ce_step_arrays(mode: int, cp: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, theta: np.ndarray, v: np.ndarray, scale: np.ndarray,
-                   v0: np.ndarray, P: np.ndarray, Z: np.ndarray, uh: np.ndarray, ie: np.ndarray, coil: np.ndarray,
-                   meas: np.ndarray, ref: np.ndarray, u: np.ndarray, diag: np.ndarray) -> None:
+def ce_step_arrays(mode: int, cp: np.ndarray, Ad: np.ndarray, Bd: np.ndarray, theta: np.ndarray, v: np.ndarray,
+                   scale: np.ndarray, v0: np.ndarray, P: np.ndarray, Z: np.ndarray, uh: np.ndarray, ie: np.ndarray,
+                   coil: np.ndarray, meas: np.ndarray, ref: np.ndarray, u: np.ndarray, diag: np.ndarray) -> None:
     """:func:`ce_step` for callers in Python: the fields of a :class:`CELaw` and a :class:`CEState`, in order.
 
     numba's dispatcher types array arguments in C but a NamedTuple in Python: a call with the
@@ -785,7 +790,8 @@ NPID = 8
 
 
 @njit(cache=True)
-def pid_step(cp: np.ndarray, integ: np.ndarray, meas: np.ndarray, ref: np.ndarray, u: np.ndarray, diag: np.ndarray) -> None:
+def pid_step(cp: np.ndarray, integ: np.ndarray, meas: np.ndarray, ref: np.ndarray, u: np.ndarray,
+             diag: np.ndarray) -> None:
     """i_ref = y_m sqrt(F0/K) + kp e + kd (d' - y_m') + ki int e;  u = R i_ref + kc (i_ref - i).
 
     A non-finite measurement or reference leaves the integrators untouched and sets the fault flag.
@@ -796,7 +802,8 @@ def pid_step(cp: np.ndarray, integ: np.ndarray, meas: np.ndarray, ref: np.ndarra
     fault = 0.0
     for j in range(2):
         e = meas[2 * j] - ref[j]
-        i_ref = ref[j] * cp[PID_FF] + cp[PID_KP] * e + cp[PID_KD] * (meas[2 * j + 1] - ref[2 + j]) + cp[PID_KI] * integ[j]
+        i_ref = (ref[j] * cp[PID_FF] + cp[PID_KP] * e + cp[PID_KD] * (meas[2 * j + 1] - ref[2 + j])
+                 + cp[PID_KI] * integ[j])
         uj = cp[PID_R] * i_ref + cp[PID_KC] * (i_ref - meas[4 + j])
         if not np.isfinite(uj):
             uj = 0.0

@@ -51,9 +51,11 @@ def _endpoints(p: Any, fqn: str, srv: str, srv_type: str) -> list[Any]:
         ud = f"clientid={guid:x}.{random.getrandbits(32):x};"
         distro = p.settings.distro
         writer = DataWriter(p.dp, p.topic(rq, req_cls),
-                            qos=wire.dds_qos(QOS_SERVICES, wire.user_data_for_endpoint(srv_type + "_Request", distro, ud)))
+                            qos=wire.dds_qos(QOS_SERVICES,
+                                             wire.user_data_for_endpoint(srv_type + "_Request", distro, ud)))
         reader = DataReader(p.dp, p.topic(rr, rep_cls),
-                            qos=wire.dds_qos(QOS_SERVICES, wire.user_data_for_endpoint(srv_type + "_Response", distro, ud)))
+                            qos=wire.dds_qos(QOS_SERVICES,
+                                             wire.user_data_for_endpoint(srv_type + "_Response", distro, ud)))
         ws = WaitSet(p.dp)
         cond = ReadCondition(reader, ANY_SAMPLE)
         ws.attach(cond)

@@ -259,7 +259,8 @@ class SetParametersAtomically_Request(IdlStruct, typename="rcl_interfaces::srv::
 
 @strict
 @dataclass
-class SetParametersAtomically_Response(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Response_"
+class SetParametersAtomically_Response(
+    IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Response_"
 ):
     guid: uint64 = 0
     seq: int64 = 0

@@ -378,7 +378,8 @@ class DdsNode:
         intra = self._ex.intra_process
         what = f"subscription {resolved}"
         if intra:  # same-process publishers deliver through the executor's queue
-            self._ex.local_subscriptions(dds_name).append(LocalSubscription(self, self._guard.wrap(what, callback), raw))
+            self._ex.local_subscriptions(dds_name).append(
+                LocalSubscription(self, self._guard.wrap(what, callback), raw))
         if raw:
             handler = lambda data, info: callback(data)  # noqa: E731
         else:
@@ -423,7 +424,8 @@ class DdsNode:
                     gids[h] = gid
             callback(deser(data), gid)
 
-        box.append(self._make_reader(dds_name, topic.type, cls, topic.qos, self._guard.wrap(what, handler), intra=intra))
+        box.append(self._make_reader(dds_name, topic.type, cls, topic.qos, self._guard.wrap(what, handler),
+                                     intra=intra))
         self._sourced.setdefault(dds_name, (box[0], gids))
 
     def publisher_gids(self, topic: Topic, node: str) -> frozenset[bytes]:
@@ -502,7 +504,8 @@ class DdsNode:
         (ConfigError on a bad file or value). Returns the validated dict.
         """
         if self._params is not None:
-            raise TransportError(f"{self.fully_qualified_name}: parameters already declared (group {self._params.group!r})")
+            raise TransportError(f"{self.fully_qualified_name}: parameters already declared "
+                                 f"(group {self._params.group!r})")
         values = initial_parameters(group, self._ros_args, self.name, strict=not self._ignore_undeclared)
         self._params = ParameterStore(group, values, on_change)
         for srv, (srv_type, req_cls, rep_cls) in msgs.SERVICES.items():
@@ -530,7 +533,8 @@ class DdsNode:
     def _param_msg(self, name: str) -> Any:
         assert self._params is not None
         spec = self._params.specs[name]
-        return msgs.Parameter(name=name, value=pv.to_value_msg(msgs.ParameterValue, self._params[name], pv.spec_type(spec)))
+        return msgs.Parameter(name=name,
+                              value=pv.to_value_msg(msgs.ParameterValue, self._params[name], pv.spec_type(spec)))
 
     def _announce(self, new: list[str] = (), changed: list[str] = ()) -> None:  # type: ignore[assignment]
         t = time.time_ns()
@@ -626,7 +630,8 @@ class DdsNode:
         out = []
         for n in req.names:
             if n in self._specs:
-                out.append(pv.describe(self._specs[n], msgs.ParameterDescriptor, msgs.FloatingPointRange, msgs.IntegerRange))
+                out.append(pv.describe(self._specs[n], msgs.ParameterDescriptor, msgs.FloatingPointRange,
+                                       msgs.IntegerRange))
             else:
                 out.append(msgs.ParameterDescriptor(name=n))
         rep.descriptors = out

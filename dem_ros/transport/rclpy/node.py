@@ -240,7 +240,8 @@ class RclpyNode:
             deliver = remote_only
         else:
             deliver = guarded
-        sub = self._node.create_subscription(ros_type(topic.type), topic.name, _ignore, to_qos_profile(topic.qos), raw=True)
+        sub = self._node.create_subscription(ros_type(topic.type), topic.name, _ignore, to_qos_profile(topic.qos),
+                                             raw=True)
         ex.add_subscription(sub, deliver, self)
 
     def subscribe(self, topic: Topic, callback: Callable[[Any], object]) -> None:
@@ -319,7 +320,8 @@ class RclpyNode:
     # -- parameters ------------------------------------------------------------------
     def declare_parameters(self, group: str, on_change: OnChange | None = None) -> dict[str, Any]:
         if self._params is not None:
-            raise TransportError(f"{self.fully_qualified_name}: parameters already declared (group {self._params.group!r})")
+            raise TransportError(f"{self.fully_qualified_name}: parameters already declared "
+                                 f"(group {self._params.group!r})")
         values = initial_parameters(group, self._ros_args, self.name, strict=not self._ignore_undeclared)
         for spec in SCHEMA.groups[group]:
             descriptor = pv.describe(spec, ParameterDescriptor, FloatingPointRange, IntegerRange)

@@ -119,7 +119,8 @@ def main() -> None:
              2, 7, 2000, 16, 2.5, 20, 2)
     ok_sensor("sensor_hover", "hovering at ~5 mm: counts mid-range, 50 V applied, 150 V bus, no status bit, RUN",
               1000, 1_000_000, (2048, 2051), (1700, 1702), (50.0, 49.75), 150.0, 0, 1)
-    ok_sensor("sensor_extremes", "last seq before wrap, 2^40+ us, counts 0 and 65535, negative volts, every defined bit",
+    ok_sensor("sensor_extremes",
+              "last seq before wrap, 2^40+ us, counts 0 and 65535, negative volts, every defined bit",
               0xFFFFFFFF, (1 << 40) + 123, (0, 65535), (65535, 0), (-120.5, 0.1), 148.25, 0x3FFFF, 5)
     ok_sensor("sensor_landing", "the board lost the PC: LINK_TIMEOUT | COMMAND_LATE, mode LAND",
               42, 42_000, (2400, 2390), (1500, 1490), (31.5, 30.0), 149.5, (1 << 8) | (1 << 9), 3)

@@ -435,10 +435,7 @@ def bench_loop(args: argparse.Namespace) -> dict[str, Any]:
     both are printed side by side with the ratio rclpy / dds.
     """
     duration = args.duration or 60.0
-    compose = bool(getattr(args, "compose", False))
-    free_run = bool(getattr(args, "free_run", False))
-    load = int(getattr(args, "load", 0) or 0)
-    rt = getattr(args, "rt", True)
+    compose, free_run, load, rt = bool(args.compose), bool(args.free_run), int(args.load or 0), bool(args.rt)
     if load < 0:
         raise UsageError(f"--load {load}: give a number of busy processes >= 0")
     saved = os.environ.get(ENV["enabled"])

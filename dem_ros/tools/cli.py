@@ -58,7 +58,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from .common import load_config, warm_kernels, write_json
     from .runmetrics import RunMetrics
 
-    cfg, sc = load_config(args)
+    cfg, sc = load_config(args.scenario, args.params, args.set or ())
     duration = args.duration if args.duration is not None else sc.duration
     if args.delay is not None:  # checked here, before the kernels load (simulate checks it again)
         SCHEMA.spec("controller", "command_delay").coerce(args.delay, "--delay (controller.command_delay)")

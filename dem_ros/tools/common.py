@@ -44,19 +44,20 @@ class UsageError(Exception):
     """A user-facing error: printed as one line, exit status 2."""
 
 
-def load_config(args: argparse.Namespace) -> tuple[dict[str, dict[str, Any]], Scenario]:
+def load_config(scenario: str, params: str | None = None,
+                assignments: Sequence[str] = ()) -> tuple[dict[str, dict[str, Any]], Scenario]:
     """Scenario (+ optional params file + ``--set`` assignments) -> (config, scenario).
 
-    ``args`` needs ``scenario``; ``params`` (a ROS 2 params file) and ``set``
-    (``GROUP.NAME=VALUE`` strings) are optional. Every value is validated by the schema.
+    ``params`` is a ROS 2 params file, ``assignments`` are ``GROUP.NAME=VALUE`` strings (``--set``). Every value
+    is validated by the schema.
     """
     from ..core.scenarios import get_scenario
 
-    sc = get_scenario(args.scenario)
-    base = load_params_file(args.params) if getattr(args, "params", None) else None
+    sc = get_scenario(scenario)
+    base = load_params_file(params) if params else None
     cfg = sc.config(base)
     sets: dict[str, dict[str, Any]] = {}
-    for text in getattr(args, "set", None) or []:
+    for text in assignments:
         g, n, v = parse_assignment(text)
         sets.setdefault(g, {})[n] = v
     if sets:

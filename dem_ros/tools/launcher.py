@@ -643,7 +643,7 @@ def _delay_is_set(opts: LaunchOptions) -> bool:
 
 def _config_from_args(args: LaunchOptions | argparse.Namespace) -> tuple[dict[str, dict[str, Any]], Scenario, float]:
     opts = _options(args)
-    cfg, sc = load_config(opts)  # type: ignore[arg-type]  # reads scenario, params, set
+    cfg, sc = load_config(opts.scenario, opts.params, opts.set)
     if opts.controller:
         cfg["controller"]["type"] = opts.controller
     if opts.estimator:

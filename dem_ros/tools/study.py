@@ -788,7 +788,7 @@ def _num(text: str | None, what: str, kind: type, lo: float, hi: float | None = 
 
 def spec_from_args(args: argparse.Namespace) -> StudySpec:
     """Validate the command line into a :class:`StudySpec` (ConfigError with one line on bad input)."""
-    base, sc = load_config(args)
+    base, sc = load_config(args.scenario, args.params, args.set or ())
     samples = None if args.samples is None else _num(args.samples, "--samples", int, 1, 10**7)
     if args.preset is not None and args.preset not in PRESETS:
         raise ConfigError(f"--preset: unknown {args.preset!r}; known: {', '.join(PRESETS)}")

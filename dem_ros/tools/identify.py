@@ -182,7 +182,9 @@ def emulated_run(cfg: Mapping[str, Mapping[str, Any]], duration: float, preroll:
             continue
         s, reply = drv.on_bytes(data, 10**18 + board.n * MS, board.n * MS)
         if reply is not None:
-            board.receive(reply)
+            answer = board.receive(reply)  # a command, or the run's configuration (answered)
+            if answer is not None:
+                drv.on_bytes(answer, 10**18 + board.n * MS, board.n * MS)
         if s is None:
             continue
         z = np.array([s.gap[0], 0.0, s.gap[1], 0.0, s.current[0], s.current[1]])

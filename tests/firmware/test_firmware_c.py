@@ -160,14 +160,14 @@ def test_the_configuration_header_carries_the_launch_values_and_the_firmware_acc
     prog.write_text('#include "board_config.h"\nint main(void) { static sup_t s; '
                     "return sup_init(&s, &BOARD_CONFIG.sup, SUP_OFF, 0); }\n")
     codes = []
-    for sets in (["plant_sim.u_max=150"], ["plant_sim.trip_gap_min=0.0105", "plant_sim.landing_gap=0.0104"]):
+    for sets in (["hw_driver.u_max=150"], ["hw_driver.trip_gap_min=0.0105", "hw_driver.landing_gap=0.0104"]):
         try:
             text = config_header(rig_config("S1", None, sets))
         except Exception as exc:  # the schema itself refuses inconsistent specs first: also a refusal
             codes.append(("schema", type(exc).__name__))
             continue
         (tmp_path / "board_config.h").write_text(text)
-        if sets == ["plant_sim.u_max=150"]:
+        if sets == ["hw_driver.u_max=150"]:
             assert ".u_max = 150.0f" in text and ".command_delay = 1u" in text
         r = subprocess.run([cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Wdouble-promotion",
                             f"-I{FIRMWARE_DIR}", f"-I{tmp_path}", "-o", str(tmp_path / "cfg"), str(prog),

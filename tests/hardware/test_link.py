@@ -381,6 +381,7 @@ def _table_rows(section: str, first_header: str) -> list[list[str]]:
          {"u32": "<I", "u64": "<Q", "u16": "<H", "f32": "<f", "u8": "<B"}),
         ("### Command frame", CommandFrame(0, (0.0, 0.0), Mode.OFF), {"u32": "<I", "f32": "<f", "u8": "<B"}),
         ("### Hello", Hello(1, 0, 0, 0, 0.0, 0, 0), {"u32": "<I", "f32": "<f", "u8": "<B", "u16": "<H"}),
+        ("### Config ack", ConfigAck(0, 0, 0, False, Mode.OFF), {"u32": "<I", "u8": "<B"}),
     ],
 )
 def test_doc_byte_tables_match_the_codec(title: str, frame: object, fmt_of: dict[str, str]) -> None:
@@ -392,7 +393,7 @@ def test_doc_byte_tables_match_the_codec(title: str, frame: object, fmt_of: dict
         if typ not in fmt_of or name in ("crc", "reserved"):
             continue
         field, _, idx = name.partition("[")
-        value: object = 7.5 if typ == "f32" else (3 if field == "mode" else 5)
+        value: object = 7.5 if typ == "f32" else (3 if field == "mode" else 1 if field == "configured" else 5)
         old = getattr(frame, field)
         if idx:
             k = int(idx.rstrip("]"))
@@ -404,6 +405,25 @@ def test_doc_byte_tables_match_the_codec(title: str, frame: object, fmt_of: dict
         assert struct.unpack_from(fmt_of[typ], changed, lo)[0] == (value[k] if idx else value)  # type: ignore[index]
         covered += n
     assert covered + 4 + 4 + sum(int(r[1]) for r in rows if r[3] == "reserved") == len(base)
+
+
+def test_doc_config_table_is_the_codecs_layout() -> None:
+    """The config frame's rows: the floats' names in the codec's order, each 4 bytes from offset 4; the delay, the
+    reserved bytes and the CRC where the codec puts them; the results table is CONFIG_RESULTS."""
+    rows = _table_rows(_doc_section("### Config (type 4"), "offset")
+    names: list[str] = []
+    for offset, size, typ, name, *_ in rows:
+        if "× f32" in typ:
+            fields = [n.strip().strip("`") for n in name.split(",")]
+            assert int(offset) == 4 + 4 * len(names) and int(size) == 4 * len(fields) == 4 * int(typ.split()[0])
+            names += fields
+    assert tuple(names) == CONFIG_KEYS
+    rest = {r[3]: (int(r[0]), int(r[1])) for r in rows if "f32" not in r[2]}
+    assert rest == {"header": (0, 4), "command_delay": (120, 1), "reserved": (121, 3), "crc": (124, 4)}
+    b = encode(ConfigFrame(tuple(float(k) for k in range(len(CONFIG_KEYS))), 9))
+    assert len(b) == CONFIG_SIZE and b[120] == 9 and struct.unpack_from("<f", b, 4 + 4 * 28)[0] == 28.0
+    results = _table_rows(_doc_section("**Config results**"), "value")
+    assert [(int(r[0]), r[1]) for r in results] == list(enumerate(CONFIG_RESULTS))
 
 
 def test_doc_status_modes_and_reasons_match_the_code() -> None:

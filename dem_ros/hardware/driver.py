@@ -469,15 +469,18 @@ class HwDriver:
     def check(self, steady_ns: int) -> bytes | None:
         """Timeouts on the steady clock (also call it from a timer: a silent link must still trip).
 
-        ACTIVE with no controller command for ``hold_timeout`` -> FAULT (the board lands);
+        ACTIVE with no controller command for ``command_timeout`` (0: ``hold_timeout``, the board's) -> FAULT (the
+        board lands);
         no sensor frame for ``link_timeout`` -> FAULT (the board's own watchdog lands it).
         """
         c = self.cfg
         if self.state == DriverState.ACTIVE and self.last_cmd_steady is not None:
             quiet = (steady_ns - self.last_cmd_steady) * 1e-9
-            if quiet > c["hold_timeout"]:
+            limit, name = ((c["command_timeout"], "command_timeout") if c.get("command_timeout")
+                           else (c["hold_timeout"], "hold_timeout"))
+            if quiet > limit:
                 self.counters["watchdog"] += 1
-                self.fault(f"command watchdog: no controller command for {quiet * 1e3:.1f} ms (> hold_timeout)")
+                self.fault(f"command watchdog: no controller command for {quiet * 1e3:.1f} ms (> {name})")
         if self.state in (DriverState.ARMED, DriverState.ACTIVE) and self.last_rx_steady is not None:
             quiet = (steady_ns - self.last_rx_steady) * 1e-9
             if quiet > c["link_timeout"] and self.state == DriverState.ARMED:

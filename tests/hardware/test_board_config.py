@@ -387,3 +387,20 @@ def test_in_lockstep_a_configuration_the_board_refuses_never_arms():
     modes = _lockstep(b, d, 100)
     assert d.state == DriverState.FAULT and "no_braking" in d.reason
     assert set(modes) == {Mode.OFF} and not b.configured and b.bcfg["N1"] == 36.5  # never flew; defaults kept
+
+
+def test_the_drivers_own_command_watchdog_may_be_longer_than_the_boards_hold_timeout():
+    """hold_timeout is the board's (it travels in the configuration); command_timeout, the PC's alone: a loaded host
+    keeps the driver from faulting at 50 ms while the board still lands on its own after 50 ms without a command."""
+    cfg = CFG | {"hold_timeout": 0.05, "command_timeout": 0.2}
+    d = HwDriver(cfg)
+    assert hello_then(d).as_dict()["hold_timeout"] == pytest.approx(0.05)  # the board's, not the PC's watchdog
+    d.on_bytes(ack(cfg), 0, 0)
+    d.arm()
+    s, _ = d.on_bytes(sensor(0), 10**18, 0)
+    assert decode(d.command(s.stamp_ns, [50.0, 50.0], 0) or b"").mode == Mode.RUN
+    for k in range(1, 150):
+        d.on_bytes(sensor(k, Mode.RUN), 10**18 + k * MS, k * MS)
+    assert d.state == DriverState.ACTIVE  # 149 ms without a command: past the board's hold, not the PC's watchdog
+    d.on_bytes(sensor(201, Mode.RUN), 10**18 + 201 * MS, 201 * MS)
+    assert d.state == DriverState.FAULT and d.reason.endswith("(> command_timeout)")

@@ -377,8 +377,9 @@ static void test_board(void)
     snprintf(why, sizeof why, "acks %u, result %s, mode %u", acks, dem_config_reason(last_ack.f.config_ack.result),
              last_ack.f.config_ack.mode);
     check(acks == 2 && last_ack.f.config_ack.result == DEM_CFG_OK && last_ack.f.config_ack.configured == 1 &&
-              last_ack.f.config_ack.active_crc == dem_config_crc(&f.f.config) && last_ack.f.config_ack.mode == DEM_OFF &&
-              b.cfg.sup.u_max == 150.0f, "config_taken_once_landed", why);
+              last_ack.f.config_ack.active_crc == dem_config_crc(&f.f.config) &&
+              last_ack.f.config_ack.mode == DEM_OFF && b.cfg.sup.u_max == 150.0f,
+          "config_taken_once_landed", why);
 }
 
 int main(void)

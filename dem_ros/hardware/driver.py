@@ -240,7 +240,8 @@ class HwDriver:
         if self._config is None:
             return f"not armed: {self.reason}"
         then = "" if self.configured else ", once the board confirms the run's configuration (CONFIG)"
-        return f"armed (was {was.name.lower()}); active after {self.cfg['arm_samples']} controller commands in time{then}"
+        return (f"armed (was {was.name.lower()}); active after {self.cfg['arm_samples']} controller commands in "
+                f"time{then}")
 
     def disarm(self) -> str:
         """Any state -> INACTIVE (a fault is cleared); a levitating board is told to LAND."""
@@ -354,7 +355,9 @@ class HwDriver:
             return "not sent" if self._config_sent_ns is None else "not answered"
         if self.configured:
             return "confirmed"
-        return "busy: the board is not OFF or LANDED" if a.result == BUSY else f"not confirmed: {CONFIG_RESULTS[a.result]}"
+        if a.result == BUSY:
+            return "busy: the board is not OFF or LANDED"
+        return f"not confirmed: {CONFIG_RESULTS[a.result]}"
 
     def _seq_check(self, seq: int) -> bool:
         """Count lost / duplicated / reordered frames; True when ``seq`` is new and in order."""

@@ -150,7 +150,8 @@ def test_config_layout_is_the_firmwares_and_the_crc_is_the_frames() -> None:
     values = tuple(float(k + 1) for k in range(len(CONFIG_KEYS)))
     b = encode(ConfigFrame(values, 3))
     assert struct.unpack_from("<29f", b, 4) == values and b[120] == 3 and b[121:124] == bytes(3)
-    assert decode(b) == ConfigFrame(values, 3) and decode(b).as_dict()["gap2_c1"] == 6.0 + 17  # type: ignore[union-attr]
+    got = decode(b)
+    assert isinstance(got, ConfigFrame) and got == ConfigFrame(values, 3) and got.as_dict()["gap2_c1"] == 6.0 + 17
     a = encode(ConfigAck(0x11223344, 0x55667788, 8, True, Mode.HOLD))
     assert struct.unpack_from("<IIBBBB", a, 4) == (0x11223344, 0x55667788, 8, 1, 2, 0)
     assert CONFIG_RESULTS[8] == "busy" and CONFIG_RESULTS[:6] == ("ok", "not_positive", "gap_order", "arms",

@@ -18,8 +18,8 @@ Configuration (docs/hardware-link.md, "Config"): the driver answers the board's 
 board's configuration packed from this driver's parameters (``boardcfg.config_frame``: the board's safety specs,
 nominal plant and dt, the sensors' calibration, the command delay), and reads the board's CONFIG_ACK. ARMED ->
 ACTIVE only once the board reports that it runs exactly that configuration (the ack's CRC is the run's); until then
-no command is forwarded, and while ARMED the CONFIG is sent again every ``CONFIG_RETRY_NS`` (a board that is still
-landing answers ``busy``). A board that refuses it (an invalid configuration: its reason), accepts it but reports
+no command is forwarded, and (INACTIVE or ARMED) the CONFIG is sent again every ``CONFIG_RETRY_NS`` (a board that is
+still landing answers ``busy``; an inactive driver lands a levitating board first). A board that refuses it (an invalid configuration: its reason), accepts it but reports
 another CRC, or answers none of ``CONFIG_TRIES`` is a fault: one reason, never armed. ``arm()`` packs the
 configuration again (parameters changed at run time reach the board before the next flight).
 
@@ -80,7 +80,7 @@ LEVITATING = (Mode.RUN, Mode.HOLD, Mode.LAND)
 #: status bits of hardware faults: trip_samples samples in a row trip the driver (the board lands the plate);
 #: the controller cannot make up for a failed coil driver, a bus that cannot hold the plate or a gap sensor the
 #: board found contradicting its coil fluxes (GAPj_IMPLAUSIBLE: the board lands on the flux)
-CONFIG_RETRY_NS = 100_000_000  # an unconfirmed configuration is sent again after this, while armed [ns]
+CONFIG_RETRY_NS = 100_000_000  # an unconfirmed configuration is sent again after this [ns]
 CONFIG_TRIES = 10  # this many CONFIG frames without any answer: the board does not speak it (a fault)
 HARDWARE_FAULTS = (Status.DRIVER0_FAULT | Status.DRIVER1_FAULT | Status.BUS_UNDERVOLTAGE | Status.CURRENT0_LIMIT
                    | Status.CURRENT1_LIMIT | Status.ESTOP | Status.ADC_FAULT | Status.GAP0_IMPLAUSIBLE
@@ -459,7 +459,7 @@ class HwDriver:
             return self._land_frame(seq)
         if self.state == DriverState.INACTIVE and self.board_mode in LEVITATING:
             return self._land_frame(seq)
-        if self.state == DriverState.ARMED and not self.configured and (
+        if self.state in (DriverState.INACTIVE, DriverState.ARMED) and not self.configured and (
                 self._config_sent_ns is None or steady_ns - self._config_sent_ns >= CONFIG_RETRY_NS):
             return self._send_config(steady_ns)  # the run's configuration first (a busy board: again, later)
         if self.state == DriverState.ARMED and self.board_mode in (Mode.LANDED, Mode.FAULT):

@@ -316,6 +316,19 @@ def test_a_board_that_never_answers_the_configuration_is_a_fault():
     assert d.reason.endswith("its hello states command_delay 2, the run's is 1")
 
 
+def test_an_inactive_driver_asks_again_too_so_the_status_tells_the_operator_before_arming():
+    d = HwDriver(CFG)
+    hello_then(d)  # (this one lost)
+    replies = [d.on_bytes(sensor(k), 10**18 + k * MS, k * MS)[1] for k in range(1, 1200)]
+    sent = [k + 1 for k, r in enumerate(replies) if r is not None and isinstance(decode(r), ConfigFrame)]
+    assert sent[:3] == [100, 200, 300] and d.state == DriverState.FAULT and "does not answer" in d.reason
+    d = HwDriver(CFG)
+    hello_then(d)
+    for k in range(1, 150):
+        _, reply = d.on_bytes(sensor(k, Mode.LAND), 10**18 + k * MS, k * MS)
+        assert decode(reply or b"").mode == Mode.LAND  # type: ignore[union-attr]  # a levitating board: land it first
+
+
 def test_a_board_that_accepts_but_runs_another_crc_is_a_fault():
     d = HwDriver(CFG)
     hello_then(d)

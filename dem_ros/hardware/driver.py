@@ -19,9 +19,10 @@ board's configuration packed from this driver's parameters (``boardcfg.config_fr
 nominal plant and dt, the sensors' calibration, the command delay), and reads the board's CONFIG_ACK. ARMED ->
 ACTIVE only once the board reports that it runs exactly that configuration (the ack's CRC is the run's); until then
 no command is forwarded, and (INACTIVE or ARMED) the CONFIG is sent again every ``CONFIG_RETRY_NS`` (a board that is
-still landing answers ``busy``; an inactive driver lands a levitating board first). A board that refuses it (an invalid configuration: its reason), accepts it but reports
-another CRC, or answers none of ``CONFIG_TRIES`` is a fault: one reason, never armed. ``arm()`` packs the
-configuration again (parameters changed at run time reach the board before the next flight).
+still landing answers ``busy``; an inactive driver lands a levitating board first). A board that refuses it (an
+invalid configuration: its reason), accepts it but reports another CRC, or answers none of ``CONFIG_TRIES`` is a
+fault: one reason, never armed. ``arm()`` packs the configuration again (parameters changed at run time reach the
+board before the next flight).
 
 What the driver sends the board, per sensor frame (the board is the clock):
     ACTIVE   the controller's command for that sample, mode RUN (voltages clipped to ``u_max``)
@@ -77,11 +78,11 @@ __all__ = ["CONFIG_RETRY_NS", "CONFIG_TRIES", "Calibration", "DriverError", "Dri
 SEQ_MOD = 1 << 32  # sequence numbers are uint32 on the wire
 SENT_RING = 64
 LEVITATING = (Mode.RUN, Mode.HOLD, Mode.LAND)
+CONFIG_RETRY_NS = 100_000_000  # an unconfirmed configuration is sent again after this [ns]
+CONFIG_TRIES = 10  # this many CONFIG frames without any answer: the board does not speak it (a fault)
 #: status bits of hardware faults: trip_samples samples in a row trip the driver (the board lands the plate);
 #: the controller cannot make up for a failed coil driver, a bus that cannot hold the plate or a gap sensor the
 #: board found contradicting its coil fluxes (GAPj_IMPLAUSIBLE: the board lands on the flux)
-CONFIG_RETRY_NS = 100_000_000  # an unconfirmed configuration is sent again after this [ns]
-CONFIG_TRIES = 10  # this many CONFIG frames without any answer: the board does not speak it (a fault)
 HARDWARE_FAULTS = (Status.DRIVER0_FAULT | Status.DRIVER1_FAULT | Status.BUS_UNDERVOLTAGE | Status.CURRENT0_LIMIT
                    | Status.CURRENT1_LIMIT | Status.ESTOP | Status.ADC_FAULT | Status.GAP0_IMPLAUSIBLE
                    | Status.GAP1_IMPLAUSIBLE)

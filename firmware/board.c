@@ -8,17 +8,91 @@
 
 static int32_t seq_diff(uint32_t a, uint32_t b) { return (int32_t)(a - b); }
 
+/* sup_config_t is the CONFIG frame's first DEM_CONFIG_SUP floats, in that order (supervisor.c reads it as an array) */
+typedef char board_sup_config_is_the_links[sizeof(sup_config_t) == DEM_CONFIG_SUP * sizeof(float) ? 1 : -1];
+
+void board_config_to_link(const board_config_t *cfg, dem_config_t *out)
+{
+    memcpy(out->v, &cfg->sup, sizeof cfg->sup);
+    memcpy(out->v + DEM_CONFIG_SUP, cfg->gap_c, sizeof cfg->gap_c);
+    memcpy(out->v + DEM_CONFIG_SUP + 8, cfg->i_gain, sizeof cfg->i_gain);
+    memcpy(out->v + DEM_CONFIG_SUP + 10, cfg->i_offset, sizeof cfg->i_offset);
+    out->command_delay = cfg->command_delay;
+}
+
+static void config_from_link(board_config_t *cfg, const dem_config_t *c)
+{
+    memcpy(&cfg->sup, c->v, sizeof cfg->sup);
+    memcpy(cfg->gap_c, c->v + DEM_CONFIG_SUP, sizeof cfg->gap_c);
+    memcpy(cfg->i_gain, c->v + DEM_CONFIG_SUP + 8, sizeof cfg->i_gain);
+    memcpy(cfg->i_offset, c->v + DEM_CONFIG_SUP + 10, sizeof cfg->i_offset);
+    cfg->command_delay = c->command_delay;
+}
+
+/* The rules of a configuration, board_init()'s and a CONFIG frame's, in this order: the calibration finite,
+ * sup_init()'s checks (it fills s), the command delay, the ADC. Returns 0 or enum dem_config_result. */
+static int config_check(const board_config_t *cfg, sup_t *s)
+{
+    int j, p, r;
+    for (j = 0; j < 2; ++j) {
+        for (p = 0; p < 4; ++p)
+            if (!isfinite(cfg->gap_c[j][p])) return DEM_CFG_NONFINITE;
+        if (!isfinite(cfg->i_gain[j]) || !isfinite(cfg->i_offset[j])) return DEM_CFG_NONFINITE;
+    }
+    r = sup_init(s, &cfg->sup, SUP_OFF, NULL);
+    if (r != SUP_CFG_OK) return r;
+    if (cfg->command_delay < 1 || cfg->command_delay > BOARD_MAX_DELAY) return DEM_CFG_DELAY;
+    if (cfg->adc_bits < 8 || cfg->adc_bits > 16) return DEM_CFG_NOT_POSITIVE;
+    return DEM_CFG_OK;
+}
+
+static uint32_t config_crc(const board_config_t *cfg)
+{
+    dem_config_t c;
+    board_config_to_link(cfg, &c);
+    return dem_config_crc(&c);
+}
+
 int board_init(board_t *b, const board_config_t *cfg)
 {
     int r;
     memset(b, 0, sizeof *b);
     b->cfg = *cfg;
-    r = sup_init(&b->sup, &cfg->sup, SUP_OFF, NULL);
-    if (r != SUP_CFG_OK) return r;
-    if (cfg->command_delay < 1 || cfg->adc_bits < 8 || cfg->adc_bits > 16) return SUP_CFG_NOT_POSITIVE;
+    r = config_check(cfg, &b->sup);
+    if (r != DEM_CFG_OK) return r;
+    b->config_crc = config_crc(cfg);
     b->request = DEM_OFF;
     b->t0_us = hal_micros();
     return 0;
+}
+
+int board_configure(board_t *b, const dem_config_t *c, dem_config_ack_t *ack)
+{
+    const uint32_t crc = dem_config_crc(c);
+    const int mode = sup_mode(&b->sup);
+    int r = DEM_CFG_OK;
+    if (mode != SUP_OFF && mode != SUP_LANDED) {
+        r = DEM_CFG_BUSY; /* never a change in flight (or with a latched fault) */
+    } else if (crc != b->config_crc) {
+        board_config_t next = b->cfg;
+        sup_t fresh;
+        config_from_link(&next, c);
+        r = next.sup.dt == b->cfg.sup.dt ? config_check(&next, &fresh) : DEM_CFG_RATE;
+        if (r == DEM_CFG_OK) {
+            if (memcmp(&next.sup, &b->cfg.sup, sizeof next.sup) != 0) b->sup = fresh; /* restarted, OFF */
+            b->cfg = next;
+            b->config_crc = crc;
+        }
+    }
+    b->configs += 1;
+    if (r == DEM_CFG_OK) b->configured = 1;
+    else b->configs_refused += 1;
+    ack->active_crc = b->config_crc;
+    ack->request_crc = crc;
+    ack->result = (uint8_t)r;
+    ack->configured = b->configured;
+    ack->mode = (uint8_t)sup_mode(&b->sup);
+    return r;
 }
 
 static void send(const dem_frame_t *f)
@@ -57,6 +131,12 @@ static void receive(board_t *b)
             b->hellos += 1;
             b->streaming = 1;
             send(&h);
+        } else if (f.type == DEM_CONFIG) {
+            dem_frame_t a;
+            memset(&a, 0, sizeof a);
+            a.type = DEM_CONFIG_ACK;
+            board_configure(b, &f.f.config, &a.f.config_ack);
+            send(&a);
         } else if (f.type == DEM_COMMAND) {
             const dem_command_t *c = &f.f.command;
             if (c->mode == DEM_RUN) { /* kept by the sample it answers */

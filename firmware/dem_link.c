@@ -51,6 +51,14 @@ const char *dem_link_reason(int r)
     return names[r];
 }
 
+const char *dem_config_reason(int r)
+{
+    static const char *const names[] = {"ok",        "not_positive", "gap_order", "arms", "no_braking",
+                                        "nonfinite", "delay",        "rate",      "busy"};
+    if (r < 0 || r > DEM_CFG_BUSY) return "?";
+    return names[r];
+}
+
 static void seal(uint8_t *out, uint8_t version, uint8_t type, size_t size)
 {
     out[0] = version;
@@ -59,9 +67,26 @@ static void seal(uint8_t *out, uint8_t version, uint8_t type, size_t size)
     wr32(out + size - 4, dem_crc32(out, size - 4));
 }
 
+/* the config frame's bytes, without checks (dem_encode checks; dem_config_crc needs none) */
+static void put_config(uint8_t *out, const dem_config_t *c)
+{
+    size_t k;
+    for (k = 0; k < DEM_CONFIG_FLOATS; ++k) wrf(out + 4 + 4 * k, c->v[k]);
+    out[120] = c->command_delay;
+    out[121] = out[122] = out[123] = 0;
+    seal(out, DEM_LINK_VERSION, DEM_CONFIG, DEM_CONFIG_SIZE);
+}
+
+uint32_t dem_config_crc(const dem_config_t *c)
+{
+    uint8_t out[DEM_CONFIG_SIZE];
+    put_config(out, c);
+    return rd32(out + DEM_CONFIG_SIZE - 4);
+}
+
 int dem_encode(const dem_frame_t *fr, uint8_t *out, size_t cap, size_t *len)
 {
-    size_t size;
+    size_t size, k;
     *len = 0;
     switch (fr->type) {
     case DEM_HELLO: {
@@ -115,6 +140,30 @@ int dem_encode(const dem_frame_t *fr, uint8_t *out, size_t cap, size_t *len)
         out[16] = c->mode;
         out[17] = out[18] = out[19] = 0;
         seal(out, DEM_LINK_VERSION, DEM_COMMAND, size);
+        break;
+    }
+    case DEM_CONFIG: {
+        const dem_config_t *c = &fr->f.config;
+        for (k = 0; k < DEM_CONFIG_FLOATS; ++k)
+            if (nonfinite_bits(f2u(c->v[k]))) return DEM_ERR_NONFINITE;
+        size = DEM_CONFIG_SIZE;
+        if (cap < size) return DEM_ERR_BUFFER;
+        put_config(out, c);
+        break;
+    }
+    case DEM_CONFIG_ACK: {
+        const dem_config_ack_t *a = &fr->f.config_ack;
+        if (a->mode > DEM_FAULT) return DEM_ERR_MODE;
+        if (a->result > DEM_CFG_BUSY || a->configured > 1) return DEM_ERR_RANGE;
+        size = DEM_CONFIG_ACK_SIZE;
+        if (cap < size) return DEM_ERR_BUFFER;
+        wr32(out + 4, a->active_crc);
+        wr32(out + 8, a->request_crc);
+        out[12] = a->result;
+        out[13] = a->configured;
+        out[14] = a->mode;
+        out[15] = 0;
+        seal(out, DEM_LINK_VERSION, DEM_CONFIG_ACK, size);
         break;
     }
     default:
@@ -185,6 +234,32 @@ int dem_decode(const uint8_t *p, size_t n, dem_frame_t *fr)
         c->u[0] = rdf(p + 8);
         c->u[1] = rdf(p + 12);
         c->mode = p[16];
+        return DEM_OK;
+    }
+    if (type == DEM_CONFIG) {
+        dem_config_t *c = &fr->f.config;
+        size_t k;
+        if (n != DEM_CONFIG_SIZE) return DEM_ERR_SIZE;
+        if (p[121] | p[122] | p[123]) return DEM_ERR_RESERVED;
+        for (k = 0; k < DEM_CONFIG_FLOATS; ++k)
+            if (nonfinite_bits(rd32(p + 4 + 4 * k))) return DEM_ERR_NONFINITE;
+        fr->type = DEM_CONFIG;
+        for (k = 0; k < DEM_CONFIG_FLOATS; ++k) c->v[k] = rdf(p + 4 + 4 * k);
+        c->command_delay = p[120];
+        return DEM_OK;
+    }
+    if (type == DEM_CONFIG_ACK) {
+        dem_config_ack_t *a = &fr->f.config_ack;
+        if (n != DEM_CONFIG_ACK_SIZE) return DEM_ERR_SIZE;
+        if (p[15]) return DEM_ERR_RESERVED;
+        if (p[14] > DEM_FAULT) return DEM_ERR_MODE;
+        if (p[12] > DEM_CFG_BUSY || p[13] > 1) return DEM_ERR_RANGE;
+        fr->type = DEM_CONFIG_ACK;
+        a->active_crc = rd32(p + 4);
+        a->request_crc = rd32(p + 8);
+        a->result = p[12];
+        a->configured = p[13];
+        a->mode = p[14];
         return DEM_OK;
     }
     return DEM_ERR_TYPE;

@@ -8,7 +8,7 @@
  * Frames are little-endian with a fixed layout:
  *   [0] version u8  [1] type u8  [2..3] length u16 (whole frame, CRC included)
  *   payload (fixed per type)    last 4 bytes: CRC-32 (IEEE, as zlib.crc32) of all before it
- * Sizes: hello 24, sensor 48, command 24 bytes.
+ * Sizes: hello 24, sensor 48, command 24, config 128, config ack 20 bytes.
  * Serial lines carry 0x00, COBS(frame), 0x00 for each frame; UDP one frame per datagram.
  *
  * Floats are IEEE-754 binary32 (the platform's float must be binary32, as on every
@@ -28,11 +28,13 @@ extern "C" {
 #define DEM_HELLO_SIZE 24u
 #define DEM_SENSOR_SIZE 48u
 #define DEM_COMMAND_SIZE 24u
-#define DEM_MAX_FRAME_SIZE 48u
-/* COBS adds ceil(n/254) bytes: a 48-byte frame is at most 49 bytes, plus the 0x00 delimiter. */
-#define DEM_MAX_ENCODED_SIZE 49u
+#define DEM_CONFIG_SIZE 128u
+#define DEM_CONFIG_ACK_SIZE 20u
+#define DEM_MAX_FRAME_SIZE 128u
+/* COBS adds ceil(n/254) bytes: a 128-byte frame is at most 129 bytes, plus the 0x00 delimiter. */
+#define DEM_MAX_ENCODED_SIZE 129u
 
-enum dem_frame_type { DEM_HELLO = 1, DEM_SENSOR = 2, DEM_COMMAND = 3 };
+enum dem_frame_type { DEM_HELLO = 1, DEM_SENSOR = 2, DEM_COMMAND = 3, DEM_CONFIG = 4, DEM_CONFIG_ACK = 5 };
 
 /* The board's safety-supervisor mode (the mode byte). Commands may request OFF, RUN, HOLD, LAND. */
 enum dem_mode { DEM_OFF = 0, DEM_RUN = 1, DEM_HOLD = 2, DEM_LAND = 3, DEM_LANDED = 4, DEM_FAULT = 5 };
@@ -69,7 +71,7 @@ enum dem_link_result {
     DEM_ERR_RESERVED,  /* a reserved byte is not zero */
     DEM_ERR_MODE,      /* mode outside enum dem_mode, or a command requesting LANDED/FAULT */
     DEM_ERR_NONFINITE, /* a float is NaN or infinite */
-    DEM_ERR_RANGE,     /* a field outside its range (adc_bits > 16, adc_vref < 0, version 0) */
+    DEM_ERR_RANGE,     /* a field outside its range (adc_bits > 16, adc_vref < 0, version 0, an ack's result/flag) */
     DEM_ERR_BUFFER     /* (encode/COBS only) the output buffer is too small; never from dem_decode */
 };
 
@@ -100,12 +102,47 @@ typedef struct {
     uint8_t mode;  /* DEM_OFF, DEM_RUN, DEM_HOLD or DEM_LAND */
 } dem_command_t;
 
+/* The configuration frame's floats: the supervisor's (sup_config_t, in its order: u_max, i_max, trip_gap_min,
+ * trip_gap_max, hold_timeout, landing_gap, landing_speed, m, R, K, L, l, I, N1, N2, g, dt), then the sensors'
+ * calibration (gap1_c0..c3, gap2_c0..c3, current1_gain, current2_gain, current1_offset, current2_offset). */
+#define DEM_CONFIG_SUP 17u
+#define DEM_CONFIG_CAL 12u
+#define DEM_CONFIG_FLOATS (DEM_CONFIG_SUP + DEM_CONFIG_CAL)
+
+typedef struct {
+    float v[DEM_CONFIG_FLOATS]; /* finite (the codec refuses NaN/inf); the board checks the rest */
+    uint8_t command_delay;      /* d [samples] */
+} dem_config_t;
+
+/* A config ack's result: 0 accepted, else why the board refused (1-5 are supervisor.h's sup_cfg_result). */
+enum dem_config_result {
+    DEM_CFG_OK = 0,
+    DEM_CFG_NOT_POSITIVE, /* a value that must be positive is not */
+    DEM_CFG_GAP_ORDER,    /* not 0 <= trip_gap_min < landing_gap <= trip_gap_max */
+    DEM_CFG_ARMS,         /* not l < L */
+    DEM_CFG_NO_BRAKING,   /* the loads leave no pull away from the rail at an end */
+    DEM_CFG_NONFINITE,    /* a value is not finite */
+    DEM_CFG_DELAY,        /* command_delay outside the board's range */
+    DEM_CFG_RATE,         /* dt is not the board's sample period */
+    DEM_CFG_BUSY          /* the board is not OFF or LANDED: never a change in flight */
+};
+
+typedef struct {
+    uint32_t active_crc;  /* CRC-32 of the configuration the board runs after this request */
+    uint32_t request_crc; /* CRC-32 of the configuration this answers */
+    uint8_t result;       /* enum dem_config_result */
+    uint8_t configured;   /* 1: set over the link; 0: the board's compiled-in defaults */
+    uint8_t mode;         /* enum dem_mode when the board answered */
+} dem_config_ack_t;
+
 typedef struct {
     uint8_t type; /* enum dem_frame_type */
     union {
         dem_hello_t hello;
         dem_sensor_t sensor;
         dem_command_t command;
+        dem_config_t config;
+        dem_config_ack_t config_ack;
     } f;
 } dem_frame_t;
 
@@ -120,6 +157,11 @@ int dem_decode(const uint8_t *data, size_t n, dem_frame_t *frame);
 
 /* "ok", "short", "length", "crc", ... ("buffer" for DEM_ERR_BUFFER; "?" for anything else). */
 const char *dem_link_reason(int result);
+
+/* The CRC-32 of a configuration: the CRC field of its config frame (its canonical bytes). Not validated. */
+uint32_t dem_config_crc(const dem_config_t *config);
+/* "ok", "not_positive", ... "busy" (the Python codec's CONFIG_RESULTS); "?" for anything else. */
+const char *dem_config_reason(int result);
 
 /* COBS. Encode: *len = encoded size (no delimiter); decode: *len = decoded size. */
 int dem_cobs_encode(const uint8_t *in, size_t n, uint8_t *out, size_t cap, size_t *len);

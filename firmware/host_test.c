@@ -58,7 +58,7 @@ typedef struct {
     long ncobs;
     char expect[32];
     char type[32];
-    char fields[32][2][128]; /* key, value text */
+    char fields[32][2][512]; /* key, value text */
     int nfields;
 } record_t;
 
@@ -70,11 +70,30 @@ static const char *field(const record_t *r, const char *key)
     return NULL;
 }
 
+/* A field line of floats normalised: each token read as a float32, printed %.9g, space separated; the count. */
+static int floats_text(const char *text, char *out, size_t cap)
+{
+    int n = 0;
+    size_t used = 0;
+    const char *p = text;
+    out[0] = 0;
+    while (p && *p) {
+        char *end;
+        float v = (float)strtod(p, &end);
+        if (end == p) break;
+        used += (size_t)snprintf(out + used, used < cap ? cap - used : 0, "%s%.9g", n ? " " : "", (double)v);
+        ++n;
+        p = end;
+        while (*p == ' ') ++p;
+    }
+    return n;
+}
+
 /* Compare a decoded frame with the record's field lines; writes what differs into why. */
 static int fields_match(const record_t *r, const dem_frame_t *f, char *why, size_t nwhy)
 {
-    char got[512];
-    char want[512];
+    char got[1600];
+    char want[1600];
     got[0] = want[0] = 0;
 #define FMTF(x) ((double)(x))
     if (strcmp(r->type, "hello") == 0) {
@@ -121,6 +140,28 @@ static int fields_match(const record_t *r, const dem_frame_t *f, char *why, size
             u1 = (float)strtod(sp + 1, NULL);
         }
         snprintf(want, sizeof want, "%s %.9g %.9g %s", field(r, "seq"), (double)u0, (double)u1, field(r, "mode"));
+    } else if (strcmp(r->type, "config") == 0) {
+        const dem_config_t *c = &f->f.config;
+        char sup[512], cal[512];
+        size_t k, used = 0;
+        if (f->type != DEM_CONFIG) { snprintf(why, nwhy, "type %u", f->type); return 0; }
+        for (k = 0; k < DEM_CONFIG_FLOATS; ++k)
+            used += (size_t)snprintf(got + used, sizeof got - used, "%.9g ", (double)c->v[k]);
+        snprintf(got + used, sizeof got - used, "%u", c->command_delay);
+        if (floats_text(field(r, "supervisor"), sup, sizeof sup) != (int)DEM_CONFIG_SUP ||
+            floats_text(field(r, "calibration"), cal, sizeof cal) != (int)DEM_CONFIG_CAL) {
+            snprintf(why, nwhy, "supervisor / calibration lines need %u and %u floats", DEM_CONFIG_SUP,
+                     DEM_CONFIG_CAL);
+            return 0;
+        }
+        snprintf(want, sizeof want, "%s %s %s", sup, cal, field(r, "command_delay"));
+    } else if (strcmp(r->type, "config_ack") == 0) {
+        const dem_config_ack_t *a = &f->f.config_ack;
+        if (f->type != DEM_CONFIG_ACK) { snprintf(why, nwhy, "type %u", f->type); return 0; }
+        snprintf(got, sizeof got, "0x%08lx 0x%08lx %s %u %s", (unsigned long)a->active_crc,
+                 (unsigned long)a->request_crc, dem_config_reason(a->result), a->configured, mode_name(a->mode));
+        snprintf(want, sizeof want, "%s %s %s %s %s", field(r, "active_crc"), field(r, "request_crc"),
+                 field(r, "result"), field(r, "configured"), field(r, "mode"));
     } else {
         snprintf(why, nwhy, "unknown type line %s", r->type);
         return 0;
@@ -135,7 +176,7 @@ static int fields_match(const record_t *r, const dem_frame_t *f, char *why, size
 static int check_record(const record_t *r)
 {
     dem_frame_t f;
-    char why[1200] = "";
+    char why[3400] = "";
     int res = dem_decode(r->hex, (size_t)r->nhex, &f);
     if (strcmp(dem_link_reason(res), r->expect) != 0) {
         snprintf(why, sizeof why, "decode gave %s, expected %s", dem_link_reason(res), r->expect);
@@ -203,8 +244,8 @@ static int run_vectors(const char *path)
         } else if (strcmp(line, "type") == 0) {
             snprintf(r.type, sizeof r.type, "%.31s", val);
         } else if (r.nfields < 32) {
-            snprintf(r.fields[r.nfields][0], 128, "%.127s", line);
-            snprintf(r.fields[r.nfields][1], 128, "%.127s", val);
+            snprintf(r.fields[r.nfields][0], 512, "%.511s", line);
+            snprintf(r.fields[r.nfields][1], 512, "%.511s", val);
             r.nfields++;
         }
         if (r.nhex < 0) { printf("line %d: bad hex\n", lineno); fclose(fp); return 2; }
@@ -230,7 +271,7 @@ static int run_verdicts(const char *path)
         if (n < 0) { printf("badhex\n"); continue; }
         res = dem_decode(buf, (size_t)n, &f);
         if (res == DEM_OK) {
-            uint8_t out[64];
+            uint8_t out[DEM_MAX_FRAME_SIZE];
             size_t m;
             int e = dem_encode(&f, out, sizeof out, &m);
             printf("ok ");
@@ -291,7 +332,7 @@ static size_t valid_frame(uint8_t *out)
 {
     dem_frame_t f;
     size_t n = 0;
-    uint32_t k = rnd() % 3;
+    uint32_t k = rnd() % 5;
     memset(&f, 0, sizeof f);
     if (k == 0) {
         f.type = DEM_SENSOR;
@@ -312,6 +353,18 @@ static size_t valid_frame(uint8_t *out)
         f.f.command.u[0] = (float)(rnd() % 30000) / 100.0f - 150.0f;
         f.f.command.u[1] = (float)(rnd() % 30000) / 100.0f - 150.0f;
         f.f.command.mode = (uint8_t)(rnd() % 4);
+    } else if (k == 3) {
+        size_t j;
+        f.type = DEM_CONFIG;
+        for (j = 0; j < DEM_CONFIG_FLOATS; ++j) f.f.config.v[j] = (float)(rnd() % 20000) / 1000.0f - 5.0f;
+        f.f.config.command_delay = (uint8_t)(rnd() % 4);
+    } else if (k == 4) {
+        f.type = DEM_CONFIG_ACK;
+        f.f.config_ack.active_crc = rnd();
+        f.f.config_ack.request_crc = rnd();
+        f.f.config_ack.result = (uint8_t)(rnd() % 9);
+        f.f.config_ack.configured = (uint8_t)(rnd() % 2);
+        f.f.config_ack.mode = (uint8_t)(rnd() % 6);
     } else {
         f.type = DEM_HELLO;
         f.f.hello.version = 1;
@@ -339,13 +392,15 @@ static int run_fuzz(unsigned long seed, unsigned long count)
     rng_state = 0x9E3779B97F4A7C15ull ^ (uint64_t)seed;
     if (!rng_state) rng_state = 1;
     for (i = 0; i < count; ++i) { /* random bytes, half with a plausible header and a valid CRC */
-        uint8_t buf[80];
+        uint8_t buf[160];
         dem_frame_t f;
         size_t n = rnd() % 64, j;
         for (j = 0; j < n; ++j) buf[j] = (uint8_t)rnd();
         if ((i & 1) && n >= 8) { /* plausible: right version/type/length, often zero reserved bytes */
-            uint8_t type = (uint8_t)(1 + rnd() % 3);
-            size_t size = type == DEM_SENSOR ? DEM_SENSOR_SIZE : DEM_HELLO_SIZE;
+            static const size_t sizes[6] = {0, DEM_HELLO_SIZE, DEM_SENSOR_SIZE, DEM_COMMAND_SIZE, DEM_CONFIG_SIZE,
+                                            DEM_CONFIG_ACK_SIZE};
+            uint8_t type = (uint8_t)(1 + rnd() % 5);
+            size_t size = sizes[type];
             n = rnd() % 4 ? size : (size == 24 ? 48 : 24);
             for (j = 0; j < n; ++j) buf[j] = (uint8_t)(rnd() % 2 ? rnd() : rnd() % 8);
             buf[0] = 1;
@@ -355,7 +410,13 @@ static int run_fuzz(unsigned long seed, unsigned long count)
             if (rnd() % 4) {
                 if (type == DEM_HELLO) buf[12] = (uint8_t)(buf[12] % 20); /* adc_bits, often valid */
                 else if (type == DEM_SENSOR && n == 48) buf[41] = buf[42] = buf[43] = 0;
-                else buf[17] = buf[18] = buf[19] = 0;
+                else if (type == DEM_CONFIG && n == DEM_CONFIG_SIZE) buf[121] = buf[122] = buf[123] = 0;
+                else if (type == DEM_CONFIG_ACK && n == DEM_CONFIG_ACK_SIZE) {
+                    buf[15] = 0;
+                    buf[14] = (uint8_t)(buf[14] % 8);
+                    buf[12] = (uint8_t)(buf[12] % 12);
+                    buf[13] = (uint8_t)(buf[13] % 3);
+                } else buf[17] = buf[18] = buf[19] = 0;
             }
             {
                 uint32_t c = dem_crc32(buf, n - 4);
@@ -366,7 +427,7 @@ static int run_fuzz(unsigned long seed, unsigned long count)
         random_counts[dem_decode(buf, n, &f)]++;
     }
     for (i = 0; i < count; ++i) { /* mutated valid frames */
-        uint8_t buf[128];
+        uint8_t buf[DEM_MAX_FRAME_SIZE + 16];
         dem_frame_t f;
         size_t n = valid_frame(buf), j;
         switch (rnd() % 4) {
@@ -386,7 +447,7 @@ static int run_fuzz(unsigned long seed, unsigned long count)
         }
         mutated_counts[dem_decode(buf, n, &f)]++;
     }
-    for (i = 0; i < count && s + 200 < sizeof stream; ++i) { /* a stream: frames with garbage between */
+    for (i = 0; i < count && s + 300 < sizeof stream; ++i) { /* a stream: frames with garbage between */
         uint8_t fr[DEM_MAX_FRAME_SIZE];
         size_t n = valid_frame(fr), m, j;
         if (rnd() % 4 == 0) {
@@ -394,7 +455,10 @@ static int run_fuzz(unsigned long seed, unsigned long count)
             for (j = 0; j < g; ++j) stream[s++] = (uint8_t)rnd();
         }
         stream[s++] = 0; /* the wire form: 0x00 COBS(frame) 0x00 */
-        if (dem_cobs_encode(fr, n, stream + s, 64, &m) != DEM_OK) { printf("cobs encode failed\n"); return 3; }
+        if (dem_cobs_encode(fr, n, stream + s, DEM_MAX_ENCODED_SIZE, &m) != DEM_OK) {
+            printf("cobs encode failed\n");
+            return 3;
+        }
         if (rnd() % 16 == 0) stream[s + rnd() % m] ^= (uint8_t)(1u << (rnd() % 8));
         s += m;
         stream[s++] = 0;

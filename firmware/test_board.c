@@ -195,8 +195,8 @@ static uint16_t adc_gap[2] = {25000, 25000}, adc_i[2] = {45875, 45875};
 static float pwm[2];
 static uint8_t rxq[8][DEM_MAX_FRAME_SIZE];
 static size_t rxn[8], rx_head, rx_tail;
-static dem_frame_t last_tx;
-static unsigned tx_count;
+static dem_frame_t last_tx, last_ack;
+static unsigned tx_count, acks;
 uint64_t hal_micros(void) { return now_us; }
 int hal_adc_read(uint16_t gap[2], uint16_t current[2], float *bus_v)
 {
@@ -222,6 +222,10 @@ size_t hal_link_recv(uint8_t *buf, size_t cap)
 void hal_link_send(const uint8_t *frame, size_t len)
 {
     dem_decode(frame, len, &last_tx);
+    if (last_tx.type == DEM_CONFIG_ACK) {
+        last_ack = last_tx;
+        ++acks;
+    }
     ++tx_count;
 }
 static void pc_send(const dem_frame_t *f)
@@ -232,13 +236,10 @@ static void pc_send(const dem_frame_t *f)
     ++rx_head;
 }
 
-static void test_board(void)
+static board_config_t board_defaults(void)
 {
-    static board_t b;
     board_config_t cfg;
-    dem_frame_t f;
-    int k, j, timeout_seen = 0, late_seen = 0;
-    char why[100];
+    int j;
     memset(&cfg, 0, sizeof cfg);
     cfg.sup = table2();
     for (j = 0; j < 2; ++j) {
@@ -251,7 +252,79 @@ static void test_board(void)
     cfg.adc_bits = 16;
     cfg.command_delay = 1;
     cfg.adc_vref = 10.0f;
+    return cfg;
+}
+
+/* board_configure(): what a CONFIG frame does to a board at rest (the rules of docs/hardware-link.md) */
+static void test_board_configure(void)
+{
+    static board_t b;
+    board_config_t cfg = board_defaults();
+    dem_config_t c, c150;
+    dem_config_ack_t a;
+    uint32_t crc0;
+    int r;
+    char why[120];
+    check(board_init(&b, &cfg) == DEM_CFG_OK && b.configured == 0, "configure_defaults_not_configured", "");
+    board_config_to_link(&cfg, &c);
+    crc0 = b.config_crc;
+    check(crc0 == dem_config_crc(&c), "configure_crc_is_the_frames", "");
+    b.sup.counters.landings = 3; /* a restarted supervisor would forget it */
+    r = board_configure(&b, &c, &a);
+    check(r == DEM_CFG_OK && a.configured == 1 && a.active_crc == crc0 && a.request_crc == crc0 &&
+              b.sup.counters.landings == 3, "configure_same_again_changes_nothing", "");
+    c150 = c;
+    c150.v[0] = 150.0f; /* u_max */
+    r = board_configure(&b, &c150, &a);
+    check(r == DEM_CFG_OK && b.cfg.sup.u_max == 150.0f && a.active_crc == dem_config_crc(&c150) &&
+              a.active_crc == a.request_crc && a.active_crc != crc0 && b.sup.counters.landings == 0 &&
+              a.mode == DEM_OFF, "configure_new_limits_restart_the_supervisor", "");
+    c = c150;
+    c.v[8] = -1.0f; /* R */
+    r = board_configure(&b, &c, &a);
+    snprintf(why, sizeof why, "result %s, u_max %g", dem_config_reason(r), (double)b.cfg.sup.u_max);
+    check(r == DEM_CFG_NOT_POSITIVE && a.active_crc == dem_config_crc(&c150) && a.request_crc == dem_config_crc(&c) &&
+              b.cfg.sup.u_max == 150.0f && b.cfg.sup.R == 20.0f, "configure_refused_keeps_the_active_one", why);
+    c = c150;
+    c.v[2] = 0.012f; /* trip_gap_min above landing_gap */
+    check(board_configure(&b, &c, &a) == DEM_CFG_GAP_ORDER, "configure_gap_order", "");
+    c = c150;
+    c.v[13] = 500.0f; /* N1 */
+    check(board_configure(&b, &c, &a) == DEM_CFG_NO_BRAKING, "configure_no_braking", "");
+    c = c150;
+    c.v[16] = 2e-3f; /* dt */
+    check(board_configure(&b, &c, &a) == DEM_CFG_RATE, "configure_rate", "");
+    c = c150;
+    c.v[DEM_CONFIG_SUP + 9] = NAN; /* current2_gain (the codec refuses it; the board checks anyway) */
+    check(board_configure(&b, &c, &a) == DEM_CFG_NONFINITE, "configure_nonfinite_calibration", "");
+    c = c150;
+    c.command_delay = 0;
+    r = board_configure(&b, &c, &a);
+    c.command_delay = BOARD_MAX_DELAY + 1;
+    r = r == DEM_CFG_DELAY ? board_configure(&b, &c, &a) : r;
+    check(r == DEM_CFG_DELAY && b.cfg.command_delay == 1, "configure_delay_range", "");
+    c.command_delay = BOARD_MAX_DELAY;
+    c.v[DEM_CONFIG_SUP + 1] = 3e-7f; /* gap1_c1 */
+    r = board_configure(&b, &c, &a);
+    check(r == DEM_CFG_OK && b.cfg.command_delay == BOARD_MAX_DELAY && b.cfg.gap_c[0][1] == 3e-7f &&
+              b.configs == 10 && b.configs_refused == 7, "configure_delay_and_calibration", "");
+    cfg.command_delay = BOARD_MAX_DELAY + 1;
+    check(board_init(&b, &cfg) == DEM_CFG_DELAY, "board_init_delay_range", "");
+    cfg = board_defaults();
+    cfg.i_offset[1] = INFINITY;
+    check(board_init(&b, &cfg) == DEM_CFG_NONFINITE, "board_init_nonfinite_calibration", "");
+}
+
+static void test_board(void)
+{
+    static board_t b;
+    board_config_t cfg = board_defaults();
+    dem_frame_t f;
+    int k, timeout_seen = 0, late_seen = 0;
+    uint32_t crc0;
+    char why[100];
     check(board_init(&b, &cfg) == 0, "board_init", "refused");
+    crc0 = b.config_crc;
     memset(&f, 0, sizeof f);
     f.type = DEM_HELLO;
     f.f.hello.version = 1;
@@ -261,6 +334,13 @@ static void test_board(void)
     for (k = 1; k < 200; ++k) {
         unsigned long t0, t1;
         now_us += 1000;
+        if (k == 50) { /* mid-flight, a configuration with another u_max: refused, busy */
+            memset(&f, 0, sizeof f);
+            f.type = DEM_CONFIG;
+            board_config_to_link(&cfg, &f.f.config);
+            f.f.config.v[0] = 150.0f;
+            pc_send(&f);
+        }
         if (k < 100) { /* the PC answers every sensor frame with a RUN command at the hover voltage */
             memset(&f, 0, sizeof f);
             f.type = DEM_COMMAND;
@@ -283,6 +363,23 @@ static void test_board(void)
     check(late_seen == 100 && timeout_seen > 0 && (last_tx.f.sensor.mode == DEM_LAND ||
                                                     last_tx.f.sensor.mode == DEM_LANDED),
           "link_watchdog_lands", why);
+    check(acks == 1 && last_ack.f.config_ack.result == DEM_CFG_BUSY && last_ack.f.config_ack.mode == DEM_RUN &&
+              last_ack.f.config_ack.active_crc == crc0 && b.cfg.sup.u_max == 200.0f,
+          "config_refused_in_flight", "");
+    b.sup.mode = SUP_LANDED; /* (the fake ADC does not move: the landing law would fly on; the plate is down) */
+    memset(&f, 0, sizeof f);
+    f.type = DEM_CONFIG;
+    board_config_to_link(&cfg, &f.f.config);
+    f.f.config.v[0] = 150.0f;
+    pc_send(&f);
+    now_us += 1000;
+    board_step(&b);
+    snprintf(why, sizeof why, "acks %u, result %s, mode %u", acks, dem_config_reason(last_ack.f.config_ack.result),
+             last_ack.f.config_ack.mode);
+    check(acks == 2 && last_ack.f.config_ack.result == DEM_CFG_OK && last_ack.f.config_ack.configured == 1 &&
+              last_ack.f.config_ack.active_crc == dem_config_crc(&f.f.config) &&
+              last_ack.f.config_ack.mode == DEM_OFF && b.cfg.sup.u_max == 150.0f,
+          "config_taken_once_landed", why);
 }
 
 int main(void)
@@ -290,6 +387,7 @@ int main(void)
     test_config();
     test_landings();
     test_limits();
+    test_board_configure();
     test_board();
     if (cost_ticks_per_unit() > 0)
         printf("COST worst sup_step %lu instructions, board_step %lu instructions (qemu -icount shift=0)\n",

@@ -74,6 +74,7 @@ GRAPH: frozenset[str] = frozenset({
     "hardware/test_link_c.py",  # the C codec compiled and run
     "hardware/test_link_channel.py::test_linkbench_cli",  # the link benchmark as a command
     "hardware/test_link_channel.py::test_linkbench_runs",
+    "hardware/test_rig_config_process.py",
     "hardware/test_rig_launch.py",
     "hardware/test_rig_process.py",
     "test_domains.py::test_the_run_has_its_own_domain_and_no_foreign_dds_config",

@@ -612,10 +612,23 @@ SCHEMA = Schema(
             # i_max or a measured gap outside [trip_gap_min, trip_gap_max] for trip_samples samples trips
             # (the board lands); no controller command for hold_timeout (steady clock) -> fault, LAND
             *SAFETY_SPECS,
+            # the board's nominal plant (its landing law and braking bound): with the limits, dt, command_delay and
+            # the calibration above, the configuration the driver sends the board (docs/hardware-link.md, "Config")
+            *_geometry("the board's nominal "),
+            ParamSpec("m", float, TABLE2["m"], "kg", "the board's nominal mass of the suspended module (its landing "
+                      "law and braking bound; sent in the link's CONFIG frame)", 0.1, 1e4),
+            ParamSpec("R", float, TABLE2["R"], "ohm",
+                      "the board's nominal coil resistance (its landing law's coil model)", 0.01, 1e4),
+            ParamSpec("K", float, TABLE2["K"], "N*m^2/A^2", "the board's nominal force coefficient, F = K i^2/delta^2 "
+                      "(its braking bound assumes the true K within +-25 %)", 1e-7, 1.0),
             COMMAND_SOURCE,
             ParamSpec("trip_samples", int, 3, "samples",
                       "consecutive out-of-limit samples that trip (a single spike is counted, not tripped on)",
                       1, 1000),
+            ParamSpec("command_timeout", float, 0.0, "s",
+                      "the driver's own command watchdog: active with no controller command this long -> fault, LAND;"
+                      " 0: hold_timeout (which is also the board's: the driver sends it in the link's CONFIG frame)."
+                      " Longer on a loaded host keeps the PC from faulting at the board's hold_timeout", 0.0, 10.0),
             ParamSpec("link_timeout", float, 0.05, "s",
                       "no sensor frame this long while active -> fault (the board's own watchdog lands it); while"
                       " armed, not yet active: a host stall, counted (stalls), the driver handshakes again",
@@ -679,7 +692,7 @@ SCHEMA = Schema(
         "reference": (_check_reference,),
         "estimator": (_check_geometry, _check_gap_range),
         "controller": (_check_geometry, _check_hurwitz, _check_bounds, _check_controller_safety),
-        "hw_driver": (_check_safety, _check_command_source),
+        "hw_driver": (_check_safety, _check_geometry, _check_command_source),
     },
 )
 

@@ -14,6 +14,16 @@ Lifecycle (published on ``/dem/hw/state`` and in ``/diagnostics``)::
     ACTIVE --arm()--> ARMED only while the board reports LANDED / FAULT: it landed the plate on its own
         (its hold_timeout is shorter than the driver's) and ignores commands until it is armed again
 
+Configuration (docs/hardware-link.md, "Config"): the driver answers the board's hello with a CONFIG frame, the
+board's configuration packed from this driver's parameters (``boardcfg.config_frame``: the board's safety specs,
+nominal plant and dt, the sensors' calibration, the command delay), and reads the board's CONFIG_ACK. ARMED ->
+ACTIVE only once the board reports that it runs exactly that configuration (the ack's CRC is the run's); until then
+no command is forwarded, and (INACTIVE or ARMED) the CONFIG is sent again every ``CONFIG_RETRY_NS`` (a board that is
+still landing answers ``busy``; an inactive driver lands a levitating board first). A board that refuses it (an
+invalid configuration: its reason), accepts it but reports another CRC, or answers none of ``CONFIG_TRIES`` is a
+fault: one reason, never armed. ``arm()`` packs the configuration again (parameters changed at run time reach the
+board before the next flight).
+
 What the driver sends the board, per sensor frame (the board is the clock):
     ACTIVE   the controller's command for that sample, mode RUN (voltages clipped to ``u_max``)
     ARMED    OFF while the board reports LANDED or FAULT (arming clears its latch), else nothing
@@ -47,13 +57,29 @@ from typing import Any
 
 import numpy as np
 
-from .link import CommandFrame, Hello, LinkError, Mode, SensorFrame, Status, decode, encode, seq_diff
+from .boardcfg import BUSY, OK, BoardConfigError, config_frame, result_text
+from .link import (
+    CONFIG_RESULTS,
+    CommandFrame,
+    ConfigAck,
+    ConfigFrame,
+    Hello,
+    LinkError,
+    Mode,
+    SensorFrame,
+    Status,
+    decode,
+    encode,
+    seq_diff,
+)
 
-__all__ = ["Calibration", "DriverError", "DriverState", "HwDriver", "Sample"]
+__all__ = ["CONFIG_RETRY_NS", "CONFIG_TRIES", "Calibration", "DriverError", "DriverState", "HwDriver", "Sample"]
 
 SEQ_MOD = 1 << 32  # sequence numbers are uint32 on the wire
 SENT_RING = 64
 LEVITATING = (Mode.RUN, Mode.HOLD, Mode.LAND)
+CONFIG_RETRY_NS = 100_000_000  # an unconfirmed configuration is sent again after this [ns]
+CONFIG_TRIES = 10  # this many CONFIG frames without any answer: the board does not speak it (a fault)
 #: status bits of hardware faults: trip_samples samples in a row trip the driver (the board lands the plate);
 #: the controller cannot make up for a failed coil driver, a bus that cannot hold the plate or a gap sensor the
 #: board found contradicting its coil fluxes (GAPj_IMPLAUSIBLE: the board lands on the flux)
@@ -190,6 +216,11 @@ class HwDriver:
         self.longest_stall_ms = 0.0  # the longest silence an armed driver rode through (_stall) [ms]
         self.corrupt_reasons: dict[str, int] = {}
         self.status_counts: dict[str, int] = {}  # samples the board reported each status bit in
+        self.counters.update({"config_sent": 0, "config_refused": 0})
+        self.board_config: ConfigAck | None = None  # the board's newest answer to a CONFIG (None: none since hello)
+        self._config: tuple[bytes, int] | None = None  # the run's configuration: its CONFIG frame and its CRC
+        self._config_sent_ns: int | None = None  # when it was last sent (steady clock)
+        self._config_unanswered = 0  # CONFIG frames sent since the board's last answer
 
     # -- lifecycle ---------------------------------------------------------------------------
     def arm(self) -> str:
@@ -205,7 +236,14 @@ class HwDriver:
         self._over = {"current": 0, "gap": 0}
         self.last_cmd_steady = None
         self._in_time = 0
-        return f"armed (was {was.name.lower()}); active after {self.cfg['arm_samples']} controller commands in time"
+        self._config = self._own_config()  # the parameters as they are now (they may have changed at run time)
+        self._config_sent_ns = None
+        self._config_unanswered = 0
+        if self._config is None:
+            return f"not armed: {self.reason}"
+        then = "" if self.configured else ", once the board confirms the run's configuration (CONFIG)"
+        return (f"armed (was {was.name.lower()}); active after {self.cfg['arm_samples']} controller commands in "
+                f"time{then}")
 
     def disarm(self) -> str:
         """Any state -> INACTIVE (a fault is cleared); a levitating board is told to LAND."""
@@ -239,23 +277,89 @@ class HwDriver:
         self.counters["frames"] += 1
         self.last_rx_steady = steady_ns
         if isinstance(frame, Hello):
-            self._on_hello(frame)
-            return None, None
+            return None, self._on_hello(frame, steady_ns)
         if isinstance(frame, SensorFrame):
             return self._on_sensor(frame, ros_ns, steady_ns)
-        self.counters["corrupt"] += 1  # a command frame never comes from the board
-        self.corrupt_reasons["unexpected command frame"] = self.corrupt_reasons.get("unexpected command frame", 0) + 1
+        if isinstance(frame, ConfigAck):
+            self._on_config_ack(frame)
+            return None, None
+        what = "config" if isinstance(frame, ConfigFrame) else "command"  # frames the board never sends
+        self.counters["corrupt"] += 1
+        self.corrupt_reasons[f"unexpected {what} frame"] = self.corrupt_reasons.get(f"unexpected {what} frame", 0) + 1
         return None, None
 
-    def _on_hello(self, h: Hello) -> None:
+    def _on_hello(self, h: Hello, steady_ns: int) -> bytes | None:
+        """The board's hello: its rate must be ours (a board does not change its clock); then the handshake's second
+        step, the run's configuration (its command delay among it: a board that states another one is set to ours,
+        and the answer's CRC proves it)."""
         self.hello = h
         rate = round(1e9 / self.dt_ns)
         if h.rate_hz != rate:
             self.fault(f"board samples at {h.rate_hz} Hz, the driver is configured for {rate} Hz (dt)")
-        elif h.command_delay and h.command_delay != self.cfg["command_delay"]:
-            self.fault(f"board applies commands {h.command_delay} samples late, the controller predicts over "
-                       f"{self.cfg['command_delay']} (command_delay)")
-        return None
+            return None
+        self.board_config = None  # a new handshake: the board may have restarted with its compiled-in defaults
+        self._config = self._own_config()
+        self._config_unanswered = 0
+        return self._send_config(steady_ns)
+
+    # -- the board's configuration -------------------------------------------------------------
+    def _own_config(self) -> tuple[bytes, int] | None:
+        """The run's configuration from the parameters now (frame, CRC); None after a fault that says why."""
+        try:
+            data = encode(config_frame(self.cfg))
+        except (BoardConfigError, LinkError) as exc:
+            self.fault(f"the board's configuration cannot be sent: {exc}")
+            return None
+        return data, int.from_bytes(data[-4:], "little")
+
+    @property
+    def configured(self) -> bool:
+        """The board runs the run's configuration: its newest answer reports the CRC of ours."""
+        return (self.board_config is not None and self._config is not None
+                and self.board_config.active_crc == self._config[1])
+
+    def _send_config(self, steady_ns: int) -> bytes | None:
+        if self._config is None:
+            self._config = self._own_config()
+            if self._config is None:
+                return None
+        if self._config_unanswered >= CONFIG_TRIES:
+            h = self.hello
+            delay = (f"; its hello states command_delay {h.command_delay}, the run's is {self.cfg['command_delay']}"
+                     if h is not None and h.command_delay and h.command_delay != self.cfg["command_delay"] else "")
+            self.fault(f"the board does not answer the CONFIG frame ({self._config_unanswered} sent, none answered): "
+                       f"its firmware predates the link's configuration (docs/hardware-link.md, Config){delay}")
+            return None
+        self._config_unanswered += 1
+        self._config_sent_ns = steady_ns
+        self.counters["config_sent"] += 1
+        return self._config[0]
+
+    def _on_config_ack(self, a: ConfigAck) -> None:
+        """The board's answer: which configuration it runs; a refusal of ours (not a busy one) is a fault."""
+        self._config_unanswered = 0
+        self.board_config = a
+        own = self._config[1] if self._config is not None else None
+        if own is None or a.request_crc != own:
+            return  # the answer to an older configuration: only the CRC it runs counts
+        if a.result == OK and a.active_crc != own:
+            self.fault(f"the board accepted the run's configuration (CRC {own:#010x}) but reports it runs "
+                       f"{a.active_crc:#010x}")
+        elif a.result not in (OK, BUSY):
+            self.counters["config_refused"] += 1
+            keeps = "the configuration set before" if a.configured else "its compiled-in defaults"
+            self.fault(f"the board refuses the run's configuration: {result_text(a.result)}; it keeps {keeps} "
+                       f"(CRC {a.active_crc:#010x})")
+
+    def _config_state(self) -> str:
+        a = self.board_config
+        if a is None:
+            return "not sent" if self._config_sent_ns is None else "not answered"
+        if self.configured:
+            return "confirmed"
+        if a.result == BUSY:
+            return "busy: the board is not OFF or LANDED"
+        return f"not confirmed: {CONFIG_RESULTS[a.result]}"
 
     def _seq_check(self, seq: int) -> bool:
         """Count lost / duplicated / reordered frames; True when ``seq`` is new and in order."""
@@ -358,6 +462,9 @@ class HwDriver:
             return self._land_frame(seq)
         if self.state == DriverState.INACTIVE and self.board_mode in LEVITATING:
             return self._land_frame(seq)
+        if self.state in (DriverState.INACTIVE, DriverState.ARMED) and not self.configured and (
+                self._config_sent_ns is None or steady_ns - self._config_sent_ns >= CONFIG_RETRY_NS):
+            return self._send_config(steady_ns)  # the run's configuration first (a busy board: again, later)
         if self.state == DriverState.ARMED and self.board_mode in (Mode.LANDED, Mode.FAULT):
             return encode(CommandFrame(seq, (0.0, 0.0), Mode.OFF))  # the operator armed: clear the board's latch
         want = (seq - self.cfg["command_delay"]) % SEQ_MOD
@@ -368,15 +475,18 @@ class HwDriver:
     def check(self, steady_ns: int) -> bytes | None:
         """Timeouts on the steady clock (also call it from a timer: a silent link must still trip).
 
-        ACTIVE with no controller command for ``hold_timeout`` -> FAULT (the board lands);
+        ACTIVE with no controller command for ``command_timeout`` (0: ``hold_timeout``, the board's) -> FAULT (the
+        board lands);
         no sensor frame for ``link_timeout`` -> FAULT (the board's own watchdog lands it).
         """
         c = self.cfg
         if self.state == DriverState.ACTIVE and self.last_cmd_steady is not None:
             quiet = (steady_ns - self.last_cmd_steady) * 1e-9
-            if quiet > c["hold_timeout"]:
+            limit, name = ((c["command_timeout"], "command_timeout") if c.get("command_timeout")
+                           else (c["hold_timeout"], "hold_timeout"))
+            if quiet > limit:
                 self.counters["watchdog"] += 1
-                self.fault(f"command watchdog: no controller command for {quiet * 1e3:.1f} ms (> hold_timeout)")
+                self.fault(f"command watchdog: no controller command for {quiet * 1e3:.1f} ms (> {name})")
         if self.state in (DriverState.ARMED, DriverState.ACTIVE) and self.last_rx_steady is not None:
             quiet = (steady_ns - self.last_rx_steady) * 1e-9
             if quiet > c["link_timeout"] and self.state == DriverState.ARMED:
@@ -395,6 +505,7 @@ class HwDriver:
         self.counters["stalls"] += 1
         self.longest_stall_ms = max(self.longest_stall_ms, round(quiet_s * 1e3, 1))
         self.hello = None
+        self.board_config = None  # confirmed again after the new hello (the board may have restarted)
         self._in_time = 0
         self.last_rx_steady = None  # quiet from the next frame on
 
@@ -427,7 +538,7 @@ class HwDriver:
             return None
         if self.state == DriverState.ARMED:
             self._in_time += 1  # the loop proves itself live before the board gets its first command
-            if self._in_time < self.cfg["arm_samples"]:
+            if self._in_time < self.cfg["arm_samples"] or not self.configured:  # ... and runs the run's configuration
                 return None
             self.state = DriverState.ACTIVE
         self.last_cmd_steady = steady_ns
@@ -450,11 +561,15 @@ class HwDriver:
     # -- reporting -----------------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
         """Everything a status display or /diagnostics needs, as plain values."""
+        a = self.board_config
         out: dict[str, Any] = {"state": self.state.name.lower(), "reason": self.reason,
                                "board_mode": Mode(self.board_mode).name.lower(), "board_status": self.board_status,
                                "bus_v": round(self.bus_v, 2), "clock_drift_us": round(self.drift_ns / 1e3, 1),
                                "board_id": self.hello.board_id if self.hello else -1,
-                               "longest_stall_ms": self.longest_stall_ms}
+                               "longest_stall_ms": self.longest_stall_ms, "board_config": self._config_state(),
+                               "config_crc": f"{self._config[1]:08x}" if self._config is not None else "",
+                               "board_config_crc": f"{a.active_crc:08x}" if a is not None else "",
+                               "board_configured": bool(a is not None and a.configured)}
         out.update(self.counters)
         for k, v in sorted(self.corrupt_reasons.items()):
             out[f"corrupt: {k}"] = v

@@ -43,7 +43,7 @@ __all__ = [
 
 DELIMITER = 0
 MAX_ENCODED_SIZE = MAX_FRAME_SIZE + (MAX_FRAME_SIZE + 253) // 254
-"""Largest COBS-encoded link frame (delimiter excluded): 49 bytes."""
+"""Largest COBS-encoded link frame (delimiter excluded): 129 bytes (a config frame; a sensor frame: 49)."""
 
 DEFRAME_REASONS = ("cobs", "oversize")
 """Why a :class:`Deframer` dropped bytes: invalid COBS, or more bytes than any frame before a delimiter."""

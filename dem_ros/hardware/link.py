@@ -3,7 +3,10 @@
 The board (an I/O board or microcontroller beside the rig) is the clock: every
 sample period it samples the two gap sensors and the two coil currents, sends a
 :class:`SensorFrame`, and applies the newest :class:`CommandFrame` it has
-received. A :class:`Hello` exchange opens the link. The full protocol (roles,
+received. A :class:`Hello` exchange opens the link; a :class:`ConfigFrame` then sets
+the board's configuration (its safety specs, nominal plant, sensor calibration and
+command delay) and the board answers with a :class:`ConfigAck` carrying the CRC-32 of
+the configuration it runs. The full protocol (roles,
 timing, watchdog, transports, error handling) is in ``docs/hardware-link.md``;
 the shared test vectors ``tests/hardware/vectors/frames.txt`` define it and the
 C codec in ``firmware/`` passes the same vectors.
@@ -12,12 +15,13 @@ Every frame is little-endian with a fixed layout::
 
     offset size field
     0      1    version   protocol version (PROTOCOL_VERSION)
-    1      1    type      FrameType (HELLO=1, SENSOR=2, COMMAND=3)
+    1      1    type      FrameType (HELLO=1, SENSOR=2, COMMAND=3, CONFIG=4, CONFIG_ACK=5)
     2      2    length    total frame length in bytes, CRC included (u16)
     4      n    payload   fixed per type (see each class)
     4+n    4    crc       CRC-32 (zlib/IEEE 802.3) of bytes [0, 4+n)
 
-Sizes: Hello 24 bytes, SensorFrame 48 bytes, CommandFrame 24 bytes. Reserved
+Sizes: Hello 24 bytes, SensorFrame 48 bytes, CommandFrame 24 bytes, ConfigFrame 128
+bytes, ConfigAck 20 bytes. Reserved
 bytes are sent as zero and a frame with a non-zero reserved byte is rejected
 (they are free for a later protocol version, not for private use).
 
@@ -43,6 +47,12 @@ from ..board.modes import Mode  # the board's modes: one definition, shared with
 __all__ = [
     "COMMAND_MODES",
     "COMMAND_SIZE",
+    "CONFIG_ACK_SIZE",
+    "CONFIG_CAL_KEYS",
+    "CONFIG_KEYS",
+    "CONFIG_RESULTS",
+    "CONFIG_SIZE",
+    "CONFIG_SUP_KEYS",
     "HEADER",
     "HELLO_REQUEST",
     "HELLO_SIZE",
@@ -52,6 +62,8 @@ __all__ = [
     "SENSOR_SIZE",
     "STATUS_DEFINED",
     "CommandFrame",
+    "ConfigAck",
+    "ConfigFrame",
     "Frame",
     "FrameType",
     "Hello",
@@ -78,6 +90,8 @@ class FrameType(enum.IntEnum):
     HELLO = 1
     SENSOR = 2
     COMMAND = 3
+    CONFIG = 4
+    CONFIG_ACK = 5
 
 
 class Status(enum.IntFlag):
@@ -124,6 +138,28 @@ REASONS = (
 )
 """Why a frame was rejected: the values of :attr:`LinkError.reason`, in check order."""
 
+#: the configuration frame's floats, in its order: the supervisor's (firmware ``sup_config_t``: the safety specs,
+#: the nominal plant, the sample period) then the sensors' calibration (``board_config_t``: gap polynomials, current
+#: gains, current offsets). The names are the ``hw_driver`` group's parameters (docs/hardware-link.md, "Config").
+CONFIG_SUP_KEYS = ("u_max", "i_max", "trip_gap_min", "trip_gap_max", "hold_timeout", "landing_gap", "landing_speed",
+                   "m", "R", "K", "L", "l", "I", "N1", "N2", "g", "dt")
+CONFIG_CAL_KEYS = ("gap1_c0", "gap1_c1", "gap1_c2", "gap1_c3", "gap2_c0", "gap2_c1", "gap2_c2", "gap2_c3",
+                   "current1_gain", "current2_gain", "current1_offset", "current2_offset")
+CONFIG_KEYS = CONFIG_SUP_KEYS + CONFIG_CAL_KEYS
+
+CONFIG_RESULTS = (
+    "ok",  # accepted (or already the active one): the board runs it
+    "not_positive",  # a value that must be positive is not (firmware SUP_CFG_NOT_POSITIVE)
+    "gap_order",  # not 0 <= trip_gap_min < landing_gap <= trip_gap_max (SUP_CFG_GAP_ORDER)
+    "arms",  # not l < L (SUP_CFG_ARMS)
+    "no_braking",  # the loads leave no pull away from the rail at an end (SUP_CFG_NO_BRAKING)
+    "nonfinite",  # a value is not finite (SUP_CFG_NONFINITE)
+    "delay",  # command_delay outside the board's range (1 .. its command ring - 1)
+    "rate",  # dt is not the board's own sample period (a board does not change its clock over the link)
+    "busy",  # the board is not OFF or LANDED: a configuration never changes in flight
+)
+"""The ``result`` byte of a :class:`ConfigAck`: its index here (codes 1-5 are the firmware's ``sup_cfg_result``)."""
+
 
 class LinkError(ValueError):
     """A frame could not be encoded or decoded.
@@ -149,13 +185,21 @@ _HELLO = struct.Struct("<IIBBHf")
 _SENSOR = struct.Struct("<IQHHHHfffIB3s")
 # seq u32, u 2×f32, mode u8, reserved 3×u8
 _COMMAND = struct.Struct("<IffB3s")
+# 29×f32 (CONFIG_KEYS), command_delay u8, reserved 3×u8
+_CONFIG = struct.Struct(f"<{len(CONFIG_KEYS)}fB3s")
+# active_crc u32, request_crc u32, result u8, configured u8, mode u8, reserved u8
+_CONFIG_ACK = struct.Struct("<IIBBB1s")
 
 HELLO_SIZE = HEADER.size + _HELLO.size + _CRC.size  # 24
 SENSOR_SIZE = HEADER.size + _SENSOR.size + _CRC.size  # 48
 COMMAND_SIZE = HEADER.size + _COMMAND.size + _CRC.size  # 24
-MAX_FRAME_SIZE = max(HELLO_SIZE, SENSOR_SIZE, COMMAND_SIZE)
-_SIZES = {FrameType.HELLO: HELLO_SIZE, FrameType.SENSOR: SENSOR_SIZE, FrameType.COMMAND: COMMAND_SIZE}
+CONFIG_SIZE = HEADER.size + _CONFIG.size + _CRC.size  # 128
+CONFIG_ACK_SIZE = HEADER.size + _CONFIG_ACK.size + _CRC.size  # 20
+MAX_FRAME_SIZE = max(HELLO_SIZE, SENSOR_SIZE, COMMAND_SIZE, CONFIG_SIZE, CONFIG_ACK_SIZE)
+_SIZES = {FrameType.HELLO: HELLO_SIZE, FrameType.SENSOR: SENSOR_SIZE, FrameType.COMMAND: COMMAND_SIZE,
+          FrameType.CONFIG: CONFIG_SIZE, FrameType.CONFIG_ACK: CONFIG_ACK_SIZE}
 _ZERO3 = b"\x00\x00\x00"
+_ZERO1 = b"\x00"
 _U16 = 0xFFFF
 _U32 = 0xFFFFFFFF
 _U64 = 0xFFFFFFFFFFFFFFFF
@@ -248,7 +292,51 @@ class CommandFrame:
     mode: Mode
 
 
-Frame = Hello | SensorFrame | CommandFrame
+@dataclass(frozen=True)
+class ConfigFrame:
+    """The board's configuration, PC -> board (128 bytes): what the firmware's ``board_config_t`` holds but the
+    board's own identity and ADC (board id, ADC bits and reference: the hello states them).
+
+    Attributes:
+        values: the 29 values of :data:`CONFIG_KEYS` in that order (float32 on the wire, finite): the safety specs,
+            the nominal plant and ``dt`` [SI], then the gap polynomials [m/count^p], the current gains [A/count] and
+            offsets [count].
+        command_delay: d [samples] (u8): at tick k the board applies the command answering sample k - d.
+
+    The configuration's CRC-32 (what the board reports in :class:`ConfigAck`) is this frame's CRC field: the CRC of
+    its canonical bytes (the header is fixed, the reserved bytes zero).
+    """
+
+    values: tuple[float, ...]
+    command_delay: int
+
+    def as_dict(self) -> dict[str, float]:
+        """{name: value} of :data:`CONFIG_KEYS` (``command_delay`` too, as a float)."""
+        return {**dict(zip(CONFIG_KEYS, self.values, strict=True)), "command_delay": float(self.command_delay)}
+
+
+@dataclass(frozen=True)
+class ConfigAck:
+    """The board's answer to a :class:`ConfigFrame`, board -> PC (20 bytes).
+
+    Attributes:
+        active_crc: the CRC-32 of the configuration the board runs after this request (u32): the request's CRC when
+            it was accepted, the previous one's when it was refused.
+        request_crc: the CRC-32 of the configuration this answers (u32; the PC tells a late answer from the current).
+        result: the index of :data:`CONFIG_RESULTS` (u8): 0 accepted, else why it was refused.
+        configured: True once a configuration was set over the link; False: the board runs the defaults it was
+            built with (firmware ``board_config.h``).
+        mode: the board's :class:`Mode` when it answered (a refusal with ``busy`` says which).
+    """
+
+    active_crc: int
+    request_crc: int
+    result: int
+    configured: bool
+    mode: Mode
+
+
+Frame = Hello | SensorFrame | CommandFrame | ConfigFrame | ConfigAck
 
 
 def seq_diff(a: int, b: int) -> int:
@@ -351,7 +439,25 @@ def encode(frame: Frame) -> bytes:
             vref,
         )
         return _seal(FrameType.HELLO, payload, version)
-    raise TypeError(f"encode() takes a Hello, SensorFrame or CommandFrame, not {type(frame).__name__}")
+    if isinstance(frame, ConfigFrame):
+        values = frame.values
+        if not isinstance(values, (tuple, list)) or len(values) != len(CONFIG_KEYS):
+            raise LinkError("range", f"values={values!r} is not a sequence of the {len(CONFIG_KEYS)} CONFIG_KEYS")
+        payload = _CONFIG.pack(*(_f32(k, v) for k, v in zip(CONFIG_KEYS, values, strict=True)),
+                               _uint("command_delay", frame.command_delay, 0xFF), _ZERO3)
+        return _seal(FrameType.CONFIG, payload)
+    if isinstance(frame, ConfigAck):
+        payload = _CONFIG_ACK.pack(
+            _uint("active_crc", frame.active_crc, _U32),
+            _uint("request_crc", frame.request_crc, _U32),
+            _uint("result", frame.result, len(CONFIG_RESULTS) - 1),
+            _uint("configured", int(frame.configured) if isinstance(frame.configured, bool) else frame.configured, 1),
+            _mode(frame.mode, None),
+            _ZERO1,
+        )
+        return _seal(FrameType.CONFIG_ACK, payload)
+    raise TypeError(f"encode() takes a Hello, SensorFrame, CommandFrame, ConfigFrame or ConfigAck, not "
+                    f"{type(frame).__name__}")
 
 
 # --- decode ---------------------------------------------------------------------------------
@@ -397,8 +503,8 @@ def decode(data: bytes | bytearray | memoryview) -> Frame:
     if ftype not in _SIZES:
         raise LinkError("type", f"unknown frame type {ftype}")
     if n != _SIZES[FrameType(ftype)]:
-        raise LinkError("size",
-                        f"a {FrameType(ftype).name.lower()} frame has {_SIZES[FrameType(ftype)]} bytes, not {n}")
+        raise LinkError("size", f"a {FrameType(ftype).name.lower()} frame has {_SIZES[FrameType(ftype)]} bytes, "
+                                f"not {n}")
     if ftype == FrameType.SENSOR:
         seq, t_us, g0, g1, c0, c1, a0, a1, bus, status, mode, res = _SENSOR.unpack_from(b, HEADER.size)
         if res != _ZERO3:
@@ -414,8 +520,23 @@ def decode(data: bytes | bytearray | memoryview) -> Frame:
             status,
             m,
         )
-    seq, u0, u1, mode, res = _COMMAND.unpack_from(b, HEADER.size)
-    if res != _ZERO3:
-        raise LinkError("reserved", f"command reserved bytes are {res.hex()}")
-    m = _mode(mode, COMMAND_MODES)
-    return CommandFrame(seq, (_finite("u[0]", u0), _finite("u[1]", u1)), m)
+    if ftype == FrameType.COMMAND:
+        seq, u0, u1, mode, res = _COMMAND.unpack_from(b, HEADER.size)
+        if res != _ZERO3:
+            raise LinkError("reserved", f"command reserved bytes are {res.hex()}")
+        m = _mode(mode, COMMAND_MODES)
+        return CommandFrame(seq, (_finite("u[0]", u0), _finite("u[1]", u1)), m)
+    if ftype == FrameType.CONFIG:
+        *values, delay, res = _CONFIG.unpack_from(b, HEADER.size)
+        if res != _ZERO3:
+            raise LinkError("reserved", f"config reserved bytes are {res.hex()}")
+        return ConfigFrame(tuple(_finite(k, v) for k, v in zip(CONFIG_KEYS, values, strict=True)), delay)
+    active, request, result, configured, mode, res = _CONFIG_ACK.unpack_from(b, HEADER.size)
+    if res != _ZERO1:
+        raise LinkError("reserved", f"config ack reserved byte is {res.hex()}")
+    m = _mode(mode, None)
+    if result >= len(CONFIG_RESULTS):
+        raise LinkError("range", f"result={result} (at most {len(CONFIG_RESULTS) - 1})")
+    if configured > 1:
+        raise LinkError("range", f"configured={configured} (0 or 1)")
+    return ConfigAck(active, request, result, bool(configured), m)

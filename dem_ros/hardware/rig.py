@@ -21,6 +21,13 @@ A command frame's mode is a request: RUN, LAND (land now) or OFF (acknowledge a 
 the Supervisor's ``clear()`` once LANDED). The board answers a hello request with its :class:`Hello` and streams only
 after it (UDP: to the address of the newest hello).
 
+Configuration (docs/hardware-link.md, "Config"): the board starts with the defaults it was "built" with (the
+``plant_sim`` group's safety specs and nominal plant, the ``hw_driver`` group's calibration and command delay) and
+answers every :class:`ConfigFrame` with a :class:`ConfigAck`, as the firmware does (``board.c``): taken only while
+OFF or LANDED, only with its own ``dt`` and when the board's checks pass (``boardcfg.check_config``; ``rig.board=c``:
+the firmware's own ``sup_init()``), else the active configuration stays. A new supervisor configuration restarts the
+supervisor (OFF); the calibration converts the board's counts from then on (the sensors' physics stay the rig's).
+
 Sensor and actuator models: :mod:`dem_ros.board.rig_io` (ADC counts of the gaps and currents, with the
 ``rig`` group's gain, offset and noise; a gap count at either end of the range: GAPj_RANGE; the bus with
 its sag, the PWM bridges and their current limit).
@@ -56,9 +63,13 @@ from typing import Any
 import numpy as np
 
 from ..core.hold import command_sample
+from .boardcfg import BUSY, OK, check_config, config_crc, config_frame, python_sup_result
 from .link import (
+    CONFIG_SUP_KEYS,
     PROTOCOL_VERSION,
     CommandFrame,
+    ConfigAck,
+    ConfigFrame,
     Hello,
     LinkError,
     Mode,
@@ -145,6 +156,8 @@ class BoardCounters:
     overruns: int = 0
     corrupted_tx: int = 0
     link_lost_ticks: int = 0
+    configs: int = 0
+    configs_refused: int = 0
 
 
 class Board:
@@ -169,12 +182,20 @@ class Board:
         self.dt = pc["dt"]
         self.plant = DemPlant(pc, 0.0)
         self._pq = (float(self.plant.p[IP]), float(self.plant.p[IQ]))  # magnet gap delta = P d_near + Q d_far
-        if rig.get("board", "python") == "c":  # the firmware's supervisor (C99, float32) through its binding
+        self.c_board = rig.get("board", "python") == "c"
+        if self.c_board:  # the firmware's supervisor (C99, float32) through its binding
             self.sup: Supervisor | CSupervisor = CSupervisor(pc, self.dt)
             self.board_name = "c (firmware/supervisor.c)"
         else:
             self.sup = Supervisor(pc, self.dt)
             self.board_name = "python (dem_ros.board)"
+        # the configuration it was built with (its firmware header): the plant's safety specs and nominal plant,
+        # the sensors' data-sheet calibration and the command delay; a PC's CONFIG replaces it (receive)
+        self.config = config_frame({**hw, **{k: pc[k] for k in CONFIG_SUP_KEYS}})
+        self.config_crc = config_crc(self.config)
+        self.configured = False
+        self.bcfg = self.config.as_dict()  # the active values (float32, as the board stores them)
+        self._cal: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # a calibration set over the link
         self.faults = list(faults or [])
         self.rng = np.random.default_rng(rig["seed"])
         try:
@@ -187,7 +208,7 @@ class Board:
         self.drivers = CoilDrivers(rig["bus_voltage"], rig["bus_resistance"], rig["pwm_bits"], rig["current_limit"])
         self.n = 0
         self.released_at: int | None = None
-        self.delay = hw["command_delay"]  # the command answering sample k is applied from tick k + delay
+        self.delay = self.config.command_delay  # the command answering sample k is applied from tick k + delay
         self.n_pre = round((hw["preroll"] if preroll is None else preroll) / self.dt)
         self.cmds: list[CommandFrame | None] = [None] * CMD_RING
         self.request, self.request_seq = Mode.OFF, -1
@@ -242,13 +263,50 @@ class Board:
             self.c.hellos += 1
             self.streaming = True
             return encode(Hello(PROTOCOL_VERSION, self.rc["board_id"], round(1 / self.dt), self.rc["adc_bits"],
-                                self.rc["adc_vref"], round(self.pc["hold_timeout"] * 1e3), self.delay))
+                                self.rc["adc_vref"], round(self.bcfg["hold_timeout"] * 1e3), self.delay))
+        if isinstance(f, ConfigFrame):
+            return encode(self.configure(f, int.from_bytes(data[-4:], "little")))
         if isinstance(f, CommandFrame):
             if f.mode == Mode.RUN:
                 self.cmds[f.seq % CMD_RING] = f  # kept by the sample it answers
             if self.request_seq < 0 or seq_diff(f.seq, self.request_seq) >= 0:
                 self.request, self.request_seq = Mode(f.mode), f.seq  # the newest frame's mode request
         return None
+
+    def configure(self, f: ConfigFrame, crc: int) -> ConfigAck:
+        """A configuration received over the link (its CRC: the frame's CRC field); the answer (module docstring)."""
+        self.c.configs += 1
+        mode = Mode(self.sup.mode)
+        result = OK
+        if mode not in (Mode.OFF, Mode.LANDED):
+            result = BUSY  # never a change in flight (or with a latched fault)
+        elif crc != self.config_crc:
+            from .cboard import sup_config_result as c_sup_config_result
+
+            result = check_config(f, self.bcfg["dt"], c_sup_config_result if self.c_board else python_sup_result)
+            if result == OK:
+                self._apply(f, crc)
+        if result == OK:
+            self.configured = True
+        else:
+            self.c.configs_refused += 1
+        return ConfigAck(self.config_crc, crc, result, self.configured, Mode(self.sup.mode))
+
+    def _apply(self, f: ConfigFrame, crc: int) -> None:
+        from ..board import Supervisor
+        from .cboard import CSupervisor
+
+        n_sup = len(CONFIG_SUP_KEYS)
+        if f.values[:n_sup] != self.config.values[:n_sup]:  # new limits or model: a restarted supervisor (OFF)
+            sup_cfg = dict(zip(CONFIG_SUP_KEYS, f.values[:n_sup], strict=True))
+            self.sup = CSupervisor(sup_cfg, self.dt) if self.c_board else Supervisor(sup_cfg, self.dt)
+        if f.values[n_sup:] != self.config.values[n_sup:]:  # the board's conversion from now on (board.c's)
+            v = f.as_dict()
+            self._cal = (np.array([[v[f"gap{j}_c{p}"] for p in range(4)] for j in (1, 2)]),
+                         np.array([v["current1_gain"], v["current2_gain"]]),
+                         np.array([v["current1_offset"], v["current2_offset"]]))
+        self.delay = f.command_delay
+        self.config, self.config_crc, self.bcfg = f, crc, f.as_dict()
 
     # -- one period ------------------------------------------------------------------------------
     def tick(self, overrun: bool = False) -> bytes | None:
@@ -287,8 +345,14 @@ class Board:
             requested = Mode.OFF
         if self.sup.mode == Mode.RUN and not fresh:
             status |= Status.COMMAND_LATE
-        meas_y = self._board_gaps(self.gap_sensors.gaps(gc), st)  # the board sees what its ADC sees
-        meas_i = self.current_sensors.currents(cc)
+        if self._cal is None:  # the board sees what its ADC sees, converted with its calibration
+            meas_y, meas_i = self.gap_sensors.gaps(gc), self.current_sensors.currents(cc)
+        else:
+            poly, gain, offset = self._cal
+            n_g, n_c = np.array(gc, float), np.array(cc, float)
+            meas_y = poly[:, 0] + n_g * (poly[:, 1] + n_g * (poly[:, 2] + n_g * poly[:, 3]))
+            meas_i = gain * (n_c - offset)
+        meas_y = self._board_gaps(meas_y, st)
         u_cmd = np.array(cmd.u, float) if fresh and cmd is not None else None
         u = self.sup.step(int(n * self.dt * 1e9), meas_y, meas_i, u_cmd, requested, bus=bus,
                           applied=self.plant.coil_voltage if self.released_at is not None else self.applied)
@@ -326,7 +390,7 @@ class Board:
         s = 0
         if self.sup.mode in (Mode.LAND, Mode.LANDED) and self.sup.command_timeout:
             s |= Status.LINK_TIMEOUT
-        if u_cmd is not None and np.any(np.abs(u_cmd) > self.pc["u_max"]):
+        if u_cmd is not None and np.any(np.abs(u_cmd) > self.bcfg["u_max"]):
             s |= Status.VOLTAGE_CLIPPED
         for j in (0, 1):
             if self.sup.implausible[j]:
@@ -426,6 +490,8 @@ class Board:
                 "rx_rejected": c.rx_rejected,
                 "rx_reasons": dict(c.rx_reasons), "commands_fresh": c.commands_fresh, "hellos": c.hellos,
                 "overruns": c.overruns, "corrupted_tx": c.corrupted_tx, "link_lost_ticks": c.link_lost_ticks,
+                "config_crc": f"{self.config_crc:08x}", "configured": self.configured, "configs": c.configs,
+                "configs_refused": c.configs_refused,
                 "mode": Mode(self.sup.mode).name, "reason": getattr(self.sup, "reason", ""),
                 "supervisor": self.sup.snapshot(),
                 "gaps_mm": [round(x[0] * 1e3, 4), round(x[2] * 1e3, 4)], "failed": self.failed or "",

@@ -182,7 +182,9 @@ def emulated_run(cfg: Mapping[str, Mapping[str, Any]], duration: float, preroll:
             continue
         s, reply = drv.on_bytes(data, 10**18 + board.n * MS, board.n * MS)
         if reply is not None:
-            board.receive(reply)
+            answer = board.receive(reply)  # a command, or the run's configuration (answered)
+            if answer is not None:
+                drv.on_bytes(answer, 10**18 + board.n * MS, board.n * MS)
         if s is None:
             continue
         z = np.array([s.gap[0], 0.0, s.gap[1], 0.0, s.current[0], s.current[1]])
@@ -249,17 +251,20 @@ def params_yaml(res: IdentResult) -> str:
         return f"  # 95 %: [{_fmt(e.ci95[0])}, {_fmt(e.ci95[1])}] {e.unit}"
 
     R = 0.5 * (v["R1"] + v["R2"]) if "R1" in v and "R2" in v else None
-    groups: dict[str, list[str]] = {"controller": [], "estimator": [], "plant_sim": []}
+    groups: dict[str, list[str]] = {"controller": [], "estimator": [], "hw_driver": [], "plant_sim": []}
     if R is not None:
         groups["controller"] += [f"R_init: {_fmt(R)}  # (R1 + R2)/2", f"R_nominal: {_fmt(R)}"]
         groups["estimator"].append(f"R: {_fmt(R)}")
+        groups["hw_driver"].append(f"R: {_fmt(R)}")
         groups["plant_sim"] += [f"R: {_fmt(R)}", f"R1: {_fmt(v['R1'])}" + ci("R1"), f"R2: {_fmt(v['R2'])}" + ci("R2")]
     for k in ("K", "m"):
         if k in v:
             groups["controller"] += [f"{k}_init: {_fmt(v[k])}" + ci(k), f"{k}_nominal: {_fmt(v[k])}"]
             groups["estimator"].append(f"{k}: {_fmt(v[k])}")
+            groups["hw_driver"].append(f"{k}: {_fmt(v[k])}")
             groups["plant_sim"].append(f"{k}: {_fmt(v[k])}")
-    lines.append("# plant_sim: the board's model (its safety supervisor's m, R, K; the emulator's plant)")
+    lines.append("# hw_driver: the board's model (its safety supervisor's m, R, K), sent to the board at the handshake")
+    lines.append("# plant_sim: the emulator's plant (and its board's defaults)")
     for g, entries in groups.items():
         if entries:
             lines += [f"{g}:", "  ros__parameters:"] + [f"    {e}" for e in entries]

@@ -8,7 +8,10 @@ portability rules, and the rig emulator running the C board (rig.board=c).
   and run on qemu-system-arm (mps2-an386, semihosting exit code), where the toolchain is installed;
 - the sources use no libc beyond <string.h> and <math.h> (+ <stdint.h>, <stddef.h>), no malloc, and only
   float32 arithmetic (they build with -Wdouble-promotion -Werror);
-- ``dem-ros rig`` with ``rig.board=c``: the emulated board answers, streams, and its summary names the C board.
+- ``dem-ros rig`` with ``rig.board=c``: the emulated board answers, streams, and its summary names the C board;
+- the board's configuration over the link: the firmware's board (board.c on a fake HAL, ``firmware/host_board.c``),
+  the emulator's Python board and its C board (rig.board=c) give the same answer (result, configured flag, the CRC
+  each runs) to the same CONFIG frames: accepted, refused for each rule, refused in flight.
 """
 
 from __future__ import annotations
@@ -21,8 +24,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dem_ros.core.params import default_config
+from dem_ros.hardware.boardcfg import config_crc, config_frame
 from dem_ros.hardware.cboard import FIRMWARE_DIR, CSupervisor, FirmwareError, library_path
-from dem_ros.hardware.link import CommandFrame, Hello, Mode, decode, encode
+from dem_ros.hardware.link import CONFIG_RESULTS, CommandFrame, ConfigAck, ConfigFrame, Hello, Mode, decode, encode
 from dem_ros.hardware.rig import Board, rig_config
 
 FIRMWARE_SOURCES = ("supervisor.c", "supervisor.h", "board.c", "board.h", "hal.h")
@@ -160,14 +165,14 @@ def test_the_configuration_header_carries_the_launch_values_and_the_firmware_acc
     prog.write_text('#include "board_config.h"\nint main(void) { static sup_t s; '
                     "return sup_init(&s, &BOARD_CONFIG.sup, SUP_OFF, 0); }\n")
     codes = []
-    for sets in (["plant_sim.u_max=150"], ["plant_sim.trip_gap_min=0.0105", "plant_sim.landing_gap=0.0104"]):
+    for sets in (["hw_driver.u_max=150"], ["hw_driver.trip_gap_min=0.0105", "hw_driver.landing_gap=0.0104"]):
         try:
             text = config_header(rig_config("S1", None, sets))
         except Exception as exc:  # the schema itself refuses inconsistent specs first: also a refusal
             codes.append(("schema", type(exc).__name__))
             continue
         (tmp_path / "board_config.h").write_text(text)
-        if sets == ["plant_sim.u_max=150"]:
+        if sets == ["hw_driver.u_max=150"]:
             assert ".u_max = 150.0f" in text and ".command_delay = 1u" in text
         r = subprocess.run([cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Wdouble-promotion",
                             f"-I{FIRMWARE_DIR}", f"-I{tmp_path}", "-o", str(tmp_path / "cfg"), str(prog),
@@ -176,3 +181,130 @@ def test_the_configuration_header_carries_the_launch_values_and_the_firmware_acc
         assert r.returncode == 0, r.stderr
         codes.append(subprocess.run([str(tmp_path / "cfg")], timeout=30, check=False).returncode)
     assert codes[0] == 0 and codes[1] != 0, codes
+
+
+# -- the board's configuration over the link: the C board and the Python board agree ------------------------------
+#: CONFIG frames as changes of the defaults (the hw_driver group's), and the answer every board must give
+CONFIG_CASES = [
+    ("the_same_again", {}, "ok"),
+    ("another_u_max", {"u_max": 150.0}, "ok"),
+    ("another_calibration", {"gap1_c1": 2.6e-7, "current2_offset": 32700.0}, "ok"),
+    ("the_longest_delay", {"command_delay": 15}, "ok"),
+    ("a_lighter_plate", {"m": 10.0, "K": 3.5e-4}, "ok"),
+    ("negative_resistance", {"R": -1.0}, "not_positive"),
+    ("zero_force_coefficient", {"K": 0.0}, "not_positive"),
+    ("zero_hold_timeout", {"hold_timeout": 0.0}, "not_positive"),
+    ("trip_gap_min_above_landing", {"trip_gap_min": 0.012}, "gap_order"),
+    ("landing_beyond_trip_gap_max", {"landing_gap": 0.014}, "gap_order"),
+    ("negative_trip_gap_min", {"trip_gap_min": -1e-4}, "gap_order"),
+    ("magnets_outside_the_load_points", {"l": 0.4}, "arms"),
+    ("no_braking_at_end_2", {"N1": 500.0}, "no_braking"),
+    ("no_braking_at_end_1", {"N2": 500.0}, "no_braking"),
+    ("another_sample_period", {"dt": 2e-3}, "rate"),
+    ("no_command_delay", {"command_delay": 0}, "delay"),
+    ("a_delay_the_ring_cannot_hold", {"command_delay": 16}, "delay"),
+]
+
+
+@pytest.fixture(scope="module")
+def host_board(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """firmware/host_board (board.c, supervisor.c, dem_link.c on a fake HAL), with sanitizers where available."""
+    cc = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+    if cc is None:
+        pytest.skip("no C compiler on PATH: the firmware's board cannot be built here")
+    try:
+        library_path()  # the emulator's C board (rig.board=c) too
+    except FirmwareError as exc:
+        pytest.skip(f"the firmware cannot be built here: {exc}")
+    out = tmp_path_factory.mktemp("host_board") / "host_board"
+    flags = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Wno-conversion", "-Wdouble-promotion",
+             "-Wshadow", "-O2"]
+    sources = ["host_board.c", "board.c", "supervisor.c", "dem_link.c", "-lm"]
+    for extra in (["-fsanitize=address,undefined", "-fno-sanitize-recover=all"], []):
+        r = subprocess.run([cc, *flags, *extra, "-o", str(out), *sources], cwd=FIRMWARE_DIR, capture_output=True,
+                           text=True, timeout=180, check=False)
+        if r.returncode == 0:
+            return out
+    pytest.fail(f"firmware/host_board.c does not build with {cc}:\n{r.stderr}")
+
+
+def _c_board(exe: Path, script: list[str]) -> list[str]:
+    r = subprocess.run([str(exe)], input="\n".join(script) + "\n", capture_output=True, text=True, timeout=120,
+                       check=False)
+    assert r.returncode == 0, r.stdout + r.stderr
+    return r.stdout.splitlines()
+
+
+def _c_ack(line: str) -> tuple[str, bool, int, int]:
+    word, result, configured, active, request, _mode = line.split()
+    assert word == "ack", line
+    return result, configured == "1", int(active, 16), int(request, 16)
+
+
+def _py_ack(a: ConfigAck) -> tuple[str, bool, int, int]:
+    return CONFIG_RESULTS[a.result], a.configured, a.active_crc, a.request_crc
+
+
+def _frame(changes: dict) -> ConfigFrame:
+    return config_frame(default_config()["hw_driver"] | changes)
+
+
+def _emulated(board: str) -> Board:
+    cfg = default_config()
+    cfg["plant_sim"]["measure_velocity"] = False
+    cfg["rig"]["board"] = board
+    b = Board(cfg["plant_sim"], cfg["rig"], cfg["hw_driver"], [])
+    assert b.config_crc == config_crc(_frame({})) and not b.configured  # built with the same defaults
+    return b
+
+
+def _configure(b: Board, f: ConfigFrame) -> ConfigAck:
+    a = decode(b.receive(encode(f)) or b"")
+    assert isinstance(a, ConfigAck)
+    return a
+
+
+def test_the_c_and_the_python_boards_answer_every_configuration_alike(host_board: Path) -> None:
+    """Each case on a fresh board of each kind (at rest, OFF): the same result, configured flag and CRCs; the
+    expected result; a refused configuration leaves the defaults' CRC active, an accepted one is the request's."""
+    defaults = encode(_frame({})).hex()
+    script = []
+    for _, changes, _ in CONFIG_CASES:
+        script += [f"init {defaults}", f"config {encode(_frame(changes)).hex()}"]
+    lines = [line for line in _c_board(host_board, script) if not line.startswith("init")]
+    crc0 = config_crc(_frame({}))
+    for (name, changes, want), line in zip(CONFIG_CASES, lines, strict=True):
+        f = _frame(changes)
+        c = _c_ack(line)
+        py, cb = _py_ack(_configure(_emulated("python"), f)), _py_ack(_configure(_emulated("c"), f))
+        assert c == py == cb, (name, c, py, cb)
+        assert c[0] == want and c[3] == config_crc(f), (name, c)
+        assert c[2] == (config_crc(f) if want == "ok" else crc0) and c[1] == (want == "ok"), (name, c)
+
+
+def test_a_refused_configuration_keeps_the_one_set_before_and_a_flying_board_takes_none(host_board: Path) -> None:
+    """A sequence on one board of each kind: another u_max (taken), an invalid one (refused: the u_max one stays,
+    the configured flag too), the first again (nothing changes); then levitating (RUN): any configuration is refused
+    as busy, the active one stays."""
+    seq = [_frame({"u_max": 150.0}), _frame({"u_max": 150.0, "R": -1.0}), _frame({"u_max": 150.0})]
+    busy = _frame({"u_max": 120.0})
+    lines = _c_board(host_board, [f"init {encode(_frame({})).hex()}", *(f"config {encode(f).hex()}" for f in seq),
+                                  "hello", "run 20 80 80", f"config {encode(busy).hex()}"])
+    c_acks = [_c_ack(x) for x in lines if x.startswith("ack")]
+    assert lines[-2] == "mode RUN"
+    crc150 = config_crc(seq[0])
+    for kind in ("python", "c"):
+        b = _emulated(kind)
+        py = [_py_ack(_configure(b, f)) for f in seq]
+        assert isinstance(decode(b.receive(encode(Hello(1, 0, 0, 0, 0.0))) or b""), Hello)
+        u0 = b.plant.u0
+        for _ in range(20):  # the PC's commands at the hover voltage: the board takes them (RUN)
+            f = decode(b.tick() or b"")
+            b.receive(encode(CommandFrame(f.seq, (float(u0[0]), float(u0[1])), Mode.RUN)))
+        assert Mode(b.sup.mode) == Mode.RUN
+        a = _configure(b, busy)
+        py.append(_py_ack(a))
+        assert a.mode == Mode.RUN and b.bcfg["u_max"] == 150.0, (kind, a)
+        assert py == c_acks, (kind, py, c_acks)
+    assert [a[0] for a in c_acks] == ["ok", "not_positive", "ok", "busy"]
+    assert [a[2] for a in c_acks] == [crc150] * 4 and all(a[1] for a in c_acks)

@@ -76,7 +76,9 @@ class RigLoop:
             ros_ns = T0 + b.n * MS
             s, reply = drv.on_bytes(data, ros_ns, b.n * MS)
             if reply is not None:
-                b.receive(reply)
+                answer = b.receive(reply)  # a command, or the run's configuration (answered)
+                if answer is not None:
+                    drv.on_bytes(answer, ros_ns, b.n * MS)
             if s is None:
                 continue
             bus.now_ns = s.stamp_ns

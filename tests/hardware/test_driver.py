@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from dem_ros.core.params import SCHEMA
+from dem_ros.hardware.boardcfg import config_crc, config_frame
 from dem_ros.hardware.driver import Calibration, DriverError, DriverState, HwDriver, load_gap_table
-from dem_ros.hardware.link import CommandFrame, Hello, Mode, SensorFrame, decode, encode
+from dem_ros.hardware.link import CommandFrame, ConfigAck, ConfigFrame, Hello, Mode, SensorFrame, decode, encode
 
 MS = 1_000_000
 CFG = SCHEMA.defaults("hw_driver") | {"arm_samples": 1}  # (arm_samples has its own test)
@@ -21,12 +22,21 @@ def sensor(seq: int, *, gap=(N_GAP, N_GAP), cur=(N_CUR, N_CUR), mode=Mode.RUN, a
     return encode(SensorFrame(seq, seq * 1000, gap, cur, applied, bus, 0, mode))
 
 
+def board_ack(cfg, result: int = 0, active: int | None = None, configured: bool = True, mode=Mode.OFF) -> bytes:
+    """The board's answer to the run's configuration (``cfg``: the driver's parameters); by default: accepted."""
+    crc = config_crc(config_frame(cfg))
+    return encode(ConfigAck(crc if active is None else active, crc, result, configured, mode))
+
+
 def synced(cfg=None, frames: int | None = None) -> tuple[HwDriver, int]:
-    """A driver past its clock sync (frames 0..n-1 received 200 us after they were taken);
-    returns (driver, next seq)."""
+    """A driver past its handshake (hello, the run's configuration confirmed by the board) and clock sync (frames
+    0..n-1 received 200 us after they were taken); returns (driver, next seq)."""
     cfg = {**CFG, **(cfg or {})}
     d = HwDriver(cfg)
-    d.on_bytes(encode(Hello(1, 7, 1000, 16, 10.0, 20)), 0, 0)
+    _, reply = d.on_bytes(encode(Hello(1, 7, 1000, 16, 10.0, 20)), 0, 0)
+    assert decode(reply) == config_frame(cfg)  # the hello's answer: the run's configuration
+    d.on_bytes(board_ack(cfg), 0, 0)
+    assert d.configured
     n = cfg["clock_sync_frames"] if frames is None else frames
     for k in range(n):
         d.on_bytes(sensor(k), 10**18 + k * MS + 200_000, k * MS)
@@ -124,13 +134,17 @@ def test_ten_thousand_random_and_mutated_frames_are_rejected_by_count_never_rais
     assert rejected >= 9_990
 
 
-def test_a_board_with_another_rate_or_command_delay_is_a_fault():
+def test_a_board_with_another_rate_is_a_fault_one_with_another_command_delay_is_configured_with_ours():
     d = HwDriver(CFG)
-    d.on_bytes(encode(Hello(1, 7, 500, 16, 10.0, 20)), 0, 0)
+    assert d.on_bytes(encode(Hello(1, 7, 500, 16, 10.0, 20)), 0, 0) == (None, None)
     assert d.state == DriverState.FAULT and "500 Hz" in d.reason
     d = HwDriver(CFG)
-    d.on_bytes(encode(Hello(1, 7, 1000, 16, 10.0, 20, 3)), 0, 0)
-    assert d.state == DriverState.FAULT and "3 samples late" in d.reason
+    _, reply = d.on_bytes(encode(Hello(1, 7, 1000, 16, 10.0, 20, 3)), 0, 0)
+    f = decode(reply)
+    assert isinstance(f, ConfigFrame) and f.command_delay == CFG["command_delay"] == 1
+    assert d.state == DriverState.INACTIVE and not d.configured  # until the board's answer says it runs it
+    d.on_bytes(board_ack(CFG), 0, 0)
+    assert d.configured and d.status()["board_config"] == "confirmed"
 
 
 # -- lifecycle, commands, watchdog, limits ------------------------------------------------------------
@@ -233,7 +247,9 @@ def test_an_armed_driver_rides_through_a_host_stall_handshakes_again_and_counts_
     assert d.counters["stalls"] == 1 and d.counters["link_loss"] == 0
     assert d.status()["longest_stall_ms"] == pytest.approx(52.0)
     assert d.hello is None  # the node sends hello requests until the board answers again
-    d.on_bytes(encode(Hello(1, 7, 1000, 16, 10.0, 20)), 0, k * MS + 53 * MS)
+    _, reply = d.on_bytes(encode(Hello(1, 7, 1000, 16, 10.0, 20)), 0, k * MS + 53 * MS)
+    assert isinstance(decode(reply), ConfigFrame) and not d.configured  # the handshake again: hello, configuration
+    d.on_bytes(board_ack(CFG), 0, k * MS + 53 * MS)
     s, _ = feed(d, k + 54)
     assert decode(d.command(s.stamp_ns, [50.0, 50.0], (k + 54) * MS)).mode == Mode.RUN
     assert d.state == DriverState.ACTIVE

@@ -2,8 +2,9 @@
 until close() has landed the plate, whatever the shut-down node's transport does, and a transport error
 while the node is up costs one sample, not the rest of the run.
 
-The board here is a few lines (hello, then a RUN sensor frame every millisecond; LAND once the driver
-asks for it), not the emulator: nothing here depends on the machine keeping 1 kHz.
+The board here is a few lines (hello, then a RUN sensor frame every millisecond; it takes the driver's
+configuration; LAND once the driver asks for it), not the emulator: nothing here depends on the machine keeping
+1 kHz.
 """
 
 from __future__ import annotations
@@ -16,7 +17,18 @@ import time
 import pytest
 
 from dem_ros import contract
-from dem_ros.hardware.link import PROTOCOL_VERSION, CommandFrame, Hello, Mode, SensorFrame, decode, encode
+from dem_ros.hardware.boardcfg import config_crc
+from dem_ros.hardware.link import (
+    PROTOCOL_VERSION,
+    CommandFrame,
+    ConfigAck,
+    ConfigFrame,
+    Hello,
+    Mode,
+    SensorFrame,
+    decode,
+    encode,
+)
 from dem_ros.nodes.hw_driver import STOP_LANDING_S, HwDriverNode
 from dem_ros.transport import TransportError
 from dem_ros.transport.memory import MemoryBus, MemoryNode, MemoryPublisher
@@ -55,6 +67,9 @@ class Board:
             try:
                 while True:
                     f = decode(self.sock.recv(256))
+                    if isinstance(f, ConfigFrame):  # the driver's configuration: taken (the board is at rest)
+                        crc = config_crc(f)
+                        self.sock.sendto(encode(ConfigAck(crc, crc, 0, True, Mode.OFF)), self.pc)
                     if isinstance(f, CommandFrame):
                         self.commands.append(f)
                         if f.mode == Mode.LAND and self.mode in (Mode.RUN, Mode.HOLD):

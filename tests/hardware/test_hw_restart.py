@@ -18,7 +18,7 @@ What is asserted is what the design guarantees whatever the load: the board's tr
 (rail contact, smallest gap, fastest descent while landing) and the sequence of states (the same
 sequence tick by tick, with no clock, is tests/graph/test_restart.py). The command
 delay is 4 samples so a loaded machine keeps the loop in time (the controller predicts over it), and
-the driver's own watchdogs (``hw_driver.hold_timeout``, ``link_timeout``) are 0.3 s: a host stall of
+the driver's own watchdogs (``hw_driver.command_timeout``, ``link_timeout``) are 0.3 s: a host stall of
 50 ms on a loaded 2-core machine must not fault the driver before the kill; the board's hold_timeout
 (50 ms) stays what lands the plate. A stall can still make the board land the plate by itself (no
 command for 50 ms): the script then re-arms (the same restart path), at most ``REARMS`` times.
@@ -124,7 +124,7 @@ def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path
     for g in ("controller", "hw_driver", "plant_sim"):
         cfg[g]["command_delay"] = DELAY
     cfg["controller"]["max_age"] = (DELAY + 1) * cfg["controller"]["dt"]
-    cfg["hw_driver"]["hold_timeout"] = cfg["hw_driver"]["link_timeout"] = 0.3  # the PC's watchdogs; the board's: 50 ms
+    cfg["hw_driver"]["command_timeout"] = cfg["hw_driver"]["link_timeout"] = 0.3  # the PC's; the board's hold: 50 ms
     support_mm = cfg["rig"]["support_gap"] * 1e3
     workdir = tmp_path / "run"
     script = Script(workdir, domain_id, support_mm)

@@ -16,6 +16,12 @@ import pytest
 from dem_ros.hardware.framing import MAX_ENCODED_SIZE, CobsError, Deframer, cobs_decode, cobs_encode
 from dem_ros.hardware.link import (
     COMMAND_SIZE,
+    CONFIG_ACK_SIZE,
+    CONFIG_CAL_KEYS,
+    CONFIG_KEYS,
+    CONFIG_RESULTS,
+    CONFIG_SIZE,
+    CONFIG_SUP_KEYS,
     HELLO_REQUEST,
     HELLO_SIZE,
     MAX_FRAME_SIZE,
@@ -24,6 +30,8 @@ from dem_ros.hardware.link import (
     SENSOR_SIZE,
     STATUS_DEFINED,
     CommandFrame,
+    ConfigAck,
+    ConfigFrame,
     Hello,
     LinkError,
     Mode,
@@ -65,7 +73,7 @@ def parse_vectors(path: Path = VECTORS) -> list[dict[str, object]]:
     return records
 
 
-def expected_frame(rec: dict[str, object]) -> Hello | SensorFrame | CommandFrame:
+def expected_frame(rec: dict[str, object]) -> Hello | SensorFrame | CommandFrame | ConfigFrame | ConfigAck:
     """The frame a valid vector's field lines describe."""
     f: dict[str, list[str]] = rec["fields"]  # type: ignore[assignment]
 
@@ -84,6 +92,11 @@ def expected_frame(rec: dict[str, object]) -> Hello | SensorFrame | CommandFrame
             (i("current_counts"), i("current_counts", 1)), (x("applied_v"), x("applied_v", 1)),
             x("bus_v"), i("status"), Mode[f["mode"][0]],
         )
+    if rec["type"] == "config":
+        return ConfigFrame(tuple(float(v) for v in f["supervisor"] + f["calibration"]), i("command_delay"))
+    if rec["type"] == "config_ack":
+        return ConfigAck(i("active_crc"), i("request_crc"), CONFIG_RESULTS.index(f["result"][0]), bool(i("configured")),
+                         Mode[f["mode"][0]])
     assert rec["type"] == "command"
     return CommandFrame(i("seq"), (x("u"), x("u", 1)), Mode[f["mode"][0]])
 
@@ -95,7 +108,7 @@ def test_vectors_cover_every_reason_and_type() -> None:
     """The file is a complete definition: each frame type valid, each rejection reason at least once."""
     expects = {r["expect"] for r in RECORDS}
     assert expects == {"ok", *REASONS}
-    assert {r["type"] for r in RECORDS if r["expect"] == "ok"} == {"hello", "sensor", "command"}
+    assert {r["type"] for r in RECORDS if r["expect"] == "ok"} == {"hello", "sensor", "command", "config", "config_ack"}
     assert len({r["name"] for r in RECORDS}) == len(RECORDS)
 
 
@@ -118,12 +131,31 @@ def test_vector(rec: dict[str, object]) -> None:
 
 def test_sizes_and_layout() -> None:
     """Sizes of docs/hardware-link.md; floats are 4-aligned and the u64 board time 8-aligned."""
-    assert (HELLO_SIZE, SENSOR_SIZE, COMMAND_SIZE, MAX_FRAME_SIZE) == (24, 48, 24, 48)
-    assert MAX_ENCODED_SIZE == 49
+    assert (HELLO_SIZE, SENSOR_SIZE, COMMAND_SIZE, CONFIG_SIZE, CONFIG_ACK_SIZE) == (24, 48, 24, 128, 20)
+    assert MAX_FRAME_SIZE == 128 and MAX_ENCODED_SIZE == 129
     b = encode(SensorFrame(1, 0x0102030405060708, (1, 2), (3, 4), (1.0, 2.0), 3.0, 0, Mode.RUN))
     assert struct.unpack_from("<Q", b, 8)[0] == 0x0102030405060708
     assert struct.unpack_from("<fff", b, 24) == (1.0, 2.0, 3.0)
     assert b[40] == Mode.RUN
+
+
+def test_config_layout_is_the_firmwares_and_the_crc_is_the_frames() -> None:
+    """The config frame's floats are sup_config_t's order (the C binding's, the Python board's keys + dt), then the
+    calibration as board_config_t holds it; each at offset 4 + 4 k. The configuration's CRC is the frame's CRC
+    field, so a board and a PC that hold the same values report the same CRC."""
+    from dem_ros.board import PLANT_KEYS, SAFETY_KEYS
+
+    assert (*SAFETY_KEYS, *PLANT_KEYS, "dt") == CONFIG_SUP_KEYS and CONFIG_KEYS == CONFIG_SUP_KEYS + CONFIG_CAL_KEYS
+    assert len(CONFIG_SUP_KEYS) == 17 and len(CONFIG_CAL_KEYS) == 12
+    values = tuple(float(k + 1) for k in range(len(CONFIG_KEYS)))
+    b = encode(ConfigFrame(values, 3))
+    assert struct.unpack_from("<29f", b, 4) == values and b[120] == 3 and b[121:124] == bytes(3)
+    got = decode(b)
+    assert isinstance(got, ConfigFrame) and got == ConfigFrame(values, 3) and got.as_dict()["gap2_c1"] == 6.0 + 17
+    a = encode(ConfigAck(0x11223344, 0x55667788, 8, True, Mode.HOLD))
+    assert struct.unpack_from("<IIBBBB", a, 4) == (0x11223344, 0x55667788, 8, 1, 2, 0)
+    assert CONFIG_RESULTS[8] == "busy" and CONFIG_RESULTS[:6] == ("ok", "not_positive", "gap_order", "arms",
+                                                                  "no_braking", "nonfinite")
 
 
 def test_mode_values_match_plan() -> None:
@@ -158,7 +190,10 @@ def test_round_trip_random_frames() -> None:
         c = CommandFrame(rng.getrandbits(32), (f32(), f32()), rng.choice([Mode.OFF, Mode.RUN, Mode.HOLD, Mode.LAND]))
         h = Hello(rng.randrange(1, 256), rng.getrandbits(32), rng.getrandbits(32), rng.randrange(17), abs(f32()),
                   rng.getrandbits(16), rng.getrandbits(8))
-        for fr in (s, c, h):
+        g = ConfigFrame(tuple(f32() for _ in CONFIG_KEYS), rng.getrandbits(8))
+        a = ConfigAck(rng.getrandbits(32), rng.getrandbits(32), rng.randrange(len(CONFIG_RESULTS)),
+                      rng.random() < 0.5, Mode(rng.randrange(6)))
+        for fr in (s, c, h, g, a):
             assert decode(encode(fr)) == fr
 
 
@@ -188,6 +223,14 @@ def test_float_rounds_to_float32() -> None:
         (Hello(0, 1, 1000, 12, 3.0), "range", "version=0"),
         (Hello(1, 1, 1000, 12, -1.0), "range", "adc_vref=-1.0"),
         (Hello(1, 1, 1000, 12, 3.0, 50, 256), "range", "command_delay=256"),
+        (ConfigFrame((1.0,) * 28, 1), "range", "not a sequence of the 29"),
+        (ConfigFrame((1.0,) * 7 + (float("nan"),) + (1.0,) * 21, 1), "nonfinite", "m=nan"),
+        (ConfigFrame((1.0,) * 28 + (float("inf"),), 1), "nonfinite", "current2_offset=inf"),
+        (ConfigFrame((1.0,) * 29, 256), "range", "command_delay=256"),
+        (ConfigAck(0, 0, 9, True, Mode.OFF), "range", "result=9"),
+        (ConfigAck(0, 0, 0, 2, Mode.OFF), "range", "configured=2"),  # type: ignore[arg-type]
+        (ConfigAck(2**32, 0, 0, True, Mode.OFF), "range", "active_crc"),
+        (ConfigAck(0, 0, 0, True, 7), "mode", "mode=7"),  # type: ignore[arg-type]
     ],
 )
 def test_encode_refuses_bad_fields(frame: object, reason: str, words: str) -> None:
@@ -339,6 +382,7 @@ def _table_rows(section: str, first_header: str) -> list[list[str]]:
          {"u32": "<I", "u64": "<Q", "u16": "<H", "f32": "<f", "u8": "<B"}),
         ("### Command frame", CommandFrame(0, (0.0, 0.0), Mode.OFF), {"u32": "<I", "f32": "<f", "u8": "<B"}),
         ("### Hello", Hello(1, 0, 0, 0, 0.0, 0, 0), {"u32": "<I", "f32": "<f", "u8": "<B", "u16": "<H"}),
+        ("### Config ack", ConfigAck(0, 0, 0, False, Mode.OFF), {"u32": "<I", "u8": "<B"}),
     ],
 )
 def test_doc_byte_tables_match_the_codec(title: str, frame: object, fmt_of: dict[str, str]) -> None:
@@ -350,7 +394,7 @@ def test_doc_byte_tables_match_the_codec(title: str, frame: object, fmt_of: dict
         if typ not in fmt_of or name in ("crc", "reserved"):
             continue
         field, _, idx = name.partition("[")
-        value: object = 7.5 if typ == "f32" else (3 if field == "mode" else 5)
+        value: object = 7.5 if typ == "f32" else (3 if field == "mode" else 1 if field == "configured" else 5)
         old = getattr(frame, field)
         if idx:
             k = int(idx.rstrip("]"))
@@ -362,6 +406,25 @@ def test_doc_byte_tables_match_the_codec(title: str, frame: object, fmt_of: dict
         assert struct.unpack_from(fmt_of[typ], changed, lo)[0] == (value[k] if idx else value)  # type: ignore[index]
         covered += n
     assert covered + 4 + 4 + sum(int(r[1]) for r in rows if r[3] == "reserved") == len(base)
+
+
+def test_doc_config_table_is_the_codecs_layout() -> None:
+    """The config frame's rows: the floats' names in the codec's order, each 4 bytes from offset 4; the delay, the
+    reserved bytes and the CRC where the codec puts them; the results table is CONFIG_RESULTS."""
+    rows = _table_rows(_doc_section("### Config (type 4"), "offset")
+    names: list[str] = []
+    for offset, size, typ, name, *_ in rows:
+        if "× f32" in typ:
+            fields = [n.strip().strip("`") for n in name.split(",")]
+            assert int(offset) == 4 + 4 * len(names) and int(size) == 4 * len(fields) == 4 * int(typ.split()[0])
+            names += fields
+    assert tuple(names) == CONFIG_KEYS
+    rest = {r[3]: (int(r[0]), int(r[1])) for r in rows if "f32" not in r[2]}
+    assert rest == {"header": (0, 4), "command_delay": (120, 1), "reserved": (121, 3), "crc": (124, 4)}
+    b = encode(ConfigFrame(tuple(float(k) for k in range(len(CONFIG_KEYS))), 9))
+    assert len(b) == CONFIG_SIZE and b[120] == 9 and struct.unpack_from("<f", b, 4 + 4 * 28)[0] == 28.0
+    results = _table_rows(_doc_section("**Config results**"), "value")
+    assert [(int(r[0]), r[1]) for r in results] == list(enumerate(CONFIG_RESULTS))
 
 
 def test_doc_status_modes_and_reasons_match_the_code() -> None:

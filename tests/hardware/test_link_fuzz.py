@@ -14,8 +14,12 @@ from collections import Counter
 
 from dem_ros.hardware.framing import DEFRAME_REASONS, Deframer, wire_frame
 from dem_ros.hardware.link import (
+    CONFIG_KEYS,
+    CONFIG_RESULTS,
     REASONS,
     CommandFrame,
+    ConfigAck,
+    ConfigFrame,
     Hello,
     LinkError,
     Mode,
@@ -30,7 +34,12 @@ SEED = 20261123
 
 def valid_frame(rng: random.Random) -> bytes:
     """A random valid frame of any type (values as a board or PC would send)."""
-    k = rng.randrange(3)
+    k = rng.randrange(5)
+    if k == 3:
+        return encode(ConfigFrame(tuple(rng.uniform(-5, 15) for _ in CONFIG_KEYS), rng.randrange(4)))
+    if k == 4:
+        return encode(ConfigAck(rng.getrandbits(32), rng.getrandbits(32), rng.randrange(len(CONFIG_RESULTS)),
+                                rng.random() < 0.5, Mode(rng.randrange(6))))
     if k == 0:
         return encode(SensorFrame(
             rng.getrandbits(32), rng.getrandbits(64), (rng.getrandbits(16), rng.getrandbits(16)),
@@ -51,23 +60,23 @@ def _reseal(b: bytearray) -> bytes:
 
 def random_frames(rng: random.Random, n: int = N) -> list[bytes]:
     """Half pure random bytes (0..63 long); half plausible: a right-looking header, random
-    payload (often zero reserved bytes, now and then a NaN/inf or a bad mode) and a valid CRC,
-    so the checks after the CRC are exercised too."""
+    payload (often zero reserved bytes, now and then a NaN/inf, a bad mode or an ack's result/flag out of
+    range) and a valid CRC (3 %: a wrong one), so the checks after the CRC are exercised too."""
     out = []
     for i in range(n):
         if i % 2 == 0:
             out.append(rng.randbytes(rng.randrange(64)))
             continue
-        ftype = rng.choice([1, 2, 3, 1, 2, 3, 0, 9])
-        size = {1: 24, 2: 48, 3: 24}.get(ftype, 24)
+        ftype = rng.choice([1, 2, 3, 4, 5, 1, 2, 3, 4, 5, 0, 9])
+        size = {1: 24, 2: 48, 3: 24, 4: 128, 5: 20}.get(ftype, 24)
         if rng.random() < 0.1:
-            size = rng.choice([24, 48, 12, 60])
+            size = rng.choice([24, 48, 12, 60, 128, 20])
         b = bytearray(rng.randbytes(size))
         b[0] = rng.choice([1, 1, 1, 1, 0, 2])
         b[1] = ftype
         b[2:4] = struct.pack("<H", size)
         if rng.random() < 0.75:  # zero the reserved bytes of the type
-            for pos in {2: [41, 42, 43], 3: [17, 18, 19]}.get(ftype, []):
+            for pos in {2: [41, 42, 43], 3: [17, 18, 19], 4: [121, 122, 123], 5: [15]}.get(ftype, []):
                 if pos < size - 4:
                     b[pos] = 0
             if ftype == 2 and size == 48 and rng.random() < 0.8:
@@ -76,11 +85,19 @@ def random_frames(rng: random.Random, n: int = N) -> list[bytes]:
                 b[16] = rng.choice([0, 1, 2, 3, 4, 5, 7])
             if ftype == 1 and size == 24 and rng.random() < 0.8:
                 b[12] = rng.choice([0, 12, 16, 17, 255])
+            if ftype == 5 and size == 20 and rng.random() < 0.8:
+                b[12] = rng.choice([0, 4, 8, 9, 200])  # result
+                b[13] = rng.choice([0, 1, 1, 2])  # configured
+                b[14] = rng.choice([0, 1, 4, 5, 6])  # mode
         if rng.random() < 0.15 and size >= 20:  # a non-finite float where one lives
-            pos = {1: 16, 2: rng.choice([24, 28, 32]), 3: rng.choice([8, 12])}.get(ftype, 8)
+            pos = {1: 16, 2: rng.choice([24, 28, 32]), 3: rng.choice([8, 12]),
+                   4: 4 + 4 * rng.randrange(len(CONFIG_KEYS))}.get(ftype, 8)
             if pos + 4 <= size - 4:
                 b[pos:pos + 4] = struct.pack("<f", rng.choice([float("nan"), float("inf"), -float("inf")]))
-        out.append(_reseal(b))
+        sealed = bytearray(_reseal(b))
+        if rng.random() < 0.03:  # a plausible frame whose CRC does not match
+            sealed[-1] ^= 1 << rng.randrange(8)
+        out.append(bytes(sealed))
     return out
 
 

@@ -47,13 +47,16 @@ class Loop:
 
 def exchange(b: Board, drv: HwDriver):
     """One board tick through the driver: the sample the driver publishes (None: no frame or none to publish);
-    the driver's reply (a command or a hello) goes back to the board."""
+    the driver's reply (a command, or the run's configuration) goes to the board, and the board's answer to a
+    configuration back to the driver."""
     data = b.tick()
     if data is None:
         return None
     s, reply = drv.on_bytes(data, 10**18 + b.n * MS, b.n * MS)
     if reply is not None:
-        b.receive(reply)
+        answer = b.receive(reply)
+        if answer is not None:
+            drv.on_bytes(answer, 10**18 + b.n * MS, b.n * MS)
     return s
 
 

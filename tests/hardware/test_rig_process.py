@@ -82,7 +82,7 @@ def test_a_pc_drives_the_emulated_board_over_a_real_link_and_a_fault_lands_the_p
     cfg["plant_sim"]["measure_velocity"] = False
     cfg["controller"]["command_delay"] = DELAY
     cfg["controller"]["max_age"] = (DELAY + 1) * 1e-3  # an on-time estimate is up to DELAY samples old
-    drv = HwDriver(cfg["hw_driver"] | {"clock_sync_frames": 20, "link_timeout": 5.0, "hold_timeout": 5.0,
+    drv = HwDriver(cfg["hw_driver"] | {"clock_sync_frames": 20, "link_timeout": 5.0, "command_timeout": 5.0,
                                        "command_delay": DELAY, "arm_samples": 5})
     law = Loop(cfg)
     Loop(cfg)(_hover_sample(cfg))  # compile the kernels before the clock matters

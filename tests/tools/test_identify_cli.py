@@ -81,6 +81,7 @@ def test_an_excited_rig_run_gives_R1_R2_K_m_within_tolerance_and_inside_the_inte
     assert cfg["controller"]["K_init"] == pytest.approx(res["estimates"]["K"]["value"], rel=1e-5)
     assert cfg["controller"]["m_init"] == pytest.approx(res["estimates"]["m"]["value"], rel=1e-5)
     assert cfg["plant_sim"]["R1"] == pytest.approx(res["estimates"]["R1"]["value"], rel=1e-5)
+    assert cfg["hw_driver"]["K"] == cfg["controller"]["K_nominal"]  # the board's model: the driver sends it
     assert cfg["estimator"]["R"] == pytest.approx(0.5 * (TRUTH["R1"] + TRUTH["R2"]), rel=0.01)
     assert sorted(f.name for f in (tmp_path / "figs").iterdir()) == ["identify_estimates.png",
                                                                      "identify_validation.png"]

@@ -40,6 +40,22 @@ def command(seq, u, mode, version=1, reserved=b"\0\0\0") -> bytes:
     return seal(struct.pack("<BBHIffB3s", version, 3, 24, seq, *u, mode, reserved))
 
 
+#: the project's defaults (core/params.py): the safety specs, the nominal plant (Table 2) and dt, then the
+#: data-sheet calibration of the gap sensors and the current sensors
+CONFIG_SUP = (200.0, 10.0, 0.0015, 0.013, 0.05, 0.011, 0.01, 14.852, 20.0, 4.374e-4, 0.3, 0.168, 0.5648, 36.5, 36.5,
+              9.81, 0.001)
+CONFIG_CAL = (0.0, 2.5e-7, 8e-13, 0.0, 0.0, 2.5e-7, 8e-13, 0.0, 10.0 / 32768, 10.0 / 32768, 32768.0, 32768.0)
+RESULTS = ("ok", "not_positive", "gap_order", "arms", "no_braking", "nonfinite", "delay", "rate", "busy")
+
+
+def config(sup, cal, delay, version=1, reserved=b"\0\0\0") -> bytes:
+    return seal(struct.pack("<BBH29fB3s", version, 4, 128, *sup, *cal, delay, reserved))
+
+
+def config_ack(active, request, result, configured, mode, reserved=b"\0") -> bytes:
+    return seal(struct.pack("<BBHIIBBB1s", 1, 5, 20, active, request, result, configured, mode, reserved))
+
+
 def cobs(data: bytes) -> bytes:  # the reference algorithm, written out again on purpose
     out, block = bytearray(), bytearray()
     for b in data:
@@ -96,6 +112,18 @@ def ok_command(name, note, seq, u, mode):
         "type command", f"seq {seq}", f"u {fmt(u[0])} {fmt(u[1])}", f"mode {MODES[mode]}"])
 
 
+def ok_config(name, note, sup, cal, delay):
+    ok(name, note, config(sup, cal, delay), [
+        "type config", "supervisor " + " ".join(fmt(x) for x in sup), "calibration " + " ".join(fmt(x) for x in cal),
+        f"command_delay {delay}"])
+
+
+def ok_config_ack(name, note, active, request, result, configured, mode):
+    ok(name, note, config_ack(active, request, result, configured, mode), [
+        "type config_ack", f"active_crc 0x{active:08x}", f"request_crc 0x{request:08x}", f"result {RESULTS[result]}",
+        f"configured {configured}", f"mode {MODES[mode]}"])
+
+
 def main() -> None:
     print("""# dem_ros device link, protocol version 1: test vectors (docs/hardware-link.md).
 # This file DEFINES the protocol: the Python codec (dem_ros/hardware/link.py) and the
@@ -106,9 +134,12 @@ def main() -> None:
 #   hex HEX                     the frame's bytes (lower-case hex, no spaces; may be empty)
 #   cobs HEX                    (valid frames) its COBS encoding, without the 0x00 delimiter
 #   expect ok | REASON          decode succeeds, or is rejected with that reason
-#   type hello|sensor|command   (valid frames) then one line per field, name then value(s):
+#   type hello|sensor|command|config|config_ack
+#                               (valid frames) then one line per field, name then value(s):
 #     integers in decimal, status in 0x hex, floats as the shortest decimal that
-#     reads back to the same float32 (strtod then cast to float is exact), modes by name
+#     reads back to the same float32 (strtod then cast to float is exact), modes by name;
+#     config: "supervisor" its 17 floats, "calibration" its 12, command_delay; config_ack: the CRCs in
+#     0x hex, result by name (ok, not_positive, gap_order, arms, no_braking, nonfinite, delay, rate, busy)
 #   end                         ends the record
 # A valid frame re-encodes to exactly its hex bytes.
 """)
@@ -133,6 +164,19 @@ def main() -> None:
     ok_command("command_land", "request the board's landing law (u ignored)", 1002, (0.0, 0.0), 3)
     ok_command("command_off_negative", "OFF with negative voltages in u (ignored by the board); seq 0",
                0, (-150.0, -0.001), 0)
+    good_cfg = config(CONFIG_SUP, CONFIG_CAL, 1)
+    crc = struct.unpack("<I", good_cfg[-4:])[0]
+    ok_config("config_defaults", "the project's defaults: safety specs, Table 2, 1 ms, data-sheet calibration, delay 1",
+              CONFIG_SUP, CONFIG_CAL, 1)
+    ok_config("config_delay_2_negative_offsets", "command delay 2, a gap offset below zero, a negative current gain",
+              (*CONFIG_SUP[:13], 40.0, 33.0, 9.81, 0.001),
+              (-1e-4, 2.5e-7, 8e-13, 1e-18, 0.0, 2.4e-7, 9e-13, 0.0, -3e-4, 3e-4, 32000.0, 33000.5), 2)
+    ok_config_ack("config_ack_accepted", "the defaults accepted in OFF: the active CRC is the request's (its CRC "
+                  "field)", crc, crc, 0, 1, 0)
+    ok_config_ack("config_ack_busy", "refused while levitating: the board keeps its compiled-in defaults",
+                  0x1234ABCD, crc, 8, 0, 1)
+    ok_config_ack("config_ack_no_braking", "an invalid configuration refused in LANDED; the one set before stays",
+                  0x0BADF00D, 0xFFFFFFFF, 4, 1, 4)
 
     good_s = sensor(1000, 1_000_000, (2048, 2051), (1700, 1702), (50.0, 49.75), 150.0, 0, 1)
     good_c = command(1000, (50.0, 49.75), 1)
@@ -164,6 +208,22 @@ def main() -> None:
         "nonfinite")
     bad("hello_adc_17", "a 17-bit ADC does not fit the u16 counts", hello(1, 1, 1000, 17, 3.0, 50), "range")
     bad("hello_vref_negative", "a negative ADC reference", hello(1, 1, 1000, 12, -3.0, 50), "range")
+    bad("config_size_24", "type config but 24 bytes (CRC valid)", seal(struct.pack("<BBH", 1, 4, 24) + bytes(16)),
+        "size")
+    bad("config_truncated", "a config frame missing its last byte", good_cfg[:-1], "length")
+    bad("config_version_2", "a config frame of protocol version 2", config(CONFIG_SUP, CONFIG_CAL, 1, version=2),
+        "version")
+    bad("config_reserved", "a config frame with a reserved byte set", config(CONFIG_SUP, CONFIG_CAL, 1,
+                                                                             reserved=b"\0\0\1"), "reserved")
+    bad("config_nan_mass", "a NaN mass", config((*CONFIG_SUP[:7], math.nan, *CONFIG_SUP[8:]), CONFIG_CAL, 1),
+        "nonfinite")
+    bad("config_inf_offset", "an infinite current offset", config(CONFIG_SUP, (*CONFIG_CAL[:11], -math.inf), 1),
+        "nonfinite")
+    bad("config_ack_reserved", "a config ack with its reserved byte set", config_ack(1, 1, 0, 1, 0, reserved=b"\2"),
+        "reserved")
+    bad("config_ack_mode_6", "a config ack with mode 6", config_ack(1, 1, 0, 1, 6), "mode")
+    bad("config_ack_result_9", "a result the protocol does not define", config_ack(1, 1, 9, 1, 0), "range")
+    bad("config_ack_configured_2", "the configured flag is 0 or 1", config_ack(1, 1, 0, 2, 0), "range")
 
 
 if __name__ == "__main__":

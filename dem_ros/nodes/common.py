@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from ..contract import FRAME, MAGNETS
+from ..contract import FRAME, MAGNETS, inputs_status
 
 __all__ = [
     "ERROR",
@@ -26,6 +26,7 @@ __all__ = [
     "all_finite",
     "clipped",
     "diag_array",
+    "diag_status",
     "joint_state",
     "meas_array",
     "meas_into",
@@ -185,16 +186,14 @@ class LatencyStats:
         return {"p50": p50, "p99": p99, "max": self.max_ns / 1e3 if self.n else math.nan}
 
 
-def diag_array(cls_array: type, cls_status: type, cls_kv: type, t_ns: int, name: str, level: int, message: str,
-               values: dict) -> Any:
-    """diagnostic_msgs/DiagnosticArray with one status of key/value pairs."""
-    arr = cls_array()
-    set_stamp(arr, t_ns)
+def diag_status(cls_status: type, cls_kv: type, name: str, level: int, message: str, values: Mapping[str, Any],
+                hardware_id: str = "") -> Any:
+    """diagnostic_msgs/DiagnosticStatus of key/value pairs (``str()`` of each value)."""
     st = cls_status()
     st.level = bytes([level]) if isinstance(getattr(st, "level", b""), bytes) else level
     st.name = name
     st.message = message
-    st.hardware_id = "dem"
+    st.hardware_id = hardware_id
     kvs = []
     for k, v in values.items():
         kv = cls_kv()
@@ -202,7 +201,16 @@ def diag_array(cls_array: type, cls_status: type, cls_kv: type, t_ns: int, name:
         kv.value = str(v)
         kvs.append(kv)
     st.values = kvs
-    arr.status = [st]
+    return st
+
+
+def diag_array(cls_array: type, cls_status: type, cls_kv: type, t_ns: int, name: str, level: int, message: str,
+               values: Mapping[str, Any], hardware_id: str = "") -> Any:
+    """diagnostic_msgs/DiagnosticArray with one status of key/value pairs (``hardware_id``: empty for software,
+    as diagnostic_updater has it for a node without hardware; a driver's: its device)."""
+    arr = cls_array()
+    set_stamp(arr, t_ns)
+    arr.status = [diag_status(cls_status, cls_kv, name, level, message, values, hardware_id)]
     return arr
 
 
@@ -223,16 +231,20 @@ class Diagnostics:
       or a callback's exception count increased: the message names the counters and their increase since the previous
       report. A node that recovers goes back to OK; the counters keep the history.
 
-    ``name`` is the status name (default: the node's name); ``hardware_id`` is ``"dem"``.
+    ``name`` is the status name, ``"<node>: <task>"`` as diagnostic_updater names a node's tasks (the names are
+    in :mod:`dem_ros.contract`; default ``"<node>: status"``). ``hardware_id``: empty for a software node
+    (diagnostic_updater's for a node without a device); a driver's is its device's identity, known once the
+    device answered: set :attr:`hardware_id` then (every later report carries it).
     """
 
     def __init__(self, node: Any, name: str | None = None, *, warn_on: Sequence[str] = (),
                  values: Callable[[], Mapping[str, Any]] | None = None, period_s: float = 1.0,
-                 timer: bool = True):
+                 timer: bool = True, hardware_id: str = ""):
         from ..contract import DIAGNOSTICS
 
         self.node = node
-        self.name = name or node.name
+        self.name = name or f"{node.name}: status"
+        self.hardware_id = hardware_id
         self.counters: dict[str, Any] = {}
         self.warn_on = tuple(warn_on)
         self.values = values
@@ -310,7 +322,7 @@ class Diagnostics:
         if values is not None:
             vals = {**values, **{k: v for k, v in vals.items() if k not in values}}
         self.reports += 1
-        self._pub.publish(diag_array(*self._cls, self.node.now_ns(), self.name, lv, msg, vals))
+        self._pub.publish(diag_array(*self._cls, self.node.now_ns(), self.name, lv, msg, vals, self.hardware_id))
 
 
 def _writer(gid: bytes) -> str:
@@ -555,7 +567,7 @@ class Inputs:
         self.attribute_ns = round(attribute_s * 1e9)
         self.bindings: list[Binding] = []
         self.refused_now: dict[tuple[str, bytes], str] = {}  # (topic, writer) -> why: refusals since the last report
-        self.diag = Diagnostics(node, f"{node.name}: inputs", warn_on=("malformed",), values=self.values,
+        self.diag = Diagnostics(node, inputs_status(node.name), warn_on=("malformed",), values=self.values,
                                 timer=False)
         node.timer(period_s, self.tick)
         node.timer(1.0, self.report)

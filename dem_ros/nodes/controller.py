@@ -117,7 +117,7 @@ class ControllerNode:
         self.names_state = list(contract.CONTROLLER_STATE_NAMES)
         self.pub_cmd = node.publisher(contract.COMMAND)
         self.pub_state = node.publisher(contract.CONTROLLER_STATE)
-        self.diag = Diagnostics(node, "controller", warn_on=_WARN_KEYS, values=self._diag_values)
+        self.diag = Diagnostics(node, contract.CONTROLLER_STATUS, warn_on=_WARN_KEYS, values=self._diag_values)
         self.diag.set_condition(WARN, "waiting to start")
         # the plant's clock first: an executor that drains reader by reader then never sees a reference or
         # estimate ahead of the newest applied voltage it has (a queue behind is seen as behind)

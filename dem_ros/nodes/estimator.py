@@ -84,9 +84,10 @@ class EstimatorNode:
         self.publishing = False  # the filter has converged since its (re)start (or started in the pre-roll)
         self.preroll_start = False  # the filter started on a pre-roll sample: published once the start is confirmed
         self.start: tuple[int, list[float]] | None = None  # (stamp, estimate) of the start awaiting its confirmation
-        # /diagnostics "estimator", once a second: WARN after rejected or dropped samples, ERROR on a sensor fault
+        # /diagnostics "estimator: filter", once a second: WARN after rejected or dropped samples, ERROR on a sensor
+        # fault
         gates = [f"gap{j}_{why}" for j in (1, 2) for why in ("out_of_range", "innovation")]
-        self.diag = Diagnostics(node, "estimator", values=self._values,
+        self.diag = Diagnostics(node, contract.ESTIMATOR_STATUS, values=self._values,
                                 warn_on=(*gates, "malformed", "non_finite", "unpaired", "updates_skipped",
                                          "reinitialised", "repeated"))
         self.counts = self.diag.counters

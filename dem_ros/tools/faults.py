@@ -504,12 +504,13 @@ def _read_bag(bag: Path, measured: bool = False) -> dict[str, Any]:
         for log_ns, msg in decoded(r, contract.DIAGNOSTICS.name, contract.DIAGNOSTICS.type):
             for s in msg.status:
                 vals = {kv.key: kv.value for kv in s.values}
-                if s.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
+                name = contract.status_name(s.name)
+                if name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
                     loop = vals
                     if vals.get("epoch_ns", "").isdigit():
                         epoch = int(vals["epoch_ns"])
                 level = contract.status_level(s)
-                diags.append((log_ns, s.name, level, s.message, vals))
+                diags.append((log_ns, name, level, s.message, vals))
         truncated = r.truncated
     problems = [f"{n} recorded sample(s) of {topic} do not decode (the injected ones, recorded as sent)"
                 for topic, n in undecodable.items()]
@@ -910,7 +911,7 @@ def _run_hw_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, dura
         reported += "; launch: " + ", ".join(f"{e['node']} exited ({e['code']})" for e in exits)
     reported += f"; '{spec.reports[0]}' " + (f"in {', '.join(sorted(set(heard)))}" if heard else "NOT reported")
     sources = {"driver": j.get("loop", {}), "board": {**(rig or {}), **((rig or {}).get("supervisor") or {})},
-               "estimator": j["statuses"].get("estimator", {})}
+               "estimator": j["statuses"].get(contract.ESTIMATOR_STATUS, {})}
     counted_ok, counted, counts = _counted(spec, sources)
     hits = [f"{f['kind']} acted on {f['hits']} samples" for f in (rig or {}).get("faults", [])]
     if hits:

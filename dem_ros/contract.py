@@ -31,8 +31,9 @@ DOMAIN_ID_MAX = 101
 
 __all__ = ["CONTROLLER_STATE_NAMES", "CONTROLLER_STATUS", "ESTIMATOR_STATUS", "FORMER_STATUS_NAMES", "FRAME",
            "FRAME_PREROLL", "HW_LOOP_STATUS", "HW_STATE_STATUS", "INPUTS_TASK", "LOOP_STATUS", "MAGNETS",
-           "RECORDER_STATUS", "RECORDING_STATUS", "REFERENCE_NAMES", "REFERENCE_STATUS", "TOPICS", "QoS", "Topic",
-           "inputs_status", "markdown_table", "status_level", "status_name"]
+           "RECORDER_STATUS", "RECORDING_STATUS", "REFERENCE_NAMES", "REFERENCE_STATUS", "TOPICS",
+           "TOPIC_STATUS_SUFFIX", "QoS", "Topic", "inputs_status", "markdown_table", "status_level", "status_name",
+           "topic_status"]
 
 FRAME = "dem"
 FRAME_PREROLL = "dem/preroll"
@@ -55,6 +56,8 @@ RECORDING_STATUS = "reference: recording"
 RECORDER_STATUS = "recorder: bag"
 #: the task of each node's input bindings (nodes/common.Inputs): ``"<node>: inputs"``
 INPUTS_TASK = "inputs"
+#: a topic's frequency and timestamp status, diagnostic_updater's task name: ``"<node>: <topic> topic status"``
+TOPIC_STATUS_SUFFIX = " topic status"
 #: the names the statuses had before they followed the convention (bags recorded then): their names now
 FORMER_STATUS_NAMES = {"estimator": ESTIMATOR_STATUS, "controller": CONTROLLER_STATUS, "reference": REFERENCE_STATUS,
                        "recording": RECORDING_STATUS, "recorder": RECORDER_STATUS}
@@ -63,6 +66,11 @@ FORMER_STATUS_NAMES = {"estimator": ESTIMATOR_STATUS, "controller": CONTROLLER_S
 def inputs_status(node: str) -> str:
     """The name of ``node``'s input status."""
     return f"{node}: {INPUTS_TASK}"
+
+
+def topic_status(node: str, topic: str) -> str:
+    """The name of the frequency and timestamp status of ``topic`` as ``node`` publishes it."""
+    return f"{node}: {topic}{TOPIC_STATUS_SUFFIX}"
 
 
 def status_name(name: str) -> str:
@@ -167,7 +175,8 @@ DIAGNOSTICS = Topic(
     ("recorder", "rqt_robot_monitor"),
     "statuses named '<node>: <task>' at 1 Hz (e.g. 'plant_sim: loop', 'controller: law', '<node>: inputs'; "
     "docs/manual/topics.md): counters, loop statistics (cycles, deadline misses, latency), rejected input; WARN "
-    "after a counted problem, ERROR on a fault (latched, published at once)",
+    "after a counted problem, ERROR on a fault (latched, published at once); and '<node>: <topic> topic status' "
+    "for each 1 kHz topic the node publishes (diagnostic_updater's frequency and timestamp keys)",
 )
 RUN_INFO = Topic(
     "/dem/run_info", "std_msgs/msg/String", QOS_LATCHED, None, "launcher",

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from ..contract import FRAME, MAGNETS, inputs_status
+from .diagnostics import DiagnosedPublisher, FrequencyStatus, TimeStampStatus, TopicDiagnostic
 
 __all__ = [
     "ERROR",
@@ -235,6 +236,12 @@ class Diagnostics:
     in :mod:`dem_ros.contract`; default ``"<node>: status"``). ``hardware_id``: empty for a software node
     (diagnostic_updater's for a node without a device); a driver's is its device's identity, known once the
     device answered: set :attr:`hardware_id` then (every later report carries it).
+
+    Topics: :meth:`diagnosed` wraps a publisher of a topic with a nominal rate so that each message ticks its
+    ``"<node>: <topic> topic status"`` (frequency and timestamp, diagnostic_updater's keys:
+    :mod:`dem_ros.nodes.diagnostics`). :meth:`report` publishes them once a second with the node's status (the
+    node's timer, or the node's own once-a-second call when ``timer`` is False); :meth:`publish` (an event, a
+    fault) sends the node's status alone.
     """
 
     def __init__(self, node: Any, name: str | None = None, *, warn_on: Sequence[str] = (),
@@ -245,6 +252,7 @@ class Diagnostics:
         self.node = node
         self.name = name or f"{node.name}: status"
         self.hardware_id = hardware_id
+        self.topics: list[TopicDiagnostic] = []
         self.counters: dict[str, Any] = {}
         self.warn_on = tuple(warn_on)
         self.values = values
@@ -255,7 +263,24 @@ class Diagnostics:
         self._condition: tuple[int, str] = (OK, "")
         self._seen: dict[str, Any] = {}  # the warn_on counters and callback errors at the previous report
         self.reports = 0
-        self.timer = node.timer(period_s, self.publish) if timer else None
+        self.timer = node.timer(period_s, self.report) if timer else None
+
+    def diagnosed(self, topic: Any, publisher: Any = None, *, clock: Callable[[], int] | None = None,
+                  tolerance: float = 0.1, window_size: int = 5, min_delay_s: float = -1.0,
+                  max_delay_s: float = 5.0) -> DiagnosedPublisher:
+        """``publisher`` (default: the node's new publisher of ``topic``, a :class:`dem_ros.contract.Topic`) with
+        the status ``"<node>: <topic> topic status"``: each message published ticks it with its stamp and the
+        time of ``clock`` (default the node's ``now_ns``; a thread that outlives the node: ``time.time_ns``).
+        The frequency's target is the topic's ``rate_hz``; ``tolerance``, ``window_size`` (reports) and the
+        acceptable stamp delays [s] are diagnostic_updater's defaults."""
+        if not topic.rate_hz:
+            raise ValueError(f"{topic.name} has no nominal rate to diagnose")
+        rate = float(topic.rate_hz)
+        td = TopicDiagnostic(topic.name, FrequencyStatus(rate, rate, tolerance=tolerance, window_size=window_size),
+                             TimeStampStatus(min_delay_s, max_delay_s))
+        self.topics.append(td)
+        return DiagnosedPublisher(publisher if publisher is not None else self.node.publisher(topic), td,
+                                  clock or self.node.now_ns)
 
     def count(self, key: str, n: int = 1) -> int:
         """Add ``n`` to counter ``key`` (created at 0); its new value."""
@@ -314,15 +339,32 @@ class Diagnostics:
             message = "; ".join(m for m in (message, ", ".join(grew)) if m)
         return level, message or "ok", values
 
-    def publish(self, level: int | None = None, message: str = "", values: Mapping[str, Any] | None = None) -> None:
+    def publish(self, level: int | None = None, message: str = "", values: Mapping[str, Any] | None = None, *,
+                topics: bool = False) -> None:
         """Publish a report now: with the standing condition, or with ``level`` and ``message`` in its place
         (an event such as a landing, reported at once; a latched fault and grown counters still count);
-        ``values`` are published first, then the counters and ``values()`` not among them."""
+        ``values`` are published first, then the counters and ``values()`` not among them. ``topics``: with the
+        topics' statuses (:meth:`report`)."""
         lv, msg, vals = self.status(None if level is None else (int(level), message))
         if values is not None:
             vals = {**values, **{k: v for k, v in vals.items() if k not in values}}
         self.reports += 1
-        self._pub.publish(diag_array(*self._cls, self.node.now_ns(), self.name, lv, msg, vals, self.hardware_id))
+        now = self.node.now_ns()
+        arr = diag_array(*self._cls, now, self.name, lv, msg, vals, self.hardware_id)
+        if topics:
+            statuses = list(arr.status)
+            for td in self.topics:
+                if td.started:
+                    t_level, t_message, t_values = td.run(now)
+                    statuses.append(diag_status(self._cls[1], self._cls[2], f"{self.node.name}: {td.name}", t_level,
+                                                t_message, t_values, self.hardware_id))
+            arr.status = statuses
+        self._pub.publish(arr)
+
+    def report(self, level: int | None = None, message: str = "", values: Mapping[str, Any] | None = None) -> None:
+        """The once-a-second report: the node's status as :meth:`publish` sends it, and in the same array the
+        status of every :meth:`diagnosed` topic published so far (its window moves on by one report)."""
+        self.publish(level, message, values, topics=True)
 
 
 def _writer(gid: bytes) -> str:

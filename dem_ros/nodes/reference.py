@@ -70,10 +70,10 @@ class ReferenceNode:
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.REFERENCE_NAMES)  # shared by every message published (never modified)
-        self.pub = node.publisher(contract.REFERENCE)
         # /diagnostics "reference: schedule" once a second: WARN after refused measurements and while resting after
-        # a restart
+        # a restart; with "reference: /dem/reference topic status"
         self.diag = Diagnostics(node, contract.REFERENCE_STATUS, warn_on=("refused",), values=self._diag_values)
+        self.pub = self.diag.diagnosed(contract.REFERENCE)
         self.last_t: int | None = None  # stamp of the newest measurement [ns]
         self.recorder_seen: tuple[int, int | None] | None = None  # (our clock, newest stamp) at its last report
         self.recorder_reports = 0  # the recorder's reports received

@@ -263,6 +263,7 @@ class Diagnostics:
         self._condition: tuple[int, str] = (OK, "")
         self._seen: dict[str, Any] = {}  # the warn_on counters and callback errors at the previous report
         self.reports = 0
+        self.period_ns = round(period_s * 1e9)  # the reports' period (the node's own calls' when timer is False)
         self.timer = node.timer(period_s, self.report) if timer else None
 
     def diagnosed(self, topic: Any, publisher: Any = None, *, clock: Callable[[], int] | None = None,
@@ -354,7 +355,7 @@ class Diagnostics:
         if topics:
             statuses = list(arr.status)
             for td in self.topics:
-                if td.started:
+                if td.ready(now, self.period_ns // 2):  # a window of half a period at least
                     t_level, t_message, t_values = td.run(now)
                     statuses.append(diag_status(self._cls[1], self._cls[2], f"{self.node.name}: {td.name}", t_level,
                                                 t_message, t_values, self.hardware_id))
@@ -363,7 +364,8 @@ class Diagnostics:
 
     def report(self, level: int | None = None, message: str = "", values: Mapping[str, Any] | None = None) -> None:
         """The once-a-second report: the node's status as :meth:`publish` sends it, and in the same array the
-        status of every :meth:`diagnosed` topic published so far (its window moves on by one report)."""
+        status of every :meth:`diagnosed` topic first published at least half a period ago (its window moves on
+        by one report)."""
         self.publish(level, message, values, topics=True)
 
 

@@ -14,11 +14,12 @@ Where this differs from diagnostic_updater, and why:
   times). A tick is a counter increment and a min/max update, cheap at 1 kHz in Python; it is written by one
   thread (the one that publishes) and read by the reporter, so a report taken while a tick runs may leave that
   one stamp out of its delay range (diagnostic_updater takes a lock for that).
-* A topic's window starts at its first publication, and a topic the node has not published yet is not
-  reported (:attr:`TopicDiagnostic.started`): diagnostic_updater starts the window when the task is made and
-  reports ERROR "No events recorded." until then, which at 1 kHz would put every node at ERROR while the graph
-  waits for its start (the node's own status says why it waits). Once started, a topic that falls silent is
-  ERROR "No events recorded." after a whole window, as there.
+* A topic's window starts at its first publication, and a topic is reported once that is at least half a
+  report period ago (:meth:`TopicDiagnostic.ready`): diagnostic_updater starts the window when the task is made
+  and reports ERROR "No events recorded." until the first, which at 1 kHz would put every node at ERROR while
+  the graph waits for its start (the node's own status says why it waits); and a first window of a few
+  milliseconds has no rate to speak of (2 messages in 3 ms: "Frequency too low."). Once started, a topic that
+  falls silent is ERROR "No events recorded." after a whole window, as there.
 * A tick is counted after the publisher accepted the message (diagnostic_updater ticks before publishing): a
   sample the transport failed to send is no event of the topic. Its delay is taken when ``publish`` is called.
 """
@@ -174,17 +175,23 @@ class TopicDiagnostic:
         self.name = topic + TOPIC_STATUS_SUFFIX
         self.freq = freq
         self.stamp = stamp
+        self.first_ns: int | None = None  # when the topic was first published
 
     @property
     def started(self) -> bool:
-        """The topic was published (reported from then on; the window starts at its first tick)."""
-        return self.freq.count > 0
+        """The topic was published (the window starts at its first tick)."""
+        return self.first_ns is not None
+
+    def ready(self, now_ns: int, min_window_ns: int) -> bool:
+        """Whether a report at ``now_ns`` has a window: the first publication at least ``min_window_ns`` ago."""
+        return self.first_ns is not None and now_ns - self.first_ns >= min_window_ns
 
     def tick(self, stamp_ns: int, now_ns: int) -> None:
         """A message stamped ``stamp_ns`` published at ``now_ns``."""
         freq = self.freq
         if not freq.count:
             freq.clear(now_ns)
+            self.first_ns = now_ns
         freq.count += 1
         self.stamp.tick(stamp_ns, now_ns)
 

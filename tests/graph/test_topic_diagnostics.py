@@ -135,9 +135,9 @@ def test_merge_summary_is_diagnostic_updaters():
 
 def test_topic_status_name_keys_and_merged_message():
     td = _topic()
-    assert td.name == "/dem/measurement topic status" and not td.started
+    assert td.name == "/dem/measurement topic status" and not td.started and not td.ready(T0, 0)
     t = _ticks(td, T0, 1.0, 1000.0)
-    assert td.started
+    assert td.started and td.ready(T0 + S // 2, S // 2) and not td.ready(T0 + S // 2 - 1, S // 2)
     level, message, values = td.run(t)
     assert (level, message) == (OK, "Desired frequency met; Timestamps are reasonable.")
     assert list(values) == FREQ_KEYS + STAMP_KEYS
@@ -187,6 +187,25 @@ def test_report_carries_each_published_topic_with_the_node_status_and_publish_do
     assert values["Target frequency (Hz)"] == "1000.000000" and values["Latest timestamp delay:"] == "0.000100"
     assert abs(float(values["Actual frequency (Hz)"]) - 1000.0) <= 1.0, values
     assert all(re.fullmatch(r"[a-z_]+: .+", s.name) for a in arrays for s in a)
+
+
+def test_a_topic_is_reported_once_its_first_message_is_half_a_period_old():
+    """Published from 0.8 s on, reports at 1 s, 2 s: the one at 1 s has no window to speak of (0.2 s) and leaves
+    the topic out; the one at 2 s has 1.2 s."""
+    bus = MemoryBus()
+    node = bus.node("probe")
+    arrays: list = []
+    bus.node("watcher").subscribe(contract.DIAGNOSTICS, lambda m: arrays.append(m.status))
+    d = Diagnostics(node, "probe: loop")
+    pub = d.diagnosed(contract.MEASUREMENT)
+    JS = node.msg("sensor_msgs/msg/JointState")
+    t_start = bus.now_ns + 800_000_000
+    node.timer(0.001, lambda: pub.publish(joint_state(JS, bus.now_ns)) if bus.now_ns >= t_start else None)
+    bus.advance(2.0)
+    assert [[s.name for s in a] for a in arrays] == [["probe: loop"], ["probe: loop",
+                                                                      "probe: /dem/measurement topic status"]]
+    values = {kv.key: kv.value for kv in arrays[-1][1].values}
+    assert values["Duration of window (s)"] == "1.200000" and values["Events in window"] == "1200", values
 
 
 def test_software_nodes_report_an_empty_hardware_id_and_a_topic_without_a_rate_is_refused():

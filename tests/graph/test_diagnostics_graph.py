@@ -74,6 +74,7 @@ def test_each_1khz_topic_has_its_topic_status_at_1000_hz(statuses, node, topic):
         assert list(values) == FREQ_KEYS + STAMP_KEYS, values
         assert values["Target frequency (Hz)"] == "1000.000000"
         assert values["Minimum acceptable frequency (Hz)"] == "900.000000"
+        assert float(values["Duration of window (s)"]) >= 0.5  # never a first window of a few ms
     # the report over the longest full-rate window (the first ones start at the node's first message; the last
     # ones may span the end of the run, when the plant stopped): within diagnostic_updater's 10 % of 1000 Hz
     level, message, values = max(reports, key=lambda r: int(r[2]["Events in window"]))

@@ -29,17 +29,55 @@ from dataclasses import dataclass, replace
 #: (Cyclone DDS maps higher ids to UDP ports that can collide with the ephemeral range on Linux/macOS)
 DOMAIN_ID_MAX = 101
 
-__all__ = ["CONTROLLER_STATE_NAMES", "FRAME", "FRAME_PREROLL", "HW_LOOP_STATUS", "LOOP_STATUS", "MAGNETS",
-           "RECORDER_STATUS", "REFERENCE_NAMES", "TOPICS", "QoS", "Topic", "markdown_table", "status_level"]
+__all__ = ["CONTROLLER_STATE_NAMES", "CONTROLLER_STATUS", "ESTIMATOR_STATUS", "FORMER_STATUS_NAMES", "FRAME",
+           "FRAME_PREROLL", "HW_LOOP_STATUS", "HW_STATE_STATUS", "INPUTS_TASK", "LOOP_STATUS", "MAGNETS",
+           "RECORDER_STATUS", "RECORDING_STATUS", "REFERENCE_NAMES", "REFERENCE_STATUS", "TOPICS",
+           "TOPIC_STATUS_SUFFIX", "QoS", "Topic", "inputs_status", "markdown_table", "status_level", "status_name",
+           "topic_status"]
 
 FRAME = "dem"
 FRAME_PREROLL = "dem/preroll"
+# -- /diagnostics: every status is named "<node>: <task>", as diagnostic_updater names a node's tasks
 #: the name of the plant's once-a-second loop status on /diagnostics (cycles, deadline misses, latency, epoch_ns)
 LOOP_STATUS = "plant_sim: loop"
 #: the hardware driver's loop status: the same keys, standing in for the plant's on a rig
 HW_LOOP_STATUS = "hw_driver: loop"
-#: the recorder's once-a-second status on /diagnostics (received / written / dropped); its silence is a lost recording
-RECORDER_STATUS = "recorder"
+#: the hardware driver's state (on /dem/hw/state, a DiagnosticStatus of its own)
+HW_STATE_STATUS = "hw_driver: state"
+#: the estimator's filter: type, convergence, gate and fault counters (ERROR on a sensor fault)
+ESTIMATOR_STATUS = "estimator: filter"
+#: the controller's law: its name and phase, the input checks' counters
+CONTROLLER_STATUS = "controller: law"
+#: the reference's schedule: where it is, refused measurements
+REFERENCE_STATUS = "reference: schedule"
+#: the reference node's watch on the recorder (ERROR, latched: the recorder went silent, the recording is lost)
+RECORDING_STATUS = "reference: recording"
+#: the recorder's once-a-second status (received / written / dropped); its silence is a lost recording
+RECORDER_STATUS = "recorder: bag"
+#: the task of each node's input bindings (nodes/common.Inputs): ``"<node>: inputs"``
+INPUTS_TASK = "inputs"
+#: a topic's frequency and timestamp status, diagnostic_updater's task name: ``"<node>: <topic> topic status"``
+TOPIC_STATUS_SUFFIX = " topic status"
+#: the names the statuses had before they followed the convention (bags recorded then): their names now
+FORMER_STATUS_NAMES = {"estimator": ESTIMATOR_STATUS, "controller": CONTROLLER_STATUS, "reference": REFERENCE_STATUS,
+                       "recording": RECORDING_STATUS, "recorder": RECORDER_STATUS}
+
+
+def inputs_status(node: str) -> str:
+    """The name of ``node``'s input status."""
+    return f"{node}: {INPUTS_TASK}"
+
+
+def topic_status(node: str, topic: str) -> str:
+    """The name of the frequency and timestamp status of ``topic`` as ``node`` publishes it."""
+    return f"{node}: {topic}{TOPIC_STATUS_SUFFIX}"
+
+
+def status_name(name: str) -> str:
+    """A status's name now, for a name as a bag recorded it (a former name: its name now; else itself)."""
+    return FORMER_STATUS_NAMES.get(name, name)
+
+
 MAGNETS = ("magnet_1", "magnet_2")
 #: y_d [m], y_d' [m/s], y_d'' [m/s^2], y_d''' [m/s^3] for both magnets.
 REFERENCE_NAMES = (
@@ -135,9 +173,10 @@ CONTROLLER_STATE = Topic(
 DIAGNOSTICS = Topic(
     "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", QOS_STREAM, 1.0, "every node",
     ("recorder", "rqt_robot_monitor"),
-    "one status per node at 1 Hz (named after the node; the loop's 'plant_sim: loop' / 'hw_driver: loop'): "
-    "counters, loop statistics (cycles, deadline misses, latency), rejected input; WARN after a counted "
-    "problem, ERROR on a fault (latched, published at once)",
+    "statuses named '<node>: <task>' at 1 Hz (e.g. 'plant_sim: loop', 'controller: law', '<node>: inputs'; "
+    "docs/manual/topics.md): counters, loop statistics (cycles, deadline misses, latency), rejected input; WARN "
+    "after a counted problem, ERROR on a fault (latched, published at once); and '<node>: <topic> topic status' "
+    "for each 1 kHz topic the node publishes (diagnostic_updater's frequency and timestamp keys)",
 )
 RUN_INFO = Topic(
     "/dem/run_info", "std_msgs/msg/String", QOS_LATCHED, None, "launcher",

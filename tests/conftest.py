@@ -63,6 +63,7 @@ GRAPH: frozenset[str] = frozenset({
     "transport/test_param_answers.py",
     "core/test_no_middleware.py",  # a clean interpreter probes the imports
     "graph/test_command_lock.py",
+    "graph/test_diagnostics_graph.py",
     "graph/test_composed.py",
     "graph/test_free_run.py",
     "graph/test_graph.py",

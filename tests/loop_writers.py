@@ -11,6 +11,10 @@ from dem_ros import contract
 WRITERS = {contract.MEASUREMENT.name: "plant_sim", contract.APPLIED.name: "plant_sim",
            contract.ESTIMATE.name: "estimator", contract.REFERENCE.name: "reference",
            contract.COMMAND.name: "controller"}
+#: the 1 kHz topics each node publishes (contract.TOPICS: publisher), each with its "<node>: <topic> topic status"
+STREAMS = {"plant_sim": (contract.MEASUREMENT, contract.APPLIED, contract.TRUTH),
+           "hw_driver": (contract.MEASUREMENT, contract.APPLIED), "estimator": (contract.ESTIMATE,),
+           "reference": (contract.REFERENCE,), "controller": (contract.COMMAND, contract.CONTROLLER_STATE)}
 
 
 def publish(bus: Any, topic: contract.Topic, msg: Any) -> None:

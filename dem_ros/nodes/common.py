@@ -9,7 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from ..contract import FRAME, MAGNETS
+from ..contract import FRAME, MAGNETS, inputs_status
+from .diagnostics import DiagnosedPublisher, FrequencyStatus, TimeStampStatus, TopicDiagnostic
 
 __all__ = [
     "ERROR",
@@ -26,6 +27,7 @@ __all__ = [
     "all_finite",
     "clipped",
     "diag_array",
+    "diag_status",
     "joint_state",
     "meas_array",
     "meas_into",
@@ -185,16 +187,14 @@ class LatencyStats:
         return {"p50": p50, "p99": p99, "max": self.max_ns / 1e3 if self.n else math.nan}
 
 
-def diag_array(cls_array: type, cls_status: type, cls_kv: type, t_ns: int, name: str, level: int, message: str,
-               values: dict) -> Any:
-    """diagnostic_msgs/DiagnosticArray with one status of key/value pairs."""
-    arr = cls_array()
-    set_stamp(arr, t_ns)
+def diag_status(cls_status: type, cls_kv: type, name: str, level: int, message: str, values: Mapping[str, Any],
+                hardware_id: str = "") -> Any:
+    """diagnostic_msgs/DiagnosticStatus of key/value pairs (``str()`` of each value)."""
     st = cls_status()
     st.level = bytes([level]) if isinstance(getattr(st, "level", b""), bytes) else level
     st.name = name
     st.message = message
-    st.hardware_id = "dem"
+    st.hardware_id = hardware_id
     kvs = []
     for k, v in values.items():
         kv = cls_kv()
@@ -202,7 +202,16 @@ def diag_array(cls_array: type, cls_status: type, cls_kv: type, t_ns: int, name:
         kv.value = str(v)
         kvs.append(kv)
     st.values = kvs
-    arr.status = [st]
+    return st
+
+
+def diag_array(cls_array: type, cls_status: type, cls_kv: type, t_ns: int, name: str, level: int, message: str,
+               values: Mapping[str, Any], hardware_id: str = "") -> Any:
+    """diagnostic_msgs/DiagnosticArray with one status of key/value pairs (``hardware_id``: empty for software,
+    as diagnostic_updater has it for a node without hardware; a driver's: its device)."""
+    arr = cls_array()
+    set_stamp(arr, t_ns)
+    arr.status = [diag_status(cls_status, cls_kv, name, level, message, values, hardware_id)]
     return arr
 
 
@@ -223,16 +232,27 @@ class Diagnostics:
       or a callback's exception count increased: the message names the counters and their increase since the previous
       report. A node that recovers goes back to OK; the counters keep the history.
 
-    ``name`` is the status name (default: the node's name); ``hardware_id`` is ``"dem"``.
+    ``name`` is the status name, ``"<node>: <task>"`` as diagnostic_updater names a node's tasks (the names are
+    in :mod:`dem_ros.contract`; default ``"<node>: status"``). ``hardware_id``: empty for a software node
+    (diagnostic_updater's for a node without a device); a driver's is its device's identity, known once the
+    device answered: set :attr:`hardware_id` then (every later report carries it).
+
+    Topics: :meth:`diagnosed` wraps a publisher of a topic with a nominal rate so that each message ticks its
+    ``"<node>: <topic> topic status"`` (frequency and timestamp, diagnostic_updater's keys:
+    :mod:`dem_ros.nodes.diagnostics`). :meth:`report` publishes them once a second with the node's status (the
+    node's timer, or the node's own once-a-second call when ``timer`` is False); :meth:`publish` (an event, a
+    fault) sends the node's status alone.
     """
 
     def __init__(self, node: Any, name: str | None = None, *, warn_on: Sequence[str] = (),
                  values: Callable[[], Mapping[str, Any]] | None = None, period_s: float = 1.0,
-                 timer: bool = True):
+                 timer: bool = True, hardware_id: str = ""):
         from ..contract import DIAGNOSTICS
 
         self.node = node
-        self.name = name or node.name
+        self.name = name or f"{node.name}: status"
+        self.hardware_id = hardware_id
+        self.topics: list[TopicDiagnostic] = []
         self.counters: dict[str, Any] = {}
         self.warn_on = tuple(warn_on)
         self.values = values
@@ -243,7 +263,25 @@ class Diagnostics:
         self._condition: tuple[int, str] = (OK, "")
         self._seen: dict[str, Any] = {}  # the warn_on counters and callback errors at the previous report
         self.reports = 0
-        self.timer = node.timer(period_s, self.publish) if timer else None
+        self.period_ns = round(period_s * 1e9)  # the reports' period (the node's own calls' when timer is False)
+        self.timer = node.timer(period_s, self.report) if timer else None
+
+    def diagnosed(self, topic: Any, publisher: Any = None, *, clock: Callable[[], int] | None = None,
+                  tolerance: float = 0.1, window_size: int = 5, min_delay_s: float = -1.0,
+                  max_delay_s: float = 5.0) -> DiagnosedPublisher:
+        """``publisher`` (default: the node's new publisher of ``topic``, a :class:`dem_ros.contract.Topic`) with
+        the status ``"<node>: <topic> topic status"``: each message published ticks it with its stamp and the
+        time of ``clock`` (default the node's ``now_ns``; a thread that outlives the node: ``time.time_ns``).
+        The frequency's target is the topic's ``rate_hz``; ``tolerance``, ``window_size`` (reports) and the
+        acceptable stamp delays [s] are diagnostic_updater's defaults."""
+        if not topic.rate_hz:
+            raise ValueError(f"{topic.name} has no nominal rate to diagnose")
+        rate = float(topic.rate_hz)
+        td = TopicDiagnostic(topic.name, FrequencyStatus(rate, rate, tolerance=tolerance, window_size=window_size),
+                             TimeStampStatus(min_delay_s, max_delay_s))
+        self.topics.append(td)
+        return DiagnosedPublisher(publisher if publisher is not None else self.node.publisher(topic), td,
+                                  clock or self.node.now_ns)
 
     def count(self, key: str, n: int = 1) -> int:
         """Add ``n`` to counter ``key`` (created at 0); its new value."""
@@ -302,15 +340,33 @@ class Diagnostics:
             message = "; ".join(m for m in (message, ", ".join(grew)) if m)
         return level, message or "ok", values
 
-    def publish(self, level: int | None = None, message: str = "", values: Mapping[str, Any] | None = None) -> None:
+    def publish(self, level: int | None = None, message: str = "", values: Mapping[str, Any] | None = None, *,
+                topics: bool = False) -> None:
         """Publish a report now: with the standing condition, or with ``level`` and ``message`` in its place
         (an event such as a landing, reported at once; a latched fault and grown counters still count);
-        ``values`` are published first, then the counters and ``values()`` not among them."""
+        ``values`` are published first, then the counters and ``values()`` not among them. ``topics``: with the
+        topics' statuses (:meth:`report`)."""
         lv, msg, vals = self.status(None if level is None else (int(level), message))
         if values is not None:
             vals = {**values, **{k: v for k, v in vals.items() if k not in values}}
         self.reports += 1
-        self._pub.publish(diag_array(*self._cls, self.node.now_ns(), self.name, lv, msg, vals))
+        now = self.node.now_ns()
+        arr = diag_array(*self._cls, now, self.name, lv, msg, vals, self.hardware_id)
+        if topics:
+            statuses = list(arr.status)
+            for td in self.topics:
+                if td.ready(now, self.period_ns // 2):  # a window of half a period at least
+                    t_level, t_message, t_values = td.run(now)
+                    statuses.append(diag_status(self._cls[1], self._cls[2], f"{self.node.name}: {td.name}", t_level,
+                                                t_message, t_values, self.hardware_id))
+            arr.status = statuses
+        self._pub.publish(arr)
+
+    def report(self, level: int | None = None, message: str = "", values: Mapping[str, Any] | None = None) -> None:
+        """The once-a-second report: the node's status as :meth:`publish` sends it, and in the same array the
+        status of every :meth:`diagnosed` topic first published at least half a period ago (its window moves on
+        by one report)."""
+        self.publish(level, message, values, topics=True)
 
 
 def _writer(gid: bytes) -> str:
@@ -555,7 +611,7 @@ class Inputs:
         self.attribute_ns = round(attribute_s * 1e9)
         self.bindings: list[Binding] = []
         self.refused_now: dict[tuple[str, bytes], str] = {}  # (topic, writer) -> why: refusals since the last report
-        self.diag = Diagnostics(node, f"{node.name}: inputs", warn_on=("malformed",), values=self.values,
+        self.diag = Diagnostics(node, inputs_status(node.name), warn_on=("malformed",), values=self.values,
                                 timer=False)
         node.timer(period_s, self.tick)
         node.timer(1.0, self.report)

@@ -84,9 +84,10 @@ class EstimatorNode:
         self.publishing = False  # the filter has converged since its (re)start (or started in the pre-roll)
         self.preroll_start = False  # the filter started on a pre-roll sample: published once the start is confirmed
         self.start: tuple[int, list[float]] | None = None  # (stamp, estimate) of the start awaiting its confirmation
-        # /diagnostics "estimator", once a second: WARN after rejected or dropped samples, ERROR on a sensor fault
+        # /diagnostics "estimator: filter", once a second: WARN after rejected or dropped samples, ERROR on a sensor
+        # fault; with "estimator: /dem/state_estimate topic status"
         gates = [f"gap{j}_{why}" for j in (1, 2) for why in ("out_of_range", "innovation")]
-        self.diag = Diagnostics(node, "estimator", values=self._values,
+        self.diag = Diagnostics(node, contract.ESTIMATOR_STATUS, values=self._values,
                                 warn_on=(*gates, "malformed", "non_finite", "unpaired", "updates_skipped",
                                          "reinitialised", "repeated"))
         self.counts = self.diag.counters
@@ -95,7 +96,7 @@ class EstimatorNode:
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
-        self.pub = node.publisher(contract.ESTIMATE)
+        self.pub = self.diag.diagnosed(contract.ESTIMATE)
         # the plant's streams, each bound to the plant's (or the driver's) writer (docs/manual/trust.md)
         self.inputs = Inputs(node)
         self.inputs.bind(contract.APPLIED, PLANT_SOURCES, self.on_applied)

@@ -82,12 +82,13 @@ class PlantSimNode:
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.MAGNETS)  # shared by every message published (never modified)
         self.names_truth = [*contract.MAGNETS, "mass"]
-        self.pub_meas = node.publisher(contract.MEASUREMENT)
-        self.pub_truth = node.publisher(contract.TRUTH)
-        self.pub_applied = node.publisher(contract.APPLIED)
-        # /diagnostics "plant_sim: loop": published by status() once a second and at once on board events
+        # /diagnostics "plant_sim: loop": published by status() once a second and at once on board events, with
+        # the "<topic> topic status" of the three streams once a second
         self.diag = Diagnostics(node, contract.LOOP_STATUS, warn_on=("commands_foreign",), values=self.stats,
                                 timer=False)
+        self.pub_meas = self.diag.diagnosed(contract.MEASUREMENT)
+        self.pub_truth = self.diag.diagnosed(contract.TRUTH)
+        self.pub_applied = self.diag.diagnosed(contract.APPLIED)
         self.source = CommandSource(node, c["command_source"], self.on_command)
         self.cmd_stamp = np.full(RING, -1, dtype=np.int64)  # stamp of the command held in each slot
         self.cmd_u = np.zeros((RING, 2))
@@ -330,7 +331,7 @@ class PlantSimNode:
         if self.finished:
             return
         if not self.started:
-            self.diag.publish()  # waiting for the command source (or discovery)
+            self.diag.report()  # waiting for the command source (or discovery)
             return
         s = self.stats()
         x = self.plant.x
@@ -341,7 +342,7 @@ class PlantSimNode:
               f"  holds {s['holds']}  board {s['board_mode']}{lat}  x{s['realtime_factor']:.2f} real time",
               flush=True)
         level = ERROR if s["landing"] else OK if s["deadline_misses"] == 0 and s["holds"] == 0 else WARN
-        self.diag.publish(level, "landing" if s["landing"] else "running", s)
+        self.diag.report(level, "landing" if s["landing"] else "running", s)
 
     def finish(self, message: str, level: int) -> None:
         self.finished = True

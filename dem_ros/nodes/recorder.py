@@ -50,7 +50,7 @@ class RecorderNode:
         # a deeper reader history than the contract's: a recorder stalled for a while (a busy host)
         # must not lose a burst of samples that its history would otherwise overwrite
         deep = [replace(t, qos=replace(t.qos, depth=max(t.qos.depth, RECORDER_DEPTH))) for t in topics]
-        # /diagnostics (status "recorder") once a second: received / written / dropped, WARN when samples
+        # /diagnostics (status "recorder: bag") once a second: received / written / dropped, WARN when samples
         # were dropped. A write failure (disk full) stops recording: logged at once from the writer thread,
         # latched as ERROR and published by a timer on the node's own thread within 0.1 s
         self._failure: str | None = None

@@ -16,9 +16,9 @@ resumes the schedule at the sample the plant is at (t = stamp - epoch), gliding 
 through M(s): the step times stay those of the experiment, never re-based to the restart.
 
 The recording is watched here, by a node that lives on the loop's path: the recorder reports on
-``/diagnostics`` once a second (status ``recorder``); this node checks once a second (its own timer,
-status ``recording``) whether a report came since its previous check. After the recorder has been
-seen, ``RECORDER_MISSED`` consecutive checks without a report latch ERROR on ``recording`` and log it,
+``/diagnostics`` once a second (status ``recorder: bag``); this node checks once a second (its own timer,
+status ``reference: recording``) whether a report came since its previous check. After the recorder has been
+seen, ``RECORDER_MISSED`` consecutive checks without a report latch ERROR on ``reference: recording`` and log it,
 with the experiment time of the recorder's last report: a recorder killed or hung loses the recording
 from there, and nobody else alive can say so (the bag ends without a word). Periods are counted, not
 wall seconds: after a stall of the host or the executor (seconds without either timer) this node's
@@ -70,15 +70,16 @@ class ReferenceNode:
         warm_up()  # kernels resident before we subscribe (no stale first samples)
         self.js = JointStates(node.msg("sensor_msgs/msg/JointState"))
         self.names = list(contract.REFERENCE_NAMES)  # shared by every message published (never modified)
-        self.pub = node.publisher(contract.REFERENCE)
-        # /diagnostics "reference" once a second: WARN after refused measurements and while resting after a restart
-        self.diag = Diagnostics(node, "reference", warn_on=("refused",), values=self._diag_values)
+        # /diagnostics "reference: schedule" once a second: WARN after refused measurements and while resting after
+        # a restart; with "reference: /dem/reference topic status"
+        self.diag = Diagnostics(node, contract.REFERENCE_STATUS, warn_on=("refused",), values=self._diag_values)
+        self.pub = self.diag.diagnosed(contract.REFERENCE)
         self.last_t: int | None = None  # stamp of the newest measurement [ns]
         self.recorder_seen: tuple[int, int | None] | None = None  # (our clock, newest stamp) at its last report
         self.recorder_reports = 0  # the recorder's reports received
         self._reports_checked = 0  # ... of which were there at the previous check
         self.recorder_missed = 0  # consecutive checks with no report since the one before
-        self.recording = Diagnostics(node, "recording", values=self._recording_values, timer=False)
+        self.recording = Diagnostics(node, contract.RECORDING_STATUS, values=self._recording_values, timer=False)
         node.timer(RECORDER_CHECK_S, self._check_recorder)
         # the plant's measurement, bound to the plant's (or the driver's) writer (docs/manual/trust.md)
         self.inputs = Inputs(node)
@@ -116,7 +117,7 @@ class ReferenceNode:
 
     def _check_recorder(self) -> None:
         """Once a second: did the recorder report since the previous check? ``RECORDER_MISSED`` checks in a row
-        without latch the fault (module docstring); then the status ``recording`` is published."""
+        without latch the fault (module docstring); then the status ``reference: recording`` is published."""
         seen = self.recorder_seen
         if seen is not None:
             if self.recorder_reports != self._reports_checked:

@@ -504,12 +504,13 @@ def _read_bag(bag: Path, measured: bool = False) -> dict[str, Any]:
         for log_ns, msg in decoded(r, contract.DIAGNOSTICS.name, contract.DIAGNOSTICS.type):
             for s in msg.status:
                 vals = {kv.key: kv.value for kv in s.values}
-                if s.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
+                name = contract.status_name(s.name)
+                if name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
                     loop = vals
                     if vals.get("epoch_ns", "").isdigit():
                         epoch = int(vals["epoch_ns"])
                 level = contract.status_level(s)
-                diags.append((log_ns, s.name, level, s.message, vals))
+                diags.append((log_ns, name, level, s.message, vals))
         truncated = r.truncated
     problems = [f"{n} recorded sample(s) of {topic} do not decode (the injected ones, recorded as sent)"
                 for topic, n in undecodable.items()]
@@ -524,6 +525,14 @@ def _worst_levels(statuses: Iterable[tuple[str, int]]) -> list[str]:
         if level >= 1:
             seen[name] = max(seen.get(name, 0), level)
     return [f"{n} {'WARN' if lv == 1 else 'ERROR'}" for n, lv in sorted(seen.items())]
+
+
+def _routine_warn(reported: str) -> bool:
+    """Whether a 'name LEVEL' of :func:`_worst_levels` (perhaps with " (live)") is a WARN that a lockstep run on a
+    loaded machine has without a fault: the plant's loop status (it waited), a topic's status (its rate fell)."""
+    text = reported.split(" (live)")[0]
+    name, _, level = text.rpartition(" ")
+    return level == "WARN" and (name == contract.LOOP_STATUS or name.endswith(contract.TOPIC_STATUS_SUFFIX))
 
 
 def _levels_after(diags: list[tuple], t_f: int) -> list[str]:
@@ -851,9 +860,9 @@ def _run_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, duratio
             lost.insert(0, f"recording lost from t = {j['recorded_s']:.3f} s (recorder killed)")
     data_lost = "; ".join(lost) or "none"
     # the plant's loop status is at WARN whenever it waited for a command or held (lockstep on a loaded
-    # machine: most runs); it counts as a report of the fault only at ERROR (a landing, a failure)
-    told = [d for d in j["diagnostics"]
-            if not (d.startswith(contract.LOOP_STATUS) and d.split(" (")[0].endswith("WARN"))]
+    # machine: most runs), and so is a topic's status whose rate fell 10 % short over its window; they count as
+    # a report of the fault only at ERROR (a landing, a failure; a topic silent for a whole window)
+    told = [d for d in j["diagnostics"] if not _routine_warn(d)]
     ok = j["outcome"] in spec.allowed and (bool(told) or bool(levels))
     sent = [f"{v} {k}" for k, v in inj.counts.items()]
     if spec.kill and spec.restart_after is not None:  # what the outage was, against the board's hold
@@ -910,7 +919,7 @@ def _run_hw_row(spec: FaultSpec, how: str, *, compose: bool, scenario: str, dura
         reported += "; launch: " + ", ".join(f"{e['node']} exited ({e['code']})" for e in exits)
     reported += f"; '{spec.reports[0]}' " + (f"in {', '.join(sorted(set(heard)))}" if heard else "NOT reported")
     sources = {"driver": j.get("loop", {}), "board": {**(rig or {}), **((rig or {}).get("supervisor") or {})},
-               "estimator": j["statuses"].get("estimator", {})}
+               "estimator": j["statuses"].get(contract.ESTIMATOR_STATUS, {})}
     counted_ok, counted, counts = _counted(spec, sources)
     hits = [f"{f['kind']} acted on {f['hits']} samples" for f in (rig or {}).get("faults", [])]
     if hits:

@@ -283,11 +283,12 @@ def load_run(bag: Path) -> tuple[RunMetrics, dict[str, Any]]:
     refusals: dict[str, tuple[int, str]] = {}  # node's inputs status -> (samples refused so far, its last ERROR)
     for _, log_ns, msg in r.messages([contract.DIAGNOSTICS.name]):
         for s in msg.status:
-            if s.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
+            name = contract.status_name(s.name)  # a bag recorded before the "<node>: <task>" names: its names now
+            if name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
                 loop_hist.append((log_ns, {kv.key: kv.value for kv in s.values}))
-            elif s.name.endswith(": inputs"):
+            elif name.endswith(": " + contract.INPUTS_TASK):
                 _note_refusals(refusals, s)
-            elif s.name == "controller":
+            elif name == contract.CONTROLLER_STATUS:
                 law = next((kv.value for kv in s.values if kv.key == "law"), "")
                 if law and (not laws or laws[-1] != law):
                     laws.append(law)

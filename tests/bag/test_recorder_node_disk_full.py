@@ -25,7 +25,8 @@ n = make_node("feeder", transport="dds", args=[])
 pub = n.publisher(contract.MEASUREMENT)
 JS = n.msg("sensor_msgs/msg/JointState")
 seen = []
-n.subscribe(contract.DIAGNOSTICS, lambda m: seen.extend(s for s in m.status if s.name == "recorder" and s.level == 2))
+n.subscribe(contract.DIAGNOSTICS,
+            lambda m: seen.extend(s for s in m.status if s.name == contract.RECORDER_STATUS and s.level == 2))
 end = time.monotonic() + 10
 while time.monotonic() < end and pub.subscription_count < 1:
     n.spin_once(0.05)

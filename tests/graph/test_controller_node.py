@@ -23,7 +23,8 @@ def _graph(*ros_args: str):
     probe.subscribe(contract.COMMAND, lambda m: cmds.__setitem__(stamp_ns(m), list(m.effort)))
     probe.subscribe(contract.CONTROLLER_STATE,
                     lambda m: states.__setitem__(stamp_ns(m), dict(zip(m.name, m.position, strict=True))))
-    probe.subscribe(contract.DIAGNOSTICS, lambda m: diags.append(m) if m.status[0].name == "controller" else None)
+    probe.subscribe(contract.DIAGNOSTICS,
+                    lambda m: diags.append(m) if m.status[0].name == contract.CONTROLLER_STATUS else None)
     return bus, ctl, cmds, states, diags
 
 

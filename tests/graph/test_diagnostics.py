@@ -29,7 +29,7 @@ def test_reports_once_a_second_with_counters_and_warns_only_after_an_increase():
     d = Diagnostics(node, warn_on=("rejected",), values=lambda: {"mode": "run"})
     d.counters["rejected"] = 0
     bus.advance(3.0)
-    assert [s[0] for s in seen] == [OK, OK, OK] and seen[-1][1] == "probe" and seen[-1][2] == "ok"
+    assert [s[0] for s in seen] == [OK, OK, OK] and seen[-1][1] == "probe: status" and seen[-1][2] == "ok"
     assert seen[-1][3] == {"mode": "run", "rejected": "0"}
     d.count("rejected", 3)
     bus.advance(1.0)
@@ -44,7 +44,7 @@ def test_a_fault_is_published_at_once_logged_once_and_latched():
     d = Diagnostics(node)
     d.set_condition(WARN, "converging")
     bus.advance(1.0)
-    assert seen[-1][:3] == (WARN, "probe", "converging")
+    assert seen[-1][:3] == (WARN, "probe: status", "converging")
     d.fault("sensor 1 stuck")
     d.fault("sensor 1 stuck")  # latched: not logged nor published again
     bus.spin_once()

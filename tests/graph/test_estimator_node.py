@@ -30,7 +30,8 @@ def _graph(*ros_args: str):
     probe = bus.node("probe")
     probe.subscribe(contract.ESTIMATE, lambda m: est.__setitem__(stamp_ns(m), list(m.position)))
     probe.subscribe(contract.DIAGNOSTICS, lambda m: diags.extend(
-        (_level(s), s.message, {kv.key: kv.value for kv in s.values}) for s in m.status if s.name == "estimator"))
+        (_level(s), s.message, {kv.key: kv.value for kv in s.values})
+        for s in m.status if s.name == contract.ESTIMATOR_STATUS))
     return bus, node, est, diags
 
 

@@ -93,7 +93,7 @@ def test_sigkill_leaves_a_bag_readable_up_to_its_last_chunk(tmp_path):
 
 def _recording_watch():
     """A reference node and the recorder's once-a-second reporter on one memory bus; the levels and
-    messages of the status 'recording' as published."""
+    messages of the status 'reference: recording' as published."""
     from dem_ros import contract
     from dem_ros.nodes.common import Diagnostics
     from dem_ros.nodes.reference import ReferenceNode
@@ -104,7 +104,7 @@ def _recording_watch():
     seen: list[tuple[int, str]] = []
     bus.node("probe").subscribe(contract.DIAGNOSTICS, lambda m: seen.extend(
         (s.level if isinstance(s.level, int) else int.from_bytes(bytes(s.level), "little"), s.message)
-        for s in m.status if s.name == "recording"))
+        for s in m.status if s.name == contract.RECORDING_STATUS))
     recorder = Diagnostics(bus.node("recorder"), contract.RECORDER_STATUS)  # the recorder node's reporter
     return bus, recorder, seen
 
@@ -137,8 +137,8 @@ def test_a_stall_of_the_host_is_not_a_dead_recorder():
 
 def test_a_silent_recorder_is_reported_on_diagnostics_by_the_reference_node():
     """A recorder killed or hung says nothing: the reference node, alive on the loop's path, latches ERROR on
-    the status 'recording' when the recorder's once-a-second report is missing at RECORDER_MISSED of its own
-    once-a-second checks in a row (2 to 3 s after its last report), and logs it."""
+    the status 'reference: recording' when the recorder's once-a-second report is missing at RECORDER_MISSED of
+    its own once-a-second checks in a row (2 to 3 s after its last report), and logs it."""
     from dem_ros.nodes.common import ERROR, OK
     from dem_ros.nodes.reference import RECORDER_MISSED
 

@@ -35,6 +35,26 @@ def test_a_recorded_offline_run_reads_back_to_the_figures_of_the_run(offline_run
     assert series["e"].shape == (1000, 2)
 
 
+def test_the_laws_are_read_from_the_controller_status_by_its_name_now_and_its_former_name(offline_run, tmp_path,
+                                                                                          monkeypatch):
+    """A bag recorded before the statuses were named "<node>: <task>" (the controller's was "controller") is still
+    a dem_ros run: its laws are read from either name (here one of each, in order)."""
+    from dem_ros import contract
+    from dem_ros.nodes import common
+
+    real = common.diag_array
+
+    def with_controller_statuses(DA, DS, KV, t_ns, *args, **kw):
+        arr = real(DA, DS, KV, t_ns, *args, **kw)
+        arr.status = [*arr.status, *(common.diag_status(DS, KV, name, 0, "ok", {"law": law}) for name, law in
+                                     (("controller", "adaptive"), (contract.CONTROLLER_STATUS, "paper")))]
+        return arr
+
+    monkeypatch.setattr(common, "diag_array", with_controller_statuses)
+    read, _ = load_run(record_result(offline_run, tmp_path))
+    assert read.controllers_used == ["adaptive", "paper"]
+
+
 def test_the_table_and_the_json_carry_the_same_figures(offline_run):
     m = RunMetrics.from_sim(offline_run)
     m.loop = LoopStats(cycles=1000, deadline_misses=3, latency_us={"p50": 120.0, "p99": 480.0, "max": 900.0},

@@ -224,8 +224,9 @@ class EstimatorNode:
         if kf is not None:
             if not started and kf.started:
                 self.preroll_start = msg.header.frame_id == contract.FRAME_PREROLL
-            if self.preroll_start and kf.confirmed:
+            if self.preroll_start and kf.confirmed and not self.publishing:
                 self.publishing = True  # started in the pre-roll: the plate hovers in equilibrium, as the filter starts
+                self.diag.set_condition(OK)  # no longer "converging"
             self._check(kf)
             start, self.start = self.start, None
             if not kf.confirmed and (not started or kf.unconfirmed_starts != restarts):

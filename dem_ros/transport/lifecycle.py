@@ -37,11 +37,13 @@ from __future__ import annotations
 import enum
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
-from ..contract import QoS
+from ..contract import QoS, Topic
 
-__all__ = ["DEFERRED", "EVENT_QOS", "GRAPH", "RESULTS", "STATES", "TRANSITIONS", "CallbackAnswer", "CallbackResult",
-           "LifecycleError", "LifecycleMachine", "TransitionEvent", "describe", "requested"]
+__all__ = ["DEFERRED", "EVENT_QOS", "GRAPH", "RESULTS", "SERVICES", "STATES", "TRANSITIONS", "CallbackAnswer",
+           "CallbackResult", "LifecycleError", "LifecycleInterface", "LifecycleMachine", "TransitionEvent",
+           "describe", "event_topic", "requested"]
 
 
 class LifecycleError(ValueError):
@@ -74,6 +76,14 @@ STATES: Mapping[int, str] = {
 PRIMARY = (1, 2, 3, 4)
 #: ``~/transition_event``'s QoS (rcl_lifecycle's publisher: the default profile, reliable, volatile, depth 10)
 EVENT_QOS = QoS(reliable=True, transient_local=False, depth=10)
+#: the managed-node services: name under the node -> ROS service type (rcl_lifecycle's)
+SERVICES: Mapping[str, str] = {
+    "get_state": "lifecycle_msgs/srv/GetState",
+    "change_state": "lifecycle_msgs/srv/ChangeState",
+    "get_available_states": "lifecycle_msgs/srv/GetAvailableStates",
+    "get_available_transitions": "lifecycle_msgs/srv/GetAvailableTransitions",
+    "get_transition_graph": "lifecycle_msgs/srv/GetAvailableTransitions",
+}
 
 
 @dataclass(frozen=True)
@@ -283,3 +293,69 @@ class LifecycleMachine:
         self.state = t.via
         self.finish(CallbackResult.ERROR)
         return True
+
+
+def event_topic(node_fqn: str) -> Topic:
+    """``<node>/transition_event`` (``~/transition_event``) of the node ``node_fqn`` (``/ns/name``)."""
+    return Topic(node_fqn.rstrip("/") + "/transition_event", "lifecycle_msgs/msg/TransitionEvent", EVENT_QOS, None,
+                 "a managed node (hw_driver)", ("ros2 lifecycle echo",), "each step of the node's state machine")
+
+
+class LifecycleInterface:
+    """The answers of the managed-node services for one machine, built with a transport's lifecycle_msgs classes
+    (the IDL ones of :mod:`dem_ros.transport.dds.lifecycle_msgs`, or rclpy's rosidl ones): a transport registers
+    each method as the service of the same name (:data:`SERVICES`) and publishes :meth:`event` of each step.
+
+    ``log(text)``: where a refused request is said (the node's logger, WARN).
+    """
+
+    def __init__(self, machine: LifecycleMachine, *, State: Any, Transition: Any, TransitionDescription: Any,
+                 TransitionEvent: Any, log: Callable[[str], None]):
+        self.machine = machine
+        self.State, self.Transition, self.Description, self.Event = State, Transition, TransitionDescription, \
+            TransitionEvent
+        self.log = log
+
+    def _descriptions(self, edges: Iterable[tuple[int, str, int, int]]) -> list[Any]:
+        return [self.Description(transition=self.Transition(id=tid, label=label),
+                                 start_state=self.State(id=start, label=slabel),
+                                 goal_state=self.State(id=goal, label=glabel))
+                for tid, label, start, slabel, goal, glabel in describe(edges)]
+
+    def get_state(self, req: Any, rep: Any) -> Any:
+        rep.current_state = self.State(id=self.machine.state, label=self.machine.label)
+        return rep
+
+    def get_available_states(self, req: Any, rep: Any) -> Any:
+        rep.available_states = [self.State(id=sid, label=label) for sid, label in STATES.items()]
+        return rep
+
+    def get_available_transitions(self, req: Any, rep: Any) -> Any:
+        rep.available_transitions = self._descriptions(self.machine.available_edges())
+        return rep
+
+    def get_transition_graph(self, req: Any, rep: Any) -> Any:
+        rep.available_transitions = self._descriptions(GRAPH)
+        return rep
+
+    def change_state(self, req: Any, rep: Any, send: Callable[[], None]) -> None:
+        """Request the transition; ``send()`` the response (``success``: the goal reached) when it ends: at once,
+        or when the node finishes a DEFERRED one. A request not valid now is answered false at once."""
+
+        def done(reached: bool) -> None:
+            rep.success = reached
+            send()
+
+        try:
+            self.machine.request(requested(req.transition.id, req.transition.label), done)
+        except LifecycleError as exc:
+            self.log(f"change_state refused: {exc}")
+            rep.success = False
+            send()
+
+    def event(self, e: TransitionEvent) -> Any:
+        """The ``lifecycle_msgs/msg/TransitionEvent`` of one step."""
+        return self.Event(timestamp=e.timestamp_ns, transition=self.Transition(id=e.transition_id,
+                                                                               label=e.transition_label),
+                          start_state=self.State(id=e.start, label=STATES[e.start]),
+                          goal_state=self.State(id=e.goal, label=STATES[e.goal]))

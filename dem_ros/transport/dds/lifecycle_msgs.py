@@ -16,8 +16,8 @@ service                            type                                        r
 =================================  ==========================================  ==============================
 
 and the topic ``~/transition_event`` (``lifecycle_msgs/msg/TransitionEvent``, reliable, volatile).
-:data:`SERVICE_CLASSES` has the same shape as :data:`.srvs.SERVICE_CLASSES`, to be merged into it when a
-node serves them (see :mod:`dem_ros.transport.lifecycle` for the state machine and the plan).
+:data:`SERVICE_CLASSES` is merged into :data:`.srvs.SERVICE_CLASSES` (the dds node serves them, the dds client calls
+them); the state machine and the answers: :mod:`dem_ros.transport.lifecycle`.
 """
 
 from dataclasses import dataclass, field
@@ -26,6 +26,7 @@ from typing import Any
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import int64, sequence, uint8, uint64
 
+from .. import lifecycle
 from . import msgs
 
 __all__ = ["MESSAGES", "SERVICES", "SERVICE_CLASSES"]
@@ -137,13 +138,7 @@ MESSAGES: dict[str, type[Any]] = {
 }
 
 #: service name suffix -> ROS service type
-SERVICES: dict[str, str] = {
-    "get_state": "lifecycle_msgs/srv/GetState",
-    "change_state": "lifecycle_msgs/srv/ChangeState",
-    "get_available_states": "lifecycle_msgs/srv/GetAvailableStates",
-    "get_available_transitions": "lifecycle_msgs/srv/GetAvailableTransitions",
-    "get_transition_graph": "lifecycle_msgs/srv/GetAvailableTransitions",
-}
+SERVICES: dict[str, str] = dict(lifecycle.SERVICES)
 
 #: ROS service type -> (request class, response class)
 SERVICE_CLASSES: dict[str, tuple[type[Any], type[Any]]] = {

@@ -400,7 +400,13 @@ SERVICES: dict[str, tuple[str, type[Any], type[Any]]] = {
 
 
 def message_class(ros_type: str) -> type[Any]:
-    """The IDL class for a ROS type name such as ``sensor_msgs/msg/JointState``."""
+    """The IDL class for a ROS type name such as ``sensor_msgs/msg/JointState`` (lifecycle_msgs' from
+    :mod:`.lifecycle_msgs`, which builds on this module)."""
+    if ros_type.startswith("lifecycle_msgs/msg/"):
+        from .lifecycle_msgs import MESSAGES as LIFECYCLE
+
+        if ros_type in LIFECYCLE:
+            return LIFECYCLE[ros_type]
     try:
         return MESSAGES[ros_type]
     except KeyError:

@@ -57,7 +57,8 @@ _SRV_DEFS = {
     "lifecycle_msgs/srv/GetAvailableStates_Request": "",
     "lifecycle_msgs/srv/GetAvailableStates_Response": "lifecycle_msgs/State[] available_states",
     "lifecycle_msgs/srv/GetAvailableTransitions_Request": "",
-    "lifecycle_msgs/srv/GetAvailableTransitions_Response": "lifecycle_msgs/TransitionDescription[] available_transitions",
+    "lifecycle_msgs/srv/GetAvailableTransitions_Response":
+        "lifecycle_msgs/TransitionDescription[] available_transitions",
 }
 
 

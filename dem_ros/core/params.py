@@ -501,8 +501,13 @@ SCHEMA = Schema(
             ParamSpec("late_threshold", float, 1e-3, "s", "a sensor frame received later than this after its sample is counted late", 1e-6, 1.0),
             ParamSpec("clock_sync_frames", int, 200, "", "frames whose minimum (receive - board time) sets the fixed board -> ROS time offset", 1, 100000),
             ParamSpec("arm_samples", int, 200, "samples", "armed -> active after this many consecutive controller commands in time (the loop proves itself live before the board gets a command)", 1, 100000),
-            ParamSpec("auto_arm", bool, False, "", "arm at start-up (the launcher's emulated runs): the managed node goes on from inactive to active once the board answered; false: wait for 'dem-ros hw arm' or a lifecycle activate"),
-            ParamSpec("transition_timeout", float, 5.0, "s", "a requested lifecycle transition that waits on the board fails after this: configure (its hello) goes back to unconfigured, deactivate and shutdown (its LANDED) go through errorprocessing; the start-up configure waits as long as it takes", 0.1, 600.0),
+            ParamSpec("auto_arm", bool, False, "",
+                      "arm at start-up (the launcher's emulated runs): the managed node goes on from inactive to active"
+                      " once the board answered; false: wait for 'dem-ros hw arm' or a lifecycle activate"),
+            ParamSpec("transition_timeout", float, 5.0, "s",
+                      "a requested lifecycle transition that waits on the board fails after this: configure (its hello)"
+                      " goes back to unconfigured, deactivate and shutdown (its LANDED) go through errorprocessing; the"
+                      " start-up configure waits as long as it takes", 0.1, 600.0),
             ParamSpec("preroll", float, 1.0, "s", "levitate in closed loop this long after becoming active before t = 0 (frame_id dem/preroll)", 0.0, 600.0),
             ParamSpec("duration", float, 0.0, "s", "land and stop this long after t = 0 (0: run until stopped)", 0.0, 1e7),
         ),

@@ -275,8 +275,9 @@ class HwDriverNode:
             elif down:
                 result = CallbackResult.SUCCESS
             if result is None and deadline is not None and time.monotonic() > deadline:
-                self.node.logger.error(f"{STATES[m.state]}: no {'hello from the board' if what == 'hello' else 'LANDED'}"
-                                       f" within transition_timeout = {self.cfg['transition_timeout']:g} s")
+                awaited = "hello from the board" if what == "hello" else "LANDED"
+                self.node.logger.error(f"{STATES[m.state]}: no {awaited} within transition_timeout ="
+                                       f" {self.cfg['transition_timeout']:g} s")
                 # a landing not confirmed is an error: a failed deactivate would claim a levitating plate again
                 result = CallbackResult.FAILURE if what == "hello" else CallbackResult.ERROR
             if result is None:

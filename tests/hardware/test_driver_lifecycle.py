@@ -4,8 +4,9 @@ board on loopback UDP (its real link thread; no process, no DDS).
 The board here is a few lines: it answers a hello request (and then streams to the sender, as the real one does),
 takes up RUN on a RUN command, LAND on a LAND command while levitating and reports LANDED ``land_frames`` samples
 later, and OFF on an OFF command once down. It samples every 5 ms (its clock says 1 ms) with a command delay of 8
-samples, so the test's controller, run by the test's thread, answers in time on a loaded machine. Time: the node's timers run on the bus's clock
-(``bus.advance``); what a transition waits for (the board's answers) and its deadline are real time.
+samples, so the test's controller, run by the test's thread, answers in time on a loaded machine. Time: the
+node's timers run on the bus's clock (``bus.advance``); what a transition waits for (the board's answers) and its
+deadline are real time.
 """
 
 from __future__ import annotations
@@ -91,8 +92,9 @@ class Rig:
     def __init__(self, board: Board, **params: object) -> None:
         self.board = board
         self.bus = MemoryBus()
-        args = ["--ros-args", "-p", f"url:=udp://127.0.0.1:{board.port}", "-p", "clock_sync_frames:=5", "-p", f"command_delay:={DELAY}",
-                "-p", "arm_samples:=5", "-p", "link_timeout:=5.0", "-p", "hold_timeout:=1.0"]
+        args = ["--ros-args", "-p", f"url:=udp://127.0.0.1:{board.port}", "-p", "clock_sync_frames:=5",
+                "-p", f"command_delay:={DELAY}", "-p", "arm_samples:=5",
+                "-p", "link_timeout:=5.0", "-p", "hold_timeout:=1.0"]
         for k, v in params.items():
             args += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
         self.node = self.bus.node("hw_driver", args)
@@ -186,8 +188,8 @@ def test_without_auto_arm_it_waits_inactive_and_the_services_answer(make_rig):
     rig.run_until(lambda: rig.hw.machine.label == "inactive")
     assert rig.hw.drv.state == DriverState.INACTIVE and rig.board.mode == Mode.OFF
     av = rig.bus.call("/hw_driver/get_available_transitions").available_transitions
-    assert [(t.transition.label, t.goal_state.label) for t in av] == [("cleanup", "cleaningup"), ("activate", "activating"),
-                                                                     ("shutdown", "shuttingdown")]
+    assert [(t.transition.label, t.goal_state.label) for t in av] == [
+        ("cleanup", "cleaningup"), ("activate", "activating"), ("shutdown", "shuttingdown")]
     assert len(rig.bus.call("/hw_driver/get_transition_graph").available_transitions) == 25
     assert len(rig.bus.call("/hw_driver/get_available_states").available_states) == 11
     assert not rig.change("deactivate").success and rig.state() == "inactive"  # not valid from inactive

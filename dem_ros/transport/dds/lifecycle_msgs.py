@@ -1,7 +1,8 @@
 """lifecycle_msgs as Cyclone DDS IDL structs: the managed-node interface on the dds transport.
 
-Same rules as :mod:`.msgs` (final structs, real annotations: no ``from __future__ import annotations``);
-service requests and replies carry rmw_cyclonedds' (guid, seq) header in front of the ROS fields.
+Same rules as :mod:`.msgs` (final structs, real annotations: no ``from __future__ import annotations``), whose
+table lists these messages too; service requests and replies carry rmw_cyclonedds' (guid, seq) header in front
+of the ROS fields.
 
 The services of a managed node ``/ns/node`` (what ``ros2 lifecycle`` calls):
 
@@ -27,26 +28,26 @@ from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import int64, sequence, uint8, uint64
 
 from .. import lifecycle
-from . import msgs
+from .fastcdr import strict
 
 __all__ = ["MESSAGES", "SERVICES", "SERVICE_CLASSES"]
 
 
-@msgs.strict
+@strict
 @dataclass
 class State(IdlStruct, typename="lifecycle_msgs::msg::dds_::State_"):
     id: uint8 = 0
     label: str = ""
 
 
-@msgs.strict
+@strict
 @dataclass
 class Transition(IdlStruct, typename="lifecycle_msgs::msg::dds_::Transition_"):
     id: uint8 = 0
     label: str = ""
 
 
-@msgs.strict
+@strict
 @dataclass
 class TransitionDescription(IdlStruct, typename="lifecycle_msgs::msg::dds_::TransitionDescription_"):
     transition: Transition = field(default_factory=Transition)
@@ -54,7 +55,7 @@ class TransitionDescription(IdlStruct, typename="lifecycle_msgs::msg::dds_::Tran
     goal_state: State = field(default_factory=State)
 
 
-@msgs.strict
+@strict
 @dataclass
 class TransitionEvent(IdlStruct, typename="lifecycle_msgs::msg::dds_::TransitionEvent_"):
     timestamp: uint64 = 0
@@ -63,7 +64,7 @@ class TransitionEvent(IdlStruct, typename="lifecycle_msgs::msg::dds_::Transition
     goal_state: State = field(default_factory=State)
 
 
-@msgs.strict
+@strict
 @dataclass
 class GetState_Request(IdlStruct, typename="lifecycle_msgs::srv::dds_::GetState_Request_"):
     guid: uint64 = 0
@@ -71,7 +72,7 @@ class GetState_Request(IdlStruct, typename="lifecycle_msgs::srv::dds_::GetState_
     structure_needs_at_least_one_member: uint8 = 0  # an empty ROS request
 
 
-@msgs.strict
+@strict
 @dataclass
 class GetState_Response(IdlStruct, typename="lifecycle_msgs::srv::dds_::GetState_Response_"):
     guid: uint64 = 0
@@ -79,7 +80,7 @@ class GetState_Response(IdlStruct, typename="lifecycle_msgs::srv::dds_::GetState
     current_state: State = field(default_factory=State)
 
 
-@msgs.strict
+@strict
 @dataclass
 class ChangeState_Request(IdlStruct, typename="lifecycle_msgs::srv::dds_::ChangeState_Request_"):
     guid: uint64 = 0
@@ -87,7 +88,7 @@ class ChangeState_Request(IdlStruct, typename="lifecycle_msgs::srv::dds_::Change
     transition: Transition = field(default_factory=Transition)
 
 
-@msgs.strict
+@strict
 @dataclass
 class ChangeState_Response(IdlStruct, typename="lifecycle_msgs::srv::dds_::ChangeState_Response_"):
     guid: uint64 = 0
@@ -95,7 +96,7 @@ class ChangeState_Response(IdlStruct, typename="lifecycle_msgs::srv::dds_::Chang
     success: bool = False
 
 
-@msgs.strict
+@strict
 @dataclass
 class GetAvailableStates_Request(IdlStruct, typename="lifecycle_msgs::srv::dds_::GetAvailableStates_Request_"):
     guid: uint64 = 0
@@ -103,7 +104,7 @@ class GetAvailableStates_Request(IdlStruct, typename="lifecycle_msgs::srv::dds_:
     structure_needs_at_least_one_member: uint8 = 0
 
 
-@msgs.strict
+@strict
 @dataclass
 class GetAvailableStates_Response(IdlStruct, typename="lifecycle_msgs::srv::dds_::GetAvailableStates_Response_"):
     guid: uint64 = 0
@@ -111,7 +112,7 @@ class GetAvailableStates_Response(IdlStruct, typename="lifecycle_msgs::srv::dds_
     available_states: sequence[State] = field(default_factory=list)
 
 
-@msgs.strict
+@strict
 @dataclass
 class GetAvailableTransitions_Request(IdlStruct,
                                       typename="lifecycle_msgs::srv::dds_::GetAvailableTransitions_Request_"):
@@ -120,7 +121,7 @@ class GetAvailableTransitions_Request(IdlStruct,
     structure_needs_at_least_one_member: uint8 = 0
 
 
-@msgs.strict
+@strict
 @dataclass
 class GetAvailableTransitions_Response(IdlStruct,
                                        typename="lifecycle_msgs::srv::dds_::GetAvailableTransitions_Response_"):

@@ -309,8 +309,8 @@ class RclpyNode:
         topic = event_topic(self.fully_qualified_name)
         events = self._node.create_publisher(lm.TransitionEvent, topic.name, to_qos_profile(topic.qos))
         machine.listeners.append(lambda e: events.publish(iface.event(e)))
-        types = {"get_state": ls.GetState, "change_state": ls.ChangeState, "get_available_states": ls.GetAvailableStates,
-                 "get_available_transitions": ls.GetAvailableTransitions,
+        types = {"get_state": ls.GetState, "change_state": ls.ChangeState,
+                 "get_available_states": ls.GetAvailableStates, "get_available_transitions": ls.GetAvailableTransitions,
                  "get_transition_graph": ls.GetAvailableTransitions}
         for name, srv_type in types.items():
             if name == "change_state":

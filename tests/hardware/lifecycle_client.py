@@ -1,4 +1,4 @@
-"""A lifecycle client of ``/hw_driver`` in a process of its own (``python lifecycle_client.py rclpy|dds DOMAIN``).
+"""A lifecycle client of ``/hw_driver`` in a process of its own (``python lifecycle_client.py rclpy|dds|nodes DOMAIN``).
 
 ``rclpy``: a stock client, plain rclpy and the Jazzy wheels' lifecycle_msgs / diagnostic_msgs on Fast DDS, as
 ``ros2 lifecycle get|list|set`` calls the node. ``dds``: the project's dds client (rmw_cyclonedds' wire), for a
@@ -11,6 +11,10 @@ get_available_transitions, change_state deactivate (answered once the board has 
 change_state activate, get_state, wait until the board runs the controller's commands again. Each step is a
 ``STEP {json}`` line; the last line is ``RESULT {json}`` with every step, the transition events heard and an
 ``error`` if one came.
+
+``nodes``: what ``ros2 lifecycle nodes`` does, with stock rclpy on Fast DDS (the graph crosses vendors, the
+service calls do not): the nodes that serve ``<node>/get_state`` of type ``lifecycle_msgs/srv/GetState``, and
+``/hw_driver``'s lifecycle services with their types (``RESULT {json}``).
 """
 
 from __future__ import annotations
@@ -153,8 +157,33 @@ def wait(c: Any, cond: Callable[[], bool], timeout_s: float, what: str) -> None:
         raise TimeoutError(f"{what} not within {timeout_s:g} s (driver: {c.latest})")
 
 
+def lifecycle_nodes(domain: int) -> int:
+    """``ros2 lifecycle nodes`` (ros2lifecycle's ``_get_lifecycle_node_names``) and /hw_driver's services."""
+    import rclpy
+
+    rclpy.init(args=[], domain_id=domain)
+    node = rclpy.create_node("stock_lifecycle_nodes")
+    out: dict[str, Any] = {}
+    end = time.monotonic() + 60.0
+    while time.monotonic() < end:
+        services = dict(node.get_service_names_and_types())
+        names = [f"{ns.rstrip('/')}/{n}" for n, ns in node.get_node_names_and_namespaces()]
+        out = {"nodes": sorted(n for n in names if "lifecycle_msgs/srv/GetState" in services.get(f"{n}/get_state", [])),
+               "services": {k: v for k, v in services.items() if k.startswith("/hw_driver/")
+                            and any(t.startswith("lifecycle_msgs/") for t in v)}}
+        if len(out["services"]) == 5:
+            break
+        time.sleep(0.2)
+    print("RESULT " + json.dumps(out), flush=True)
+    node.destroy_node()
+    rclpy.shutdown()
+    return 0
+
+
 def main() -> int:
     via, domain = sys.argv[1], int(sys.argv[2])
+    if via == "nodes":
+        return lifecycle_nodes(domain)
     c = RclpyClient(domain) if via == "rclpy" else DdsClient(domain)
     out: dict[str, Any] = {"steps": []}
 

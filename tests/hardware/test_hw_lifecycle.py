@@ -8,8 +8,9 @@ the driver armed at start (``auto_arm``: the node configures itself, then activa
 project's dds client (a Fast DDS client's calls do not reach a Cyclone DDS node's services: see its docstring).
 It waits until the plate levitates, asks get_state (active) and get_available_transitions, deactivates (answered
 once the board reports LANDED: inactive), activates (active) and waits until the board runs the controller's
-commands again (the controller saw the plate resting and lifts it off). Then the driver is stopped (SIGINT) once
-the controller's lift-off is done: it lands the plate and the run ends.
+commands again (the controller saw the plate resting and lifts it off). Then what ``ros2 lifecycle nodes`` does
+(stock rclpy, on either transport: discovery crosses vendors) finds ``/hw_driver`` and its five services. The
+driver is stopped (SIGINT) once the controller's lift-off is done: it lands the plate and the run ends.
 
 Settings as tests/hardware/test_hw_restart.py (a loaded 2-core machine): command delay 4 samples, the driver's own
 watchdogs 0.3 s (the board's 50 ms stay what lands the plate on a real stall).
@@ -58,6 +59,8 @@ class Script:
         self.start = time.monotonic()
         self.client: subprocess.Popen | None = None
         self.out = workdir.parent / f"client-{via}.log"
+        self.nodes: subprocess.Popen | None = None  # then `ros2 lifecycle nodes`, stock rclpy
+        self.nodes_out = workdir.parent / "client-nodes.log"
         self.phase = "client"
         self.first_landing: dict | None = None  # the board's status once it has landed the plate the first time
         self.lifted: dict | None = None  # the board's status once the plate is off its support after the activate
@@ -76,11 +79,12 @@ class Script:
         if self.phase != "client" and self.lifted is None and flying and st.get("landings", 0) == 1:
             self.lifted = st
         if self.client is None:
-            env = dict(os.environ, PYTHONPATH=str(ROOT), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-            with open(self.out, "w") as log:
-                self.client = subprocess.Popen([sys.executable, str(CLIENT), self.via, str(self.domain)], cwd=ROOT,
-                                               env=env, stdout=log, stderr=subprocess.STDOUT)
+            self.client = self._start(self.via, self.out)
         elif self.phase == "client" and (self.client.poll() is not None or time.monotonic() - self.start > LIMIT_S):
+            self.phase = "nodes"
+            self.nodes = self._start("nodes", self.nodes_out)
+        elif self.phase == "nodes" and (self.nodes is None or self.nodes.poll() is not None
+                                        or time.monotonic() - self.start > LIMIT_S):
             self.phase = "lift-off"
         elif self.phase == "lift-off" and ((self._liftoffs() >= 1 and self.lifted is not None)
                                            or time.monotonic() - self.start > LIMIT_S):
@@ -88,14 +92,22 @@ class Script:
             procs["hw_driver"].send_signal(signal.SIGINT)  # the driver lands the plate, then exits: the run ends
         return set()
 
-    def close(self) -> None:
-        if self.client is not None and self.client.poll() is None:
-            self.client.kill()
-        if self.client is not None:
-            self.client.wait(timeout=30)
+    def _start(self, via: str, out: Path) -> subprocess.Popen:
+        env = dict(os.environ, PYTHONPATH=str(ROOT), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+        with open(out, "w") as log:
+            return subprocess.Popen([sys.executable, str(CLIENT), via, str(self.domain)], cwd=ROOT, env=env,
+                                    stdout=log, stderr=subprocess.STDOUT)
 
-    def result(self) -> dict:
-        lines = self.out.read_text(errors="replace").splitlines() if self.out.exists() else []
+    def close(self) -> None:
+        for p in (self.client, self.nodes):
+            if p is not None and p.poll() is None:
+                p.kill()
+            if p is not None:
+                p.wait(timeout=30)
+
+    def result(self, out: Path | None = None) -> dict:
+        out = out or self.out
+        lines = out.read_text(errors="replace").splitlines() if out.exists() else []
         for line in reversed(lines):
             if line.startswith("RESULT "):
                 return json.loads(line[len("RESULT "):])
@@ -104,8 +116,7 @@ class Script:
 
 @pytest.mark.parametrize("transport", ["dds", "rclpy"])
 def test_a_lifecycle_client_lands_and_lifts_off_the_plate_over_udp(tmp_path, domain_id, transport):
-    if transport == "rclpy":
-        pytest.importorskip("rclpy", reason="rclpy not importable: pip install -e '.[ros]'")
+    pytest.importorskip("rclpy", reason="rclpy not importable: pip install -e '.[ros]' (the stock clients)")
     cfg = get_scenario("S1").config()
     cfg["plant_sim"]["measure_velocity"] = False  # a rig has no gap-rate sensors
     for g in ("controller", "hw_driver", "plant_sim"):
@@ -138,6 +149,15 @@ def test_a_lifecycle_client_lands_and_lifts_off_the_plate_over_udp(tmp_path, dom
                        (30, "activating", "active")], res["events"]
     assert [e["label"] for e in res["events"][:4]] == ["deactivate", "transition_success", "activate",
                                                        "transition_success"]
+    # `ros2 lifecycle nodes` (stock rclpy, Fast DDS) finds /hw_driver and its five services, on either transport
+    nodes = script.result(script.nodes_out)
+    assert "/hw_driver" in nodes.get("nodes", []), nodes
+    assert nodes["services"] == {
+        "/hw_driver/get_state": ["lifecycle_msgs/srv/GetState"],
+        "/hw_driver/change_state": ["lifecycle_msgs/srv/ChangeState"],
+        "/hw_driver/get_available_states": ["lifecycle_msgs/srv/GetAvailableStates"],
+        "/hw_driver/get_available_transitions": ["lifecycle_msgs/srv/GetAvailableTransitions"],
+        "/hw_driver/get_transition_graph": ["lifecycle_msgs/srv/GetAvailableTransitions"]}, nodes
     assert script.phase == "stop", (script.phase, logs)
     # the board: the deactivate's landing was the driver's LAND request; after the activate the plate left its
     # support under the controller (then the stop's landing)

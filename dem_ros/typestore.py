@@ -15,7 +15,8 @@ checked against it (tests/transport/test_msgs.py).
 The request/response messages of the parameter services are added under
 rosidl's names (``rcl_interfaces/srv/GetParameters_Request``): rmw_cyclonedds
 puts their hashes on the service endpoints. So are ``std_srvs/srv/Trigger``'s
-(the live view serves hw_driver's Trigger services with their schemas).
+(the live view serves hw_driver's Trigger services with their schemas) and lifecycle_msgs' (hw_driver's
+managed-node services).
 """
 
 from __future__ import annotations
@@ -48,6 +49,16 @@ _SRV_DEFS = {
     # std_srvs/srv/Trigger (hw_driver's arm | disarm | estop | status), served to Foxglove by dem_ros.view
     "std_srvs/srv/Trigger_Request": "",
     "std_srvs/srv/Trigger_Response": "bool success\nstring message",
+    # lifecycle_msgs (hw_driver's managed-node services, dem_ros.transport.lifecycle)
+    "lifecycle_msgs/srv/GetState_Request": "",
+    "lifecycle_msgs/srv/GetState_Response": "lifecycle_msgs/State current_state",
+    "lifecycle_msgs/srv/ChangeState_Request": "lifecycle_msgs/Transition transition",
+    "lifecycle_msgs/srv/ChangeState_Response": "bool success",
+    "lifecycle_msgs/srv/GetAvailableStates_Request": "",
+    "lifecycle_msgs/srv/GetAvailableStates_Response": "lifecycle_msgs/State[] available_states",
+    "lifecycle_msgs/srv/GetAvailableTransitions_Request": "",
+    "lifecycle_msgs/srv/GetAvailableTransitions_Response":
+        "lifecycle_msgs/TransitionDescription[] available_transitions",
 }
 
 

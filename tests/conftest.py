@@ -71,6 +71,7 @@ GRAPH: frozenset[str] = frozenset({
     "graph/test_recorder_node.py",
     "graph/test_recorder_stall.py",
     "hardware/test_driver_node.py",
+    "hardware/test_hw_lifecycle.py",
     "hardware/test_hw_restart.py",
     "hardware/test_link_c.py",  # the C codec compiled and run
     "hardware/test_link_channel.py::test_linkbench_cli",  # the link benchmark as a command
@@ -128,6 +129,7 @@ SLOW: frozenset[str] = frozenset({
     "graph/test_rclpy_transport.py",
     "tools/test_identify_launch.py",
     "fuzz/test_decode_fuzz.py::test_joint_state_fast_path_and_generic_decoder_agree_on_mutated_input",
+    "hardware/test_hw_lifecycle.py",
     "hardware/test_hw_restart.py",
     "tools/test_fault_catalogue.py",
     "tools/test_faults_launch.py",

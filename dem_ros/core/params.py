@@ -641,7 +641,12 @@ SCHEMA = Schema(
                       "armed -> active after this many consecutive controller commands in time (the loop proves itself "
                       "live before the board gets a command)", 1, 100000),
             ParamSpec("auto_arm", bool, False, "",
-                      "arm at start-up (the launcher's emulated runs); false: wait for 'dem-ros hw arm'"),
+                      "arm at start-up (the launcher's emulated runs): the managed node goes on from inactive to active"
+                      " once the board answered; false: wait for 'dem-ros hw arm' or a lifecycle activate"),
+            ParamSpec("transition_timeout", float, 5.0, "s",
+                      "a requested lifecycle transition that waits on the board fails after this: configure (its hello)"
+                      " goes back to unconfigured, deactivate and shutdown (its LANDED) go through errorprocessing; the"
+                      " start-up configure waits as long as it takes", 0.1, 600.0),
             ParamSpec("preroll", float, 1.0, "s",
                       "levitate in closed loop this long after becoming active before t = 0 (frame_id dem/preroll)",
                       0.0, 600.0),

@@ -34,6 +34,28 @@ every change) and ``/diagnostics`` (1 Hz). Requests: the services ``~/arm``, ``~
 ``arm``, ``disarm``, ``estop [reason]``, ``clear``; what ``dem-ros hw`` sends) and
 ``/dem/hw/estop`` (any message: e-stop, its data the reason); answers and state changes go
 to ``/dem/hw/state``.
+
+Managed node. The node is a ROS 2 lifecycle node on every transport (``~/get_state``, ``~/change_state``, ...,
+``~/transition_event``: :meth:`dem_ros.transport.api.Node.serve_lifecycle`), its state machine
+(:class:`~dem_ros.transport.lifecycle.LifecycleMachine`) mapped onto the driver's, and moved on the executor's
+thread only (a transition that waits on the board is finished by :meth:`HwDriverNode.follow_driver`, every tick):
+
+* configure: open the link (closed only by cleanup) and handshake; done once the board answered the hello. At
+  start the node configures itself (as long as it takes) and, with ``auto_arm``, activates once configured;
+* activate: arm (the board lifts off once the controller's commands come in time); ``active`` covers the
+  driver's ARMED and ACTIVE;
+* deactivate: disarm, the board lands the plate; done when it reports LANDED (or OFF: it never lifted off). Not
+  confirmed within ``transition_timeout``: an error (a failed deactivate would return to active);
+* cleanup: close the link; shutdown: land as deactivate, then finalized: the node ends as at the end of a run;
+* errorprocessing (an error in a transition, or a driver fault while active or during a transition, as
+  ros2_control's hardware components treat ``read()``/``write()`` errors): the plate is landed (the latched
+  fault sends LAND, else the driver disarms), then unconfigured with the link open (the board's reports and
+  the run's samples go on). A fault while inactive changes nothing but the driver (nothing is commanded there).
+
+``dem-ros hw`` goes through it: ``arm`` is an activate (configure first when unconfigured; while active, a re-arm;
+during a landing, the landing called off: the deactivate fails back to active), ``disarm`` / ``clear`` a
+deactivate while active, else the driver's disarm (a latched fault cleared); the end-of-run disarm is followed as
+a deactivate. The e-stop stays its own topic and service; its fault is reflected as above.
 """
 
 from __future__ import annotations
@@ -50,12 +72,13 @@ from typing import Any
 import numpy as np
 
 from .. import contract
-from ..hardware.channel import ChannelError, open_channel
+from ..hardware.channel import Channel, ChannelError, open_channel
 from ..hardware.driver import HARDWARE_FAULTS, DriverState, HwDriver, Sample
 from ..hardware.link import HELLO_REQUEST, Mode, Status, encode
 from ..realtime import config_from_env
 from ..runstate import announce
 from ..transport import Node, run_node
+from ..transport.lifecycle import DEFERRED, STATES, CallbackAnswer, CallbackResult, LifecycleMachine, TransitionEvent
 from .common import OK, WARN, CommandSource, Diagnostics, LatencyStats, diag_array, joint_state, stamp_ns, worth_logging
 
 __all__ = ["HwClient", "HwDriverNode", "main", "request"]
@@ -79,10 +102,9 @@ class HwDriverNode:
         c = self.cfg
         self.drv = HwDriver(c)
         self.lock = threading.Lock()
-        try:
-            self.ch = open_channel(c["url"], "pc")
-        except ChannelError as exc:
-            raise SystemExit(f"error: hw_driver: {exc}") from None
+        self.ch: Channel | None = None
+        self.stop = threading.Event()
+        self.reader = threading.Thread(target=self._read_loop, name="hw_driver-link", daemon=True)
         self.JS = node.msg("sensor_msgs/msg/JointState")
         self.D = (node.msg("diagnostic_msgs/msg/DiagnosticArray"), node.msg("diagnostic_msgs/msg/DiagnosticStatus"),
                   node.msg("diagnostic_msgs/msg/KeyValue"))
@@ -103,6 +125,7 @@ class HwDriverNode:
         self.epoch_seq: int | None = None  # first sample of the experiment (t = 0)
         self.epoch_ns: int | None = None
         self.finished = False
+        self.ended = False  # finish() ran: the node is ending
         self.t_finish = 0.0  # when the run ended and the landing began (monotonic s)
         self.failed = ""  # the first fault during the experiment
         self.fail_t: float | None = None  # when it came [s on the experiment clock]
@@ -120,16 +143,200 @@ class HwDriverNode:
         self.last_state = (DriverState.INACTIVE, "", Mode.OFF)
         self.board_announced = False
         self.answer = ""
-        if c["auto_arm"]:
-            self.drv.arm()
+        # the managed node (module docstring, "Managed node"): the machine moves on the executor's thread only
+        self.machine = LifecycleMachine({"on_configure": self.on_configure, "on_activate": self.on_activate,
+                                         "on_deactivate": self.on_deactivate, "on_cleanup": self.on_cleanup,
+                                         "on_shutdown": self.on_shutdown, "on_error": self.on_error},
+                                        now_ns=node.now_ns, on_event=self._on_transition)
+        node.serve_lifecycle(self.machine)
+        #: what a DEFERRED transition waits for ("hello": the board's answer, "landed": the board down) and until
+        #: when (monotonic s; None: as long as it takes); :meth:`follow_driver` finishes it
+        self.waiting: tuple[str, float | None] | None = None
+        self.activate_when_configured = False  # an arm (auto_arm, dem-ros hw arm) waits for the handshake
         # the reader thread must get the interpreter within the sample period, not after the default 5 ms
         sys.setswitchinterval(1e-4)
-        self.stop = threading.Event()
-        self.reader = threading.Thread(target=self._read_loop, name="hw_driver-link", daemon=True)
-        self.reader.start()
+        try:
+            self._open_link()
+        except ChannelError as exc:
+            raise SystemExit(f"error: hw_driver: {exc}") from None
+        self.starting = True  # the start-up configure waits for the board as long as it takes
+        if c["auto_arm"]:
+            self.drv.arm()  # at once, as always: nothing is forwarded before the board streams
+            self.activate_when_configured = True
+        self.machine.request("configure")
+        self.starting = False
         node.timer(0.1, self.tick)
         node.timer(1.0, self.status)
         node.logger.info(f"link {c['url']}; ready")
+
+    # -- the managed node: transition callbacks (executor thread) --------------------------------
+    def _open_link(self) -> None:
+        """Open the link and start its reader thread (ChannelError when it cannot be opened)."""
+        self.ch = open_channel(self.cfg["url"], "pc")
+        self.stop = threading.Event()
+        self.reader = threading.Thread(target=self._read_loop, name="hw_driver-link", daemon=True)
+        self.reader.start()
+
+    def _close_link(self) -> None:
+        self.stop.set()
+        if self.reader.is_alive():
+            self.reader.join(timeout=1.0)
+        if self.ch is not None:
+            self.ch.close()
+            self.ch = None
+
+    def _board_down(self) -> bool:
+        """Nothing levitates under the board (it reports OFF or LANDED)."""
+        return Mode(self.drv.board_mode) in (Mode.OFF, Mode.LANDED)
+
+    def _wait_for(self, what: str) -> CallbackAnswer:
+        self.waiting = (what, None if self.starting else time.monotonic() + self.cfg["transition_timeout"])
+        return DEFERRED
+
+    def on_configure(self, previous: int) -> CallbackAnswer:
+        """Open the link (when cleanup closed it: a new link session, a new driver) and handshake: done once the
+        board has answered the hello on this link."""
+        if self.ch is None:
+            with self.lock:
+                self.drv = HwDriver(self.cfg)  # counters, clock map and handshake start afresh with the link
+            try:
+                self._open_link()
+            except ChannelError as exc:
+                self.node.logger.error(f"configure: {exc}")
+                return CallbackResult.FAILURE
+        with self.lock:
+            if self.drv.hello is not None:
+                return CallbackResult.SUCCESS
+        return self._wait_for("hello")  # tick() asks until the board answers
+
+    def on_activate(self, previous: int) -> CallbackAnswer:
+        """Arm (clears a latched fault): the board lifts off once the controller's commands come in time."""
+        with self.lock:
+            if self.drv.state not in (DriverState.ARMED, DriverState.ACTIVE):  # armed already: auto_arm, an early arm
+                self.answer = self.drv.arm()
+        return CallbackResult.SUCCESS
+
+    def on_deactivate(self, previous: int) -> CallbackAnswer:
+        """Disarm (the board is told to LAND); done once the board reports LANDED (or OFF: it never lifted off)."""
+        with self.lock:
+            if self.drv.state != DriverState.INACTIVE:  # (the end of the run disarmed it already)
+                self.answer = self.drv.disarm()
+            if self._board_down():
+                return CallbackResult.SUCCESS
+        return self._wait_for("landed")
+
+    def on_cleanup(self, previous: int) -> CallbackAnswer:
+        """Close the link (the board is down: inactive is reached only so)."""
+        self._close_link()
+        return CallbackResult.SUCCESS
+
+    def on_shutdown(self, previous: int) -> CallbackAnswer:
+        """Land as a deactivate does; finalized, the node ends as at the end of a run (close() lets go of the link)."""
+        with self.lock:
+            if self.drv.state != DriverState.INACTIVE:
+                self.answer = self.drv.disarm()
+            if self.ch is None or self._board_down():
+                return CallbackResult.SUCCESS
+        return self._wait_for("landed")
+
+    def on_error(self, previous: int) -> CallbackAnswer:
+        """Errorprocessing: the plate is landed (a latched fault sends LAND; otherwise the driver disarms); the
+        link stays open, so the board's reports and the run's samples go on. On to unconfigured."""
+        with self.lock:
+            if self.drv.state != DriverState.FAULT:
+                self.answer = self.drv.disarm()
+            self.node.logger.warn(f"lifecycle error from {STATES[previous]}: landing the plate"
+                                  + (f" ({self.drv.reason})" if self.drv.reason else ""))
+        return CallbackResult.SUCCESS
+
+    def _on_transition(self, e: TransitionEvent) -> None:
+        self.node.logger.info(f"lifecycle: {STATES[e.start]} -> {STATES[e.goal]} ({e.transition_label})")
+        if e.goal == 4 and not self.node.is_shutdown:  # finalized (shutdown): the node ends
+            self.finish("shut down (lifecycle)")
+
+    def follow_driver(self) -> None:
+        """The managed node follows the driver (executor thread, every tick and after a request): a DEFERRED
+        transition ends when what it waits for came (or its time is up); a fault while active is an error
+        (errorprocessing, then unconfigured); a driver disarmed while active (the end of the run) a deactivate."""
+        m = self.machine
+        with self.lock:
+            d, hello, down, board_fault = (self.drv.state, self.drv.hello, self._board_down(),
+                                           Mode(self.drv.board_mode) == Mode.FAULT)
+        if m.pending is not None and self.waiting is not None:
+            what, deadline = self.waiting
+            result: CallbackResult | None = None
+            if what == "hello":
+                if d == DriverState.FAULT:  # the board's hello disagrees with the driver (rate, command delay)
+                    result = CallbackResult.FAILURE
+                elif hello is not None:
+                    result = CallbackResult.SUCCESS
+            elif d == DriverState.FAULT or board_fault:  # a fault during the landing
+                result = CallbackResult.ERROR
+            elif down:
+                result = CallbackResult.SUCCESS
+            if result is None and deadline is not None and time.monotonic() > deadline:
+                awaited = "hello from the board" if what == "hello" else "LANDED"
+                self.node.logger.error(f"{STATES[m.state]}: no {awaited} within transition_timeout ="
+                                       f" {self.cfg['transition_timeout']:g} s")
+                # a landing not confirmed is an error: a failed deactivate would claim a levitating plate again
+                result = CallbackResult.FAILURE if what == "hello" else CallbackResult.ERROR
+            if result is None:
+                return
+            self.waiting = None
+            m.finish(result)
+            if what == "hello":
+                self._after_configure(result == CallbackResult.SUCCESS)
+        elif m.state == 3 and d == DriverState.FAULT:
+            m.error()
+        elif m.state == 3 and d == DriverState.INACTIVE:
+            m.request("deactivate")
+
+    def _after_configure(self, configured: bool) -> None:
+        """An arm that waited for the handshake: activate now, or (configure failed) drop it."""
+        wanted, self.activate_when_configured = self.activate_when_configured, False
+        if configured and wanted and self.machine.state == 2:
+            self.machine.request("activate")
+        elif not configured:
+            with self.lock:
+                if self.drv.state in (DriverState.ARMED, DriverState.ACTIVE):
+                    self.answer = self.drv.disarm()
+
+    def arm(self) -> None:
+        """``dem-ros hw arm`` (request topic, ``~/arm``): an activate (configuring first when unconfigured); while
+        active, the driver's arm (a re-arm after the board landed on its own); during a landing (deactivating),
+        the landing called off: the deactivate fails (back to active) and the driver is armed again."""
+        m = self.machine
+        if m.pending == 4:
+            self.waiting = None
+            with self.lock:
+                self.answer = self.drv.arm()
+            m.finish(CallbackResult.FAILURE)
+            return
+        if m.state == 1:
+            m.request("configure")
+            if m.state == 2:
+                self._after_configure(True)
+        if m.pending == 1:  # the board has not answered yet: armed at once (as auto_arm), active once it has
+            with self.lock:
+                self.answer = self.drv.arm()
+            self.activate_when_configured = True
+        elif m.state == 2:
+            m.request("activate")
+        elif m.state == 3:
+            with self.lock:
+                self.answer = self.drv.arm()
+        else:
+            self.answer = f"refused: the managed node is {m.label}"
+
+    def disarm(self) -> None:
+        """``dem-ros hw disarm`` / ``clear``: a deactivate while active (the landing); otherwise the driver's disarm
+        (clears a latched fault; drops an arm waiting for the handshake)."""
+        if self.machine.state == 3:
+            self.machine.request("deactivate")
+            return
+        self.activate_when_configured = False
+        with self.lock:
+            self.answer = self.drv.disarm()
 
     # -- parameters / requests -----------------------------------------------------------------
     def on_change(self, values) -> str | None:
@@ -146,17 +353,18 @@ class HwDriverNode:
     def on_request(self, msg) -> None:
         words = str(msg.data).strip().split(None, 1)
         verb = words[0].lower() if words else ""
-        with self.lock:
-            if verb == "arm":
-                self.answer = self.drv.arm()
-            elif verb in ("disarm", "clear"):
-                self.answer = self.drv.disarm()
-            elif verb == "estop":
+        if verb == "arm":
+            self.arm()
+        elif verb in ("disarm", "clear"):
+            self.disarm()
+        elif verb == "estop":
+            with self.lock:
                 self.answer = self.drv.estop(words[1] if len(words) > 1 else "requested on /dem/hw/request")
-            elif verb == "status":
-                self.answer = "status"
-            else:
-                self.answer = f"unknown request {msg.data!r}: arm, disarm, clear, estop [reason], status"
+        elif verb == "status":
+            self.answer = "status"
+        else:
+            self.answer = f"unknown request {msg.data!r}: arm, disarm, clear, estop [reason], status"
+        self.follow_driver()
         self.node.logger.info(f"request {msg.data!r}: {self.answer}")
         self.publish_state(force=True)
 
@@ -165,13 +373,15 @@ class HwDriverNode:
         return lambda req, res: self.on_service(verb, res)
 
     def on_service(self, verb: str, res):
-        with self.lock:
-            if verb == "arm":
-                self.answer = self.drv.arm()
-            elif verb == "disarm":
-                self.answer = self.drv.disarm()
-            elif verb == "estop":
+        if verb == "arm":
+            self.arm()
+        elif verb == "disarm":
+            self.disarm()
+        elif verb == "estop":
+            with self.lock:
                 self.answer = self.drv.estop("~/estop service")
+        self.follow_driver()
+        with self.lock:
             state = self.drv.state
         res.success = state != DriverState.FAULT or verb == "estop"
         res.message = f"{state.name.lower()}: {self.answer if verb != 'status' else self.drv.reason or 'no fault'}"
@@ -182,6 +392,7 @@ class HwDriverNode:
     def on_estop(self, msg) -> None:
         with self.lock:
             self.answer = self.drv.estop(str(getattr(msg, "data", "")) or "e-stop topic")
+        self.follow_driver()
         self.node.logger.warn(self.answer)
         self.publish_state(force=True)
 
@@ -192,8 +403,10 @@ class HwDriverNode:
         if rt.enabled:
             with contextlib.suppress(OSError):  # not permitted: enter_loop() reports it once for the process
                 os.sched_setscheduler(threading.get_native_id(), os.SCHED_FIFO, os.sched_param(rt.priority))
+        ch = self.ch  # this thread's link (cleanup closes it after stopping the thread)
+        assert ch is not None
         poller = select.poll()
-        poller.register(self.ch.fileno(), select.POLLIN)
+        poller.register(ch.fileno(), select.POLLIN)
         # This thread outlives the node: close() runs after the node was shut down and needs it to reply LAND
         # to every frame. So nothing of the node is used here but its publishers (guarded, _publish_sample):
         # the board-to-ROS clock map reads ROS time off the system clock, as every transport's now_ns() does
@@ -210,14 +423,14 @@ class HwDriverNode:
                 while ready and batch < DRAIN_BATCH:
                     batch += 1
                     try:
-                        data = self.ch.recv(0.0)
+                        data = ch.recv(0.0)
                     except ChannelError as exc:
                         self.drv.fault(f"link: {exc}")
                         break
                     if data is None:
                         break
                     try:
-                        self._on_frame(data)
+                        self._on_frame(ch, data)
                     except Exception as exc:  # never the end of the thread that lands the plate: count, go on
                         self.reader_errors += 1
                         if worth_logging(self.reader_errors):
@@ -229,14 +442,14 @@ class HwDriverNode:
                 # the executor's turn for the lock (on_command), and a sleep for the RT budget
                 time.sleep(DRAIN_PAUSE_S)
 
-    def _on_frame(self, data: bytes) -> None:
+    def _on_frame(self, ch: Channel, data: bytes) -> None:
         """One received frame (the lock held): through the driver, its reply to the board, its sample out."""
         steady = time.monotonic_ns()
         if not self.stop_landed and self.node.is_shutdown:  # stopped: LAND now, not after the process's teardown
             self._land_on_stop()
         sample, reply = self.drv.on_bytes(data, time.time_ns(), steady)
         if reply is not None:
-            self.ch.send(reply)
+            ch.send(reply)
         if sample is not None:
             self.rx_ns[sample.seq % RING] = steady
             if not self.closing:
@@ -304,7 +517,7 @@ class HwDriverNode:
         with self.lock:
             was = self.drv.state
             data = self.drv.command(t, msg.effort[:2], time.monotonic_ns())
-            if data is None:
+            if data is None or self.ch is None:
                 return
             self.ch.send(data)
             seq = self.drv.last_cmd_seq
@@ -318,14 +531,15 @@ class HwDriverNode:
     # -- timers -------------------------------------------------------------------------------------
     def tick(self) -> None:
         """10 Hz: hello until the board answers; state on /dem/hw/state; faults to /diagnostics; the end of the run."""
-        if self.drv.hello is None:
+        if self.drv.hello is None and self.ch is not None:
             self.ch.send(encode(HELLO_REQUEST))
+        self.follow_driver()
         self.publish_state()
         self.report_faults()
         if self.finished and self.drv.board_mode in (Mode.OFF, Mode.LANDED) and self.end_landed_s is None:
             self.end_landed_s = time.monotonic() - self.t_finish
         if self.finished and (self.end_landed_s is not None or time.monotonic() - self.t_finish > 5.0):
-            self.finish()
+            self.finish(f"finished {self.cfg['duration']:g} s")
 
     def report_faults(self) -> None:
         """The driver's latched fault is a latched ERROR on /diagnostics (at once); the board landing, a WARN."""
@@ -381,7 +595,7 @@ class HwDriverNode:
                 **({"fail_time_s": round(self.fail_t, 3)} if self.fail_t is not None else {}),
                 "holds": st["hold_samples"], "board_run_samples": self.board_run_samples, **self._landing(), **st,
                 "publish_errors": self.publish_errors, "reader_errors": self.reader_errors,
-                **self.source.values()}
+                "lifecycle": self.machine.label, **self.source.values()}
 
     def _landing(self) -> dict[str, Any]:
         """``landing`` / ``landing_reason`` of the loop status: a board landing during the experiment (its time and
@@ -406,13 +620,14 @@ class HwDriverNode:
         self.report_faults()
         self.diag.publish()
 
-    def finish(self) -> None:
-        if self.stop.is_set():
+    def finish(self, why: str) -> None:
+        """The node ends (the run's end, or a lifecycle shutdown): its link reader stops, then the node."""
+        if self.ended:
             return
+        self.ended = True
         self.stop.set()
         s = self.stats()
-        msg = (f"finished {self.cfg['duration']:g} s; board {s['board_mode']}"
-               + (f"; fault: {self.failed}" if self.failed else ""))
+        msg = f"{why}; board {s['board_mode']}" + (f"; fault: {self.failed}" if self.failed else "")
         self.node.logger.info(msg)
         self.diag.publish(2 if self.failed else 0, "finished: " + msg, s)
         announce("finished", "hw_driver", message=msg, failed=bool(self.failed))
@@ -444,7 +659,8 @@ class HwDriverNode:
                 time.sleep(0.005)
         self.stop.set()
         self.reader.join(timeout=1.0)
-        self.ch.close()
+        if self.ch is not None:  # (closed after a cleanup)
+            self.ch.close()
 
 
 #: what the driver's answer to each request starts with (``HwDriver.arm/disarm/estop``)

@@ -27,9 +27,12 @@ from __future__ import annotations
 
 import traceback
 from collections.abc import Callable, Mapping
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 from ..contract import Topic
+
+if TYPE_CHECKING:
+    from .lifecycle import LifecycleMachine
 
 __all__ = [
     "GID_SIZE",
@@ -170,6 +173,13 @@ class Node(Protocol):
     def service(self, name: str, srv_type: str, callback: ServiceCallback) -> None:
         """Serve ``name`` (relative to the node, e.g. ``"arm"`` -> ``/ns/node/arm``) of type
         ``srv_type`` (one of :data:`SERVICE_TYPES`); ``callback(request, response) -> response``."""
+
+    def serve_lifecycle(self, machine: LifecycleMachine) -> None:
+        """Serve ``machine`` as the standard managed-node interface that ``ros2 lifecycle`` reaches (rcl_lifecycle's
+        names and lifecycle_msgs types, :class:`~.lifecycle.LifecycleInterface`): ``~/get_state``,
+        ``~/change_state`` (answered when the transition ends: later for a DEFERRED one, the executor running
+        meanwhile), ``~/get_available_states``, ``~/get_available_transitions``, ``~/get_transition_graph``, and
+        each step on ``~/transition_event``. Once per node."""
 
     def now_ns(self) -> int:
         """ROS time (= system clock) in nanoseconds since the Unix epoch."""

@@ -46,6 +46,7 @@ from .api import (
     TransportError,
     node_fqn,
 )
+from .lifecycle import LifecycleInterface, LifecycleMachine, event_topic
 from .logger import NodeLogger
 from .parameters import ParameterStore
 from .rosargs import initial_parameters, parse_ros_args
@@ -176,6 +177,23 @@ class MemoryNode:
         if full in self.bus.services:
             raise TransportError(f"service {full} already exists")
         self.bus.services[full] = (srv_type, service_classes(srv_type), callback, self)
+
+    def serve_lifecycle(self, machine: LifecycleMachine) -> None:
+        """The managed-node services on the bus (:meth:`MemoryBus.call`) with the dds IDL types; a DEFERRED
+        ``~/change_state`` returns its response at once with ``success`` False, set when the transition ends."""
+        from .dds import lifecycle_msgs as lm
+
+        iface = LifecycleInterface(machine, State=lm.State, Transition=lm.Transition,
+                                   TransitionDescription=lm.TransitionDescription, TransitionEvent=lm.TransitionEvent,
+                                   log=self.logger.warn)
+        events = self.publisher(event_topic(self.fully_qualified_name))
+        machine.listeners.append(lambda e: events.publish(iface.event(e)))
+        def change_state(req: Any, rep: Any) -> Any:
+            iface.change_state(req, rep, lambda: None)
+            return rep
+
+        for srv, srv_type in lm.SERVICES.items():
+            self.service(srv, srv_type, change_state if srv == "change_state" else getattr(iface, srv))
 
     def now_ns(self) -> int:
         return self.bus.now_ns

@@ -1,7 +1,9 @@
-"""The managed-node layer for the dds transport: lifecycle_msgs IDL types against the ROS definitions, and the
-state machine against lifecycle_msgs' constants and the managed-node design.
+"""The managed-node layer: lifecycle_msgs IDL types (the dds transport's) against the ROS definitions, and the
+state machine against lifecycle_msgs' constants, rcl_lifecycle's default state machine and the managed-node
+design, including transitions that end later (DEFERRED, finish) and faults outside a callback (error).
 
-Unit tier only: no node serves these yet (see dem_ros/transport/lifecycle.py for how one would).
+Unit tier, but for the comparison with rcl's own machine (rclpy.lifecycle, a graph test: it joins DDS). The
+transports serving a machine: tests/transport/test_lifecycle_serve.py; hw_driver's: tests/hardware.
 """
 
 from __future__ import annotations
@@ -19,12 +21,16 @@ from dem_ros.transport.dds import fastcdr
 from dem_ros.transport.dds import lifecycle_msgs as lm
 from dem_ros.transport.lifecycle import (
     CALLBACKS,
+    DEFERRED,
+    GRAPH,
     RESULTS,
     STATES,
     TRANSITIONS,
     CallbackResult,
     LifecycleError,
     LifecycleMachine,
+    describe,
+    requested,
 )
 
 JAZZY = get_typestore(Stores.ROS2_JAZZY)
@@ -138,8 +144,9 @@ def test_transition_ids_are_lifecycle_msgs_constants():
     for t in TRANSITIONS:
         assert consts[f"TRANSITION_{requests[t.id]}"] == t.id
         assert requests[t.id].lower().endswith(t.label)
-    for tid, label, _goal in RESULTS.values():  # rcl's labels: configure_success, errorprocessing_error, ...
-        assert consts["TRANSITION_ON_" + label.upper().replace("ERRORPROCESSING", "ERROR")] == tid
+    for (via, result), (tid, label, _goal) in RESULTS.items():  # TRANSITION_ON_CONFIGURE_SUCCESS = 10, ...
+        assert consts[f"TRANSITION_ON_{CALLBACKS[via].removeprefix('on_').upper()}_{result.name}"] == tid
+        assert label == f"transition_{result.name.lower()}"  # rcl's label of every result transition
     for r in CallbackResult:
         assert consts[f"TRANSITION_CALLBACK_{r.name}"] == r.value
 
@@ -181,7 +188,7 @@ def test_configure_activate_deactivate_cleanup_shutdown():
     assert [n for n, _ in node.ran] == ["on_configure", "on_activate", "on_deactivate", "on_cleanup", "on_shutdown"]
     # each request: start -> transition state, then transition state -> goal
     assert [(e.transition_label, e.start, e.goal) for e in events[:2]] == [("configure", 1, 10),
-                                                                            ("configure_success", 10, 2)]
+                                                                            ("transition_success", 10, 2)]
     assert all(e.timestamp_ns == 42 for e in events) and len(events) == 10
 
 
@@ -217,3 +224,127 @@ def test_an_error_goes_through_errorprocessing(on_error, end):
 def test_unknown_callbacks_are_refused():
     with pytest.raises(LifecycleError, match="unknown lifecycle callbacks"):
         LifecycleMachine({"on_arm": lambda p: CallbackResult.SUCCESS}, now_ns=lambda: 0)
+
+
+#: rcl_lifecycle's default state machine as rclpy.lifecycle's ``_state_machine.transition_graph`` lists it (Jazzy;
+#: test_the_graph_is_rcl_s_own compares it with the live one where rclpy imports)
+RCL_GRAPH = [
+    (1, "configure", 1, 10), (10, "transition_success", 10, 2), (11, "transition_failure", 10, 1),
+    (12, "transition_error", 10, 15),
+    (2, "cleanup", 2, 11), (20, "transition_success", 11, 1), (21, "transition_failure", 11, 2),
+    (22, "transition_error", 11, 15),
+    (3, "activate", 2, 13), (30, "transition_success", 13, 3), (31, "transition_failure", 13, 2),
+    (32, "transition_error", 13, 15),
+    (4, "deactivate", 3, 14), (40, "transition_success", 14, 2), (41, "transition_failure", 14, 3),
+    (42, "transition_error", 14, 15),
+    (5, "shutdown", 1, 12), (6, "shutdown", 2, 12), (7, "shutdown", 3, 12), (50, "transition_success", 12, 4),
+    (51, "transition_failure", 12, 4), (52, "transition_error", 12, 15),
+    (60, "transition_success", 15, 1), (61, "transition_failure", 15, 4), (62, "transition_error", 15, 4),
+]
+
+
+def test_the_graph_and_the_descriptions_are_rcl_s():
+    assert list(GRAPH) == RCL_GRAPH
+    assert describe(GRAPH[:1]) == [(1, "configure", 1, "unconfigured", 10, "configuring")]
+    m, _node, _events = _machine()
+    assert m.available_edges() == ((1, "configure", 1, 10), (5, "shutdown", 1, 12))
+
+
+def test_the_graph_is_rcl_s_own(domain_id):
+    """The same graph, states and available transitions as rclpy.lifecycle's (rcl_lifecycle in the Jazzy wheels)."""
+    rclpy = pytest.importorskip("rclpy", reason="rclpy not importable: pip install -e '.[ros]'")
+    from rclpy.lifecycle import LifecycleNode
+
+    rclpy.init(args=[], domain_id=domain_id)
+    try:
+        node = LifecycleNode("lifecycle_probe", enable_communication_interface=False)
+        sm = node._state_machine
+        assert describe(GRAPH) == list(sm.transition_graph)
+        assert sorted(STATES.items()) == sorted(sm.available_states)
+        m, _n, _e = _machine()
+        assert describe(m.available_edges()) == list(sm.available_transitions)
+        node.trigger_configure()
+        m.trigger("configure")
+        assert (m.state, m.label) == tuple(sm.current_state)
+        assert describe(m.available_edges()) == list(sm.available_transitions)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown()
+
+
+def test_a_request_names_its_transition_by_label_else_by_id():
+    assert requested(4, "") == 4 and requested(0, "deactivate") == "deactivate"
+    m, _node, _events = _machine()
+    assert m.trigger(requested(1, "")) and m.trigger(requested(0, "activate")) and m.label == "active"
+
+
+def test_a_deferred_transition_waits_in_its_transition_state_and_answers_when_finished():
+    """A deactivate that lands the plate: the callback starts the landing (DEFERRED), the landing's end finishes it."""
+    m, node, events = _machine()
+    m.trigger("configure")
+    m.trigger("activate")
+    node.answers["on_deactivate"] = DEFERRED
+    answers: list[bool] = []
+    assert m.request("deactivate", answers.append) is None
+    assert (m.label, m.pending, answers) == ("deactivating", 4, [])
+    assert m.available() == ()  # nothing else may be requested meanwhile
+    assert [e[1] for e in m.available_edges()] == ["transition_success", "transition_failure", "transition_error"]
+    with pytest.raises(LifecycleError, match="not valid from state deactivating"):
+        m.request("shutdown")
+    assert m.finish(CallbackResult.SUCCESS) and m.label == "inactive" and m.pending is None and answers == [True]
+    assert [(e.transition_id, e.start, e.goal) for e in events[-2:]] == [(4, 3, 14), (40, 14, 2)]
+    with pytest.raises(LifecycleError, match="no transition is under way"):
+        m.finish(CallbackResult.SUCCESS)
+
+
+@pytest.mark.parametrize(("result", "end", "reached"), [(CallbackResult.FAILURE, "active", False),
+                                                        (CallbackResult.ERROR, "unconfigured", False)])
+def test_a_deferred_transition_that_fails_or_errs(result, end, reached):
+    m, node, _ = _machine()
+    m.trigger("configure")
+    m.trigger("activate")
+    node.answers["on_deactivate"] = DEFERRED
+    answers: list[bool] = []
+    m.request("deactivate", answers.append)
+    assert m.finish(result) is reached and m.label == end and answers == [reached]
+    assert ("on_error", 3) in node.ran or result != CallbackResult.ERROR
+
+
+def test_a_deferred_answer_of_on_error_is_an_error():
+    m, node, _ = _machine()
+    m.trigger("configure")
+    node.answers["on_activate"] = CallbackResult.ERROR
+    node.answers["on_error"] = DEFERRED
+    assert not m.trigger("activate") and m.label == "finalized"
+
+
+def test_a_fault_while_active_goes_through_deactivating_and_errorprocessing():
+    """ros2_control's hardware components: read()/write() answering ERROR -> on_error -> unconfigured."""
+    m, node, events = _machine()
+    m.trigger("configure")
+    m.trigger("activate")
+    node.ran.clear()
+    assert m.error() and m.label == "unconfigured"
+    assert node.ran == [("on_error", 3)]  # on_deactivate is not run: the fault is its result
+    assert [(e.transition_id, e.transition_label, e.start, e.goal) for e in events[-3:]] == [
+        (4, "deactivate", 3, 14), (42, "transition_error", 14, 15), (60, "transition_success", 15, 1)]
+
+
+def test_a_fault_during_a_deferred_transition_is_its_result_and_elsewhere_nothing():
+    m, node, _ = _machine()
+    assert not m.error() and m.label == "unconfigured"  # nothing commanded: nothing to do
+    node.answers["on_configure"] = DEFERRED
+    answers: list[bool] = []
+    m.request("configure", answers.append)
+    assert m.error() and m.label == "unconfigured" and answers == [False]
+    node.answers["on_configure"] = CallbackResult.SUCCESS
+    m.trigger("configure")
+    assert not m.error() and m.label == "inactive"
+
+
+def test_every_listener_hears_every_step():
+    m, _node, events = _machine()
+    more: list = []
+    m.listeners.append(more.append)
+    m.trigger("configure")
+    assert more == events and len(more) == 2

@@ -1,8 +1,8 @@
 """Plain CDR (XCDR1) decoding that never raises anything but :class:`CdrError`, and a fast JointState codec.
 
 Every byte string a node receives - a topic sample, a service request, a
-discovery message - is decoded here (``msgs`` routes each IDL class's
-``deserialize`` to :func:`decode`). This module knows the IDL classes only
+discovery message - is decoded here (:func:`strict`, which every IDL class of the transport carries, routes
+its ``deserialize`` to :func:`decode`). This module knows the IDL classes only
 through their annotations and their DDS type names: it imports no message
 declarations (``msgs`` imports it), and no middleware until a generic decoder is
 compiled, so the bag package can use :func:`joint_state_bytes` without DDS. A byte string is either the message it
@@ -48,6 +48,7 @@ __all__ = [
     "encode_joint_state",
     "encoder",
     "joint_state_bytes",
+    "strict",
 ]
 
 #: bytes after the message that are accepted as padding (rmw pads to 4, alignment to 8)
@@ -538,3 +539,24 @@ def decoder(cls: type) -> Callable[[Any], Any]:
 def encoder(cls: type) -> Callable[[Any], bytes] | None:
     """A hand-written encoder of IDL class ``cls`` (faster than its ``serialize``), or None."""
     return encode_joint_state if _typename(cls) == JOINT_STATE else None
+
+
+def _deserialize(cls: type, data: bytes, has_header: bool = True, use_version_2: bool | None = None) -> Any:
+    if use_version_2:
+        raise CdrError(f"{cls.__name__}: XCDR2 is not used by ROS 2 endpoints")
+    return decode(cls, data, has_header=has_header)
+
+
+def strict(cls: type) -> type:
+    """Class decorator: ``cls.deserialize(data)`` is :func:`decode` - a message or a ``CdrError``.
+
+    cyclonedds-python's own deserializer raises whatever the bytes provoke
+    (``struct.error``, ``IndexError``, ``UnicodeDecodeError``, ...), accepts
+    some invalid input (bool bytes other than 0/1) and loops for minutes on
+    some (a sequence count of ~4e9 structs); every decode of received bytes -
+    the nodes' readers, the service servers and clients, typed cyclonedds
+    readers - goes through this method. (A decorator, not a base class:
+    cyclonedds' type-object builder walks the bases of a topic type.)
+    """
+    cls.deserialize = classmethod(_deserialize)  # type: ignore[attr-defined]
+    return cls

@@ -1,7 +1,8 @@
 """lifecycle_msgs as Cyclone DDS IDL structs: the managed-node interface on the dds transport.
 
-Same rules as :mod:`.msgs` (final structs, real annotations: no ``from __future__ import annotations``);
-service requests and replies carry rmw_cyclonedds' (guid, seq) header in front of the ROS fields.
+Same rules as :mod:`.msgs` (final structs, real annotations: no ``from __future__ import annotations``), whose
+table lists these messages too; service requests and replies carry rmw_cyclonedds' (guid, seq) header in front
+of the ROS fields.
 
 The services of a managed node ``/ns/node`` (what ``ros2 lifecycle`` calls):
 
@@ -16,8 +17,8 @@ service                            type                                        r
 =================================  ==========================================  ==============================
 
 and the topic ``~/transition_event`` (``lifecycle_msgs/msg/TransitionEvent``, reliable, volatile).
-:data:`SERVICE_CLASSES` has the same shape as :data:`.srvs.SERVICE_CLASSES`, to be merged into it when a
-node serves them (see :mod:`dem_ros.transport.lifecycle` for the state machine and the plan).
+:data:`SERVICE_CLASSES` is merged into :data:`.srvs.SERVICE_CLASSES` (the dds node serves them, the dds client calls
+them); the state machine and the answers: :mod:`dem_ros.transport.lifecycle`.
 """
 
 from dataclasses import dataclass, field
@@ -26,26 +27,27 @@ from typing import Any
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import int64, sequence, uint8, uint64
 
-from . import msgs
+from .. import lifecycle
+from .fastcdr import strict
 
 __all__ = ["MESSAGES", "SERVICES", "SERVICE_CLASSES"]
 
 
-@msgs.strict
+@strict
 @dataclass
 class State(IdlStruct, typename="lifecycle_msgs::msg::dds_::State_"):
     id: uint8 = 0
     label: str = ""
 
 
-@msgs.strict
+@strict
 @dataclass
 class Transition(IdlStruct, typename="lifecycle_msgs::msg::dds_::Transition_"):
     id: uint8 = 0
     label: str = ""
 
 
-@msgs.strict
+@strict
 @dataclass
 class TransitionDescription(IdlStruct, typename="lifecycle_msgs::msg::dds_::TransitionDescription_"):
     transition: Transition = field(default_factory=Transition)
@@ -53,7 +55,7 @@ class TransitionDescription(IdlStruct, typename="lifecycle_msgs::msg::dds_::Tran
     goal_state: State = field(default_factory=State)
 
 
-@msgs.strict
+@strict
 @dataclass
 class TransitionEvent(IdlStruct, typename="lifecycle_msgs::msg::dds_::TransitionEvent_"):
     timestamp: uint64 = 0
@@ -62,7 +64,7 @@ class TransitionEvent(IdlStruct, typename="lifecycle_msgs::msg::dds_::Transition
     goal_state: State = field(default_factory=State)
 
 
-@msgs.strict
+@strict
 @dataclass
 class GetState_Request(IdlStruct, typename="lifecycle_msgs::srv::dds_::GetState_Request_"):
     guid: uint64 = 0
@@ -70,7 +72,7 @@ class GetState_Request(IdlStruct, typename="lifecycle_msgs::srv::dds_::GetState_
     structure_needs_at_least_one_member: uint8 = 0  # an empty ROS request
 
 
-@msgs.strict
+@strict
 @dataclass
 class GetState_Response(IdlStruct, typename="lifecycle_msgs::srv::dds_::GetState_Response_"):
     guid: uint64 = 0
@@ -78,7 +80,7 @@ class GetState_Response(IdlStruct, typename="lifecycle_msgs::srv::dds_::GetState
     current_state: State = field(default_factory=State)
 
 
-@msgs.strict
+@strict
 @dataclass
 class ChangeState_Request(IdlStruct, typename="lifecycle_msgs::srv::dds_::ChangeState_Request_"):
     guid: uint64 = 0
@@ -86,7 +88,7 @@ class ChangeState_Request(IdlStruct, typename="lifecycle_msgs::srv::dds_::Change
     transition: Transition = field(default_factory=Transition)
 
 
-@msgs.strict
+@strict
 @dataclass
 class ChangeState_Response(IdlStruct, typename="lifecycle_msgs::srv::dds_::ChangeState_Response_"):
     guid: uint64 = 0
@@ -94,7 +96,7 @@ class ChangeState_Response(IdlStruct, typename="lifecycle_msgs::srv::dds_::Chang
     success: bool = False
 
 
-@msgs.strict
+@strict
 @dataclass
 class GetAvailableStates_Request(IdlStruct, typename="lifecycle_msgs::srv::dds_::GetAvailableStates_Request_"):
     guid: uint64 = 0
@@ -102,7 +104,7 @@ class GetAvailableStates_Request(IdlStruct, typename="lifecycle_msgs::srv::dds_:
     structure_needs_at_least_one_member: uint8 = 0
 
 
-@msgs.strict
+@strict
 @dataclass
 class GetAvailableStates_Response(IdlStruct, typename="lifecycle_msgs::srv::dds_::GetAvailableStates_Response_"):
     guid: uint64 = 0
@@ -110,7 +112,7 @@ class GetAvailableStates_Response(IdlStruct, typename="lifecycle_msgs::srv::dds_
     available_states: sequence[State] = field(default_factory=list)
 
 
-@msgs.strict
+@strict
 @dataclass
 class GetAvailableTransitions_Request(IdlStruct,
                                       typename="lifecycle_msgs::srv::dds_::GetAvailableTransitions_Request_"):
@@ -119,7 +121,7 @@ class GetAvailableTransitions_Request(IdlStruct,
     structure_needs_at_least_one_member: uint8 = 0
 
 
-@msgs.strict
+@strict
 @dataclass
 class GetAvailableTransitions_Response(IdlStruct,
                                        typename="lifecycle_msgs::srv::dds_::GetAvailableTransitions_Response_"):
@@ -137,13 +139,7 @@ MESSAGES: dict[str, type[Any]] = {
 }
 
 #: service name suffix -> ROS service type
-SERVICES: dict[str, str] = {
-    "get_state": "lifecycle_msgs/srv/GetState",
-    "change_state": "lifecycle_msgs/srv/ChangeState",
-    "get_available_states": "lifecycle_msgs/srv/GetAvailableStates",
-    "get_available_transitions": "lifecycle_msgs/srv/GetAvailableTransitions",
-    "get_transition_graph": "lifecycle_msgs/srv/GetAvailableTransitions",
-}
+SERVICES: dict[str, str] = dict(lifecycle.SERVICES)
 
 #: ROS service type -> (request class, response class)
 SERVICE_CLASSES: dict[str, tuple[type[Any], type[Any]]] = {

@@ -25,7 +25,8 @@ from typing import Any
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import array, bounded_str, float64, int32, int64, sequence, uint8, uint32, uint64
 
-from . import fastcdr
+from . import lifecycle_msgs
+from .fastcdr import strict as strict  # (the decorator every IDL class of the transport carries)
 
 __all__ = [
     "MESSAGES",
@@ -35,27 +36,6 @@ __all__ = [
     "message_class",
     "strict",
 ]
-
-
-def _deserialize(cls: type, data: bytes, has_header: bool = True, use_version_2: bool | None = None) -> Any:
-    if use_version_2:
-        raise fastcdr.CdrError(f"{cls.__name__}: XCDR2 is not used by ROS 2 endpoints")
-    return fastcdr.decode(cls, data, has_header=has_header)
-
-
-def strict(cls: type) -> type:
-    """Class decorator: ``cls.deserialize(data)`` is :func:`.fastcdr.decode` - a message or a ``CdrError``.
-
-    cyclonedds-python's own deserializer raises whatever the bytes provoke
-    (``struct.error``, ``IndexError``, ``UnicodeDecodeError``, ...), accepts
-    some invalid input (bool bytes other than 0/1) and loops for minutes on
-    some (a sequence count of ~4e9 structs); every decode of received bytes -
-    the nodes' readers, the service servers and clients, typed cyclonedds
-    readers - goes through this method. (A decorator, not a base class:
-    cyclonedds' type-object builder walks the bases of a topic type.)
-    """
-    cls.deserialize = classmethod(_deserialize)  # type: ignore[attr-defined]
-    return cls
 
 
 def dds_type_name(ros_type: str) -> str:
@@ -375,6 +355,7 @@ MESSAGES: dict[str, type[Any]] = {
     "rcl_interfaces/msg/SetParametersResult": SetParametersResult,
     "rcl_interfaces/msg/ListParametersResult": ListParametersResult,
     "rcl_interfaces/msg/Log": Log,
+    **lifecycle_msgs.MESSAGES,  # the managed-node interface (hw_driver)
 }
 
 #: service name suffix -> (ROS service type, request class, response class)

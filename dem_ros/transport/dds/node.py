@@ -46,11 +46,12 @@ from ..api import (
     gid16,
     node_fqn,
 )
+from ..lifecycle import LifecycleInterface, LifecycleMachine, event_topic
 from ..logger import NodeLogger
 from ..loop import LocalSubscription, SourcedLocalSubscription, deliver_local
 from ..parameters import ParameterStore
 from ..rosargs import RosArgs, initial_parameters, parse_ros_args
-from . import fastcdr, msgs, srvs, wire
+from . import fastcdr, lifecycle_msgs, msgs, srvs, wire
 from .executor import ANY_SAMPLE, DdsExecutor, DdsTimer
 
 __all__ = ["QOS_SERVICES", "DdsExecutor", "DdsNode", "DdsPublisher", "DdsTimer", "Participant"]
@@ -566,7 +567,24 @@ class DdsNode:
 
         self._serve(name.strip("/"), srv_type, req_cls, rep_cls, compute)
 
-    def _serve(self, srv: str, srv_type: str, req_cls: Any, rep_cls: Any, compute: Callable[[Any, Any], None]) -> None:
+    def serve_lifecycle(self, machine: LifecycleMachine) -> None:
+        """The managed-node services and ``~/transition_event`` with the IDL types of :mod:`.lifecycle_msgs`;
+        ``~/change_state``'s reply is queued when the transition ends (:meth:`flush_replies` sends it)."""
+        iface = LifecycleInterface(machine, State=lifecycle_msgs.State, Transition=lifecycle_msgs.Transition,
+                                   TransitionDescription=lifecycle_msgs.TransitionDescription,
+                                   TransitionEvent=lifecycle_msgs.TransitionEvent, log=self.logger.warn)
+        topic = event_topic(self.fully_qualified_name)
+        events = self._make_writer(topic.name, topic.type, topic.qos, cls=lifecycle_msgs.TransitionEvent)
+        machine.listeners.append(lambda e: events.publish(iface.event(e)))
+        for srv, srv_type in lifecycle_msgs.SERVICES.items():
+            req_cls, rep_cls = lifecycle_msgs.SERVICE_CLASSES[srv_type]
+            self._serve(srv, srv_type, req_cls, rep_cls, getattr(iface, srv), deferred=srv == "change_state")
+
+    def _serve(self, srv: str, srv_type: str, req_cls: Any, rep_cls: Any, compute: Callable[..., Any],
+               deferred: bool = False) -> None:
+        """Serve ``<node>/<srv>``: ``compute(request, response)`` fills the response, which is then sent; with
+        ``deferred``, ``compute(request, response, send)`` calls ``send()`` itself, now or later (on this
+        node's executor thread)."""
         rq, rr = wire.service_topics(self.fully_qualified_name + "/" + srv)
         self._csid += 1
         gid = self._p.gid
@@ -578,13 +596,20 @@ class DdsNode:
         def handle(data: bytes, info: Any) -> None:
             req = req_cls.deserialize(data)
             rep = rep_cls(guid=req.guid, seq=req.seq)
-            compute(req, rep)
-            payload = rep.serialize()
-            payload += b"\0" * (-len(payload) % 4)
             clientid = _user_data_key(reader_box[0], info.publication_handle, "clientid")
-            # wait for the client's reader to match (rmw_cyclonedds: 100 ms; a busy 1 kHz node needs longer)
-            self._pending_replies.append((time.monotonic_ns() + 5_000_000_000, writer, payload, clientid))
-            self.flush_replies()
+
+            def send() -> None:
+                payload = rep.serialize()
+                payload += b"\0" * (-len(payload) % 4)
+                # wait for the client's reader to match (rmw_cyclonedds: 100 ms; a busy 1 kHz node needs longer)
+                self._pending_replies.append((time.monotonic_ns() + 5_000_000_000, writer, payload, clientid))
+                self.flush_replies()
+
+            if deferred:
+                compute(req, rep, send)
+            else:
+                compute(req, rep)
+                send()
 
         handler = self._guard.wrap(f"service {self.fully_qualified_name}/{srv}", handle)
         reader_box.append(self._make_reader(rq, srv_type + "_Request", req_cls, QOS_SERVICES, handler, extra_ud=ud))

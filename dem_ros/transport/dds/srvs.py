@@ -11,7 +11,7 @@ from typing import Any
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import int64, uint8, uint64
 
-from . import msgs
+from . import lifecycle_msgs, msgs
 
 __all__ = ["SERVICE_CLASSES", "service_classes"]
 
@@ -51,11 +51,13 @@ class SetBool_Response(IdlStruct, typename="std_srvs::srv::dds_::SetBool_Respons
     message: str = ""
 
 
-#: ROS service type -> (request class, response class): std_srvs here, rcl_interfaces from :mod:`.msgs`
+#: ROS service type -> (request class, response class): std_srvs here, rcl_interfaces from :mod:`.msgs`,
+#: lifecycle_msgs from :mod:`.lifecycle_msgs`
 SERVICE_CLASSES: dict[str, tuple[type[Any], type[Any]]] = {
     "std_srvs/srv/Trigger": (Trigger_Request, Trigger_Response),
     "std_srvs/srv/SetBool": (SetBool_Request, SetBool_Response),
     **{srv_type: (req, rep) for srv_type, req, rep in msgs.SERVICES.values()},
+    **lifecycle_msgs.SERVICE_CLASSES,
 }
 
 

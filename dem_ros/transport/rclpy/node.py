@@ -49,6 +49,7 @@ from ..api import (
     node_fqn,
 )
 from ..dds import fastcdr, msgs
+from ..lifecycle import LifecycleInterface, LifecycleMachine, event_topic
 from ..logger import NodeLogger
 from ..loop import LocalSubscription, LoopTimer, SourcedLocalSubscription, deliver_local
 from ..parameters import ParameterStore
@@ -176,6 +177,8 @@ class RclpyNode:
         self._destroyed = False
         self._params: ParameterStore | None = None
         self._guard = CallbackGuard(lambda: self.logger)
+        #: services whose callback ``(request, response, send)`` answers later (serve_lifecycle's change_state)
+        self._deferred_services: dict[Any, Callable[[Any, Any, Callable[[], None]], None]] = {}
 
     @property
     def fully_qualified_name(self) -> str:
@@ -286,8 +289,40 @@ class RclpyNode:
 
         self._node.create_service(ros_type(srv_type), "~/" + name.strip("/"), handle)
 
+    def serve_lifecycle(self, machine: LifecycleMachine) -> None:
+        """The managed-node services and ``~/transition_event`` with rclpy's lifecycle_msgs types, answered from
+        ``machine``; ``~/change_state``'s response is sent when the transition ends.
+
+        Not ``rclpy.lifecycle.LifecycleNode``: its ``~/change_state`` runs the transition callback to its end
+        inside the service callback (rcl_lifecycle's machine has no transition that ends later), so a deactivate
+        that waits for the board's LANDED would hold this executor, and with it the driver's command forwarding
+        and timers, for the seconds of a landing; and its machine can only be moved by a callback's result,
+        not by a fault outside one (:meth:`LifecycleMachine.error`). The services, names, types and answers are
+        rcl_lifecycle's (the graph and labels are checked against rclpy.lifecycle's in tests/transport), so
+        ``ros2 lifecycle`` cannot tell.
+        """
+        import lifecycle_msgs.msg as lm
+        import lifecycle_msgs.srv as ls
+
+        iface = LifecycleInterface(machine, State=lm.State, Transition=lm.Transition,
+                                   TransitionDescription=lm.TransitionDescription,
+                                   TransitionEvent=lm.TransitionEvent, log=self.logger.warn)
+        topic = event_topic(self.fully_qualified_name)
+        events = self._node.create_publisher(lm.TransitionEvent, topic.name, to_qos_profile(topic.qos))
+        machine.listeners.append(lambda e: events.publish(iface.event(e)))
+        types = {"get_state": ls.GetState, "change_state": ls.ChangeState,
+                 "get_available_states": ls.GetAvailableStates, "get_available_transitions": ls.GetAvailableTransitions,
+                 "get_transition_graph": ls.GetAvailableTransitions}
+        for name, srv_type in types.items():
+            if name == "change_state":
+                srv = self._node.create_service(srv_type, "~/" + name, _ignore)
+                self._deferred_services[srv] = iface.change_state
+            else:
+                self._node.create_service(srv_type, "~/" + name, getattr(iface, name))
+
     def serve_requests(self) -> None:
-        """Answer the requests waiting at this node's services (rclpy's parameter services included)."""
+        """Answer the requests waiting at this node's services (rclpy's parameter services included); a
+        deferred service's callback (``~/change_state``) gets a ``send()`` that answers its request later."""
         for srv in self._node.services:
             while True:
                 try:
@@ -298,10 +333,21 @@ class RclpyNode:
                     break
                 request, header = got
                 try:
-                    response = srv.callback(request, srv.srv_type.Response())
-                    srv.send_response(response, header)
+                    response = srv.srv_type.Response()
+                    later = self._deferred_services.get(srv)
+                    if later is not None:
+                        later(request, response, self._sender(srv, response, header))
+                    else:
+                        srv.send_response(srv.callback(request, response), header)
                 except Exception as exc:
                     self._guard.failed(f"service {srv.srv_name}", exc)
+
+    def _sender(self, srv: Any, response: Any, header: Any) -> Callable[[], None]:
+        def send() -> None:
+            if not self._destroyed:
+                srv.send_response(response, header)
+
+        return send
 
     @property
     def has_pending_replies(self) -> bool:

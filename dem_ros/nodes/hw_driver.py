@@ -108,11 +108,13 @@ class HwDriverNode:
         self.JS = node.msg("sensor_msgs/msg/JointState")
         self.D = (node.msg("diagnostic_msgs/msg/DiagnosticArray"), node.msg("diagnostic_msgs/msg/DiagnosticStatus"),
                   node.msg("diagnostic_msgs/msg/KeyValue"))
-        self.pub_meas = node.publisher(contract.MEASUREMENT)
-        self.pub_applied = node.publisher(contract.APPLIED)
         # /diagnostics (hw_driver: loop) through the one reporter: 1 Hz (status()), WARN when a link counter
         # grew, a latched ERROR while the driver is in FAULT (published at once)
         self.diag = Diagnostics(node, contract.HW_LOOP_STATUS, warn_on=WARN_ON, values=self.stats, timer=False)
+        # the 1 kHz topics' frequency and stamp statuses; published from the link's reader thread, which outlives
+        # the node: timed by the system clock
+        self.pub_meas = self.diag.diagnosed(contract.MEASUREMENT, clock=time.time_ns)
+        self.pub_applied = self.diag.diagnosed(contract.APPLIED, clock=time.time_ns)
         self.pub_state = node.publisher(contract.HW_STATE)
         # the command source lock: /dem/command only from command_source's writers (nodes/common.CommandSource)
         self.source = CommandSource(node, c["command_source"], self.on_command)
@@ -565,9 +567,10 @@ class HwDriverNode:
             self.last_state = key
         if d.hello is not None and not self.board_announced:  # the board answered the driver's hello
             self.board_announced = True
+            self.diag.hardware_id = f"board {d.hello.board_id}"  # the device behind the driver's statuses
             announce("board", "hw_driver", url=self.cfg["url"], board_id=d.hello.board_id)
-        st = diag_array(*self.D, self.node.now_ns(), "hw_driver: state", self._level(), d.state.name.lower(),
-                        {**self.stats(), "answer": self.answer}).status[0]
+        st = diag_array(*self.D, self.node.now_ns(), contract.HW_STATE_STATUS, self._level(), d.state.name.lower(),
+                        {**self.stats(), "answer": self.answer}, self.diag.hardware_id).status[0]
         self.pub_state.publish(st)
 
     def _level(self) -> int:
@@ -618,7 +621,7 @@ class HwDriverNode:
                   f" holds {s['hold_samples']}"
                   f"  latency p50 {s['latency_p50_us']:.0f} us p99 {s['latency_p99_us']:.0f} us", flush=True)
         self.report_faults()
-        self.diag.publish()
+        self.diag.report()
 
     def finish(self, why: str) -> None:
         """The node ends (the run's end, or a lifecycle shutdown): its link reader stops, then the node."""

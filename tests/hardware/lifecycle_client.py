@@ -171,7 +171,8 @@ def lifecycle_nodes(domain: int) -> int:
         out = {"nodes": sorted(n for n in names if "lifecycle_msgs/srv/GetState" in services.get(f"{n}/get_state", [])),
                "services": {k: v for k, v in services.items() if k.startswith("/hw_driver/")
                             and any(t.startswith("lifecycle_msgs/") for t in v)}}
-        if len(out["services"]) == 5:
+        # the node's name comes from its participant's ros_discovery_info, which may trail its endpoints
+        if len(out["services"]) == 5 and "/hw_driver" in out["nodes"]:
             break
         time.sleep(0.2)
     print("RESULT " + json.dumps(out), flush=True)

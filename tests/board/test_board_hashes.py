@@ -203,7 +203,7 @@ EXPECTED: dict[str, str] = {
     "captures": "c534df71ae9154af/13234",
     "lost_sensors": "6179e1b04fcbfb8b/29530",
     "stuck_sensors": "b8e3383784d724dc/52181",
-    "random_inputs": "c1a7f5faf9d46378/4800",
+    "random_inputs": "c5fbc746fad90f07/4800",
 }
 
 

@@ -6,7 +6,8 @@
   (``ros_discovery_info`` + DCPSPublication) and no command counts as foreign.
 * A stock rclpy client (``rcl_interfaces/srv/SetParameters``, as ``ros2 param set`` sends it) sets
   ``/controller w`` five times while the rclpy graph runs free, composed; every call is answered, and
-  the changes reach the controller (its ``/parameter_events`` in the bag).
+  the changes reach the controller (its ``/parameter_events`` in the bag). The client process starts with the
+  graph and finds the service meanwhile; it makes its calls once the run is under way (t = 0).
 
 Real node processes on a leased domain, on loopback; the bag read back.
 """
@@ -97,6 +98,7 @@ while not cli.service_is_ready() and time.monotonic() < end:
 if not cli.service_is_ready():
     print(json.dumps({"error": "no /controller/set_parameters within 120 s"}), flush=True)
     sys.exit(1)
+sys.stdin.readline()  # the test's go: the run is under way
 out = []
 for w in sys.argv[2:]:
     req = SetParameters.Request(parameters=[Parameter(name="w", value=ParameterValue(
@@ -116,6 +118,17 @@ rclpy.shutdown()
 """
 
 
+def _past_t0(log) -> bool:
+    """Whether the plant's status lines (``t = <s> s ...``, once a second; 0.0 until t = 0) show the run under way."""
+    text = log.read_text(errors="replace") if log.exists() else ""
+    lines = text.replace("\r", "\n").splitlines()
+    return any(float(ln.split()[2]) > 0.0 for ln in lines if ln.startswith("t =") and len(ln.split()) > 2)
+
+
+#: the free-running graph's length: the five calls (each answered within ANSWER_S, asserted) are made from t = 0
+STOCK_RUN_S = 8.0
+
+
 def test_a_stock_rclpy_client_sets_parameters_of_the_free_running_rclpy_graph(tmp_path):
     domain = domains.hold()
     cfg = get_scenario("S1").config()
@@ -126,21 +139,28 @@ def test_a_stock_rclpy_client_sets_parameters_of_the_free_running_rclpy_graph(tm
 
     def run() -> None:
         try:
-            out["facts"] = launcher.run_graph(cfg, duration=20.0, transport="rclpy", compose=True, bag=bag, meta=meta,
-                                              domain_id=domain, status=False, workdir=tmp_path / "logs")
+            out["facts"] = launcher.run_graph(cfg, duration=STOCK_RUN_S, transport="rclpy", compose=True, bag=bag,
+                                              meta=meta, domain_id=domain, status=False, workdir=tmp_path / "logs")
         except Exception as exc:  # reported below
             out["error"] = exc
 
     t = threading.Thread(target=run)
     t.start()
-    log = tmp_path / "logs" / "container.log"
-    end = time.monotonic() + 180
-    while time.monotonic() < end and not (log.exists() and "t =" in log.read_text(errors="replace")) and t.is_alive():
-        time.sleep(0.1)
     values = ["61", "62", "63", "64", "65"]
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    r = subprocess.run([sys.executable, "-c", CLIENT, str(domain), *values], capture_output=True, text=True,
-                       timeout=400, env=env)
+    client = subprocess.Popen([sys.executable, "-c", CLIENT, str(domain), *values], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        log = tmp_path / "logs" / "container.log"
+        end = time.monotonic() + 180
+        while time.monotonic() < end and not _past_t0(log) and t.is_alive():
+            time.sleep(0.1)
+        stdout, stderr = client.communicate(input="go\n", timeout=400)  # the calls, now
+    finally:
+        if client.poll() is None:
+            client.kill()
+            client.wait()
+    r = subprocess.CompletedProcess(client.args, client.returncode, stdout, stderr)
     t.join(timeout=300)
     assert not t.is_alive(), "the graph did not finish"
     assert "error" not in out, out.get("error")

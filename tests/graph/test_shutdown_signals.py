@@ -27,6 +27,10 @@ TRANSPORTS = ["dds", "rclpy"]
 STOP_S = 120.0
 #: the nodes' start-up on a loaded machine (numba kernels from the cache, DDS discovery)
 READY_S = 120.0
+#: the plant's parameters: a run that never ends by itself, started as soon as its command writer and measurement
+#: readers are matched (start_delay 0: the default's 3 s floor gives discovery time before a run's first samples,
+#: which nothing here looks at; the nodes are up before the plant starts, as the launcher has them)
+PLANT_ARGS = ["--ros-args", "-p", "duration:=600.0", "-p", "start_delay:=0.0"]
 
 
 def _transport_or_skip(transport: str) -> None:
@@ -103,7 +107,7 @@ def test_sigint_stops_every_node_process(transport, tmp_path):
     procs: dict[str, subprocess.Popen] = {}
     try:
         for n in names:
-            extra = {"recorder": ["--bag", str(bag)], "plant_sim": ["--ros-args", "-p", "duration:=600.0"]}.get(n, [])
+            extra = {"recorder": ["--bag", str(bag)], "plant_sim": PLANT_ARGS}.get(n, [])
             with open(logs[n], "wb") as out:
                 procs[n] = _start(n, transport, domain, out, *extra)
             if n == "controller":  # the plant starts last, as the launcher does
@@ -129,8 +133,7 @@ def test_sigint_stops_the_composed_graph(transport, tmp_path):
     procs: dict[str, subprocess.Popen] = {}
     try:
         with open(logs["container"], "wb") as out:
-            procs["container"] = _start("container", transport, domain, out, "--bag", str(bag),
-                                        "--ros-args", "-p", "duration:=600.0")
+            procs["container"] = _start("container", transport, domain, out, "--bag", str(bag), *PLANT_ARGS)
         _wait_for({logs["container"]: "t ="}, list(procs.values()), READY_S)
         took = _interrupt(procs)
     finally:

@@ -18,10 +18,17 @@ from dem_ros.transport.memory import MemoryBus
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def child_env(domain_id: int) -> dict[str, str]:
+#: the lease the killed talker's participant announces (Cyclone's default: 10 s): a killed process's writers leave
+#: the graph when its lease runs out, the path checked below, in 2 s instead of 10
+SHORT_LEASE = "<CycloneDDS><Domain><Discovery><LeaseDuration>2s</LeaseDuration></Discovery></Domain></CycloneDDS>"
+
+
+def child_env(domain_id: int, lease: str | None = None) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if k != "CYCLONEDDS_URI"}
     env.update(ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1",
                PYTHONPATH=str(ROOT) + os.pathsep + env.get("PYTHONPATH", ""))
+    if lease is not None:
+        env["CYCLONEDDS_URI"] = lease  # after the transport's own configuration (dds/wire.py), as a user's is
     return env
 
 TALKER = r"""
@@ -82,9 +89,9 @@ def _wait(pred, timeout, spin):
 def test_dds_sources_of_other_processes(domain_id, wait_line):
     from dem_ros.transport.dds.node import DdsNode
 
-    procs = [subprocess.Popen([sys.executable, "-c", TALKER, name, volts], env=child_env(domain_id), cwd=str(ROOT),
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-             for name, volts in (("controller", "1.0"), ("rogue", "1e6"))]
+    procs = [subprocess.Popen([sys.executable, "-c", TALKER, name, volts], env=child_env(domain_id, lease),
+                              cwd=str(ROOT), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for name, volts, lease in (("controller", "1.0", SHORT_LEASE), ("rogue", "1e6", None))]
     node = DdsNode("plant_sim", [])
     try:
         for p in procs:

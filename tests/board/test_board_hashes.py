@@ -4,7 +4,8 @@ A refactoring of the board must not change what it decides or applies. Every sam
 the grids of ``test_safety`` (landings from level and tilted hovers with m, R, K off; the worst commands and
 the seeded random rail approaches; captures after a trip; lost, flickering and frozen sensors; landings started
 during a lift-off) and in a seeded random input sequence (commands, NaNs, mode requests, bus and applied
-voltages) is folded into one SHA-256 per grid: the mode, the voltages, the observer's estimate, the predicted stopping gaps, the flags
+voltages) is folded into one SHA-256 per grid: the mode, the voltages, the observer's estimate, the predicted
+stopping gaps, the flags
 (``implausible``, ``command_timeout``) and the snapshot (reasons, fault, counters). The table below holds the
 expected digests; print the current ones with
 

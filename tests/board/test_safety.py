@@ -534,7 +534,8 @@ def approach(g0: float, v0: float, kind: str, variant=(1.0, 0.0, 1.0, 1.0), tilt
              seed=1, t_after=0.15, to_landed=False, cfg=None):
     """The plate hovers (exact equilibrium currents) while moving toward the rail at v0 [m/s] (end 2 at
     v2 v0), under the hover command; it reaches (g0, g0 + tilt) after 30 samples (an end moving away starts
-    at 2 mm at least), when the worst command ``kind`` starts. The board is the Supervisor; returns (smallest true load-point or magnet gap [m],
+    at 2 mm at least), when the worst command ``kind`` starts. The board is the Supervisor; returns (smallest true
+    load-point or magnet gap [m],
     supervisor, dict with the support impact speeds [m/s] and the samples run)."""
     fm, dm, fR, fK = variant
     cfg = cfg or board_cfg()
@@ -591,7 +592,8 @@ def test_braking_bound_numbers_of_the_docstring():
 def test_force_bound_covers_weak_and_strong_magnets(fK, i_frac, uc):
     """F+ against the true plant (K_true = fK K): one sample of uc from i_frac x the hover current at 8 mm,
     the plate resting or falling at 50 mm/s (low flux: the weak magnet pulls harder, 30.5 N vs 18.3 N at
-    0 A and 200 V: F+ takes 30.5 N). The true force after the sample, K_true i^2 / delta^2, never exceeds F+; the old bound
+    0 A and 200 V: F+ takes 30.5 N). The true force after the sample, K_true i^2 / delta^2, never exceeds F+; the old
+    bound
     (K_hi alone) is exceeded at 0 A and 200 V with the weak magnet."""
     sup = Supervisor(board_cfg(), T)
     pc = SCHEMA.defaults("plant_sim")
@@ -650,7 +652,8 @@ def test_braking_bound_holds_at_low_flux(fK):
                     plant.x[:] = [gap, -v, gap, -v, i, i]
                     bound = _stop_distance(sup, gap, v, i, uc, cfg["u_max"])
                     low = _candidate_then_brake(plant, cfg, np.array([uc, uc]))
-                    assert gap - low <= bound, f"{gap=} {v=} {i_frac=} {uc=}: {(gap - low) * 1e3:.4f} > {bound * 1e3:.4f} mm"
+                    assert gap - low <= bound, (f"{gap=} {v=} {i_frac=} {uc=}: {(gap - low) * 1e3:.4f} > "
+                                                f"{bound * 1e3:.4f} mm")
 
 
 @pytest.mark.parametrize("variant", ["nominal", "light_strong", "heavy"])
@@ -677,9 +680,11 @@ def test_braking_bound_holds_and_is_not_vacuous(variant):
                 plant.x[:] = [gap, -v, gap, -v, i, i]
                 bound = _stop_distance(sup, gap, v, i, float(u0[0]), cfg["u_max"])
                 travelled = gap - _candidate_then_brake(plant, cfg, u0)
-                assert travelled <= bound, f"{gap=} {v=} {fi=}: travelled {travelled * 1e3:.3f} mm > D {bound * 1e3:.3f} mm"
+                assert travelled <= bound, (f"{gap=} {v=} {fi=}: travelled {travelled * 1e3:.3f} mm > "
+                                            f"D {bound * 1e3:.3f} mm")
                 if fi == 1.0:
-                    assert bound <= 4 * travelled + 1.0e-3, f"{gap=} {v=}: D {bound * 1e3:.3f} mm vs {travelled * 1e3:.3f} mm"
+                    assert bound <= 4 * travelled + 1.0e-3, (f"{gap=} {v=}: D {bound * 1e3:.3f} mm vs "
+                                                             f"{travelled * 1e3:.3f} mm")
                 worst_ratio = max(worst_ratio, travelled / bound)
     assert worst_ratio > 0.2  # the bound is exercised, not trivially far above every case
 
@@ -698,12 +703,14 @@ def test_worst_commands_never_reach_the_rail(variant, kind):
             assert g_min > cfg["gap_min"], f"rail contact from {g0 * 1e3:g} mm at {v0 * 1e3:g} mm/s: {sup.snapshot()}"
             lows.append((g_min, g0, v0, sup.snapshot()))
     g_min, g0, v0, snap = min(lows, key=lambda r: r[0])
-    assert g_min >= cfg["trip_gap_min"] - 0.3e-3, f"{g_min * 1e3:.3f} mm from {g0 * 1e3:g} mm at {v0 * 1e3:g} mm/s: {snap}"
+    assert g_min >= cfg["trip_gap_min"] - 0.3e-3, (f"{g_min * 1e3:.3f} mm from {g0 * 1e3:g} mm at {v0 * 1e3:g} mm/s: "
+                                                   f"{snap}")
 
 
 def test_seeded_random_approaches_never_reach_the_rail():
     """200 seeded random cases: start gap, tilt, each end's approach speed (one end may move away), command,
-    true m (+-25 %, up to 3 kg added), R (-25..+40 %), K (+-25 %), noise up to S3c's (+-100 um); measured min 1.67 mm."""
+    true m (+-25 %, up to 3 kg added), R (-25..+40 %), K (+-25 %), noise up to S3c's (+-100 um); measured min
+    1.67 mm."""
     cfg = board_cfg()
     rng = np.random.default_rng(20261124)
     lows = []
@@ -858,7 +865,12 @@ LOSS_VARIANTS = [(1.0, 0.0, 1.0, 1.0), (1.25, 3.0, 1.0, 0.75), (0.75, 0.0, 1.0, 
                  (1.0, 0.0, 0.75, 1.0)]
 
 
-@pytest.mark.parametrize("variant", LOSS_VARIANTS, ids=[f"m{v[0]:g}+{v[1]:g}kg-R{v[2]:g}-K{v[3]:g}" for v in LOSS_VARIANTS])
+def _variant_ids(variants) -> list[str]:
+    """Test ids of (m, added kg, R, K) variants."""
+    return [f"m{v[0]:g}+{v[1]:g}kg-R{v[2]:g}-K{v[3]:g}" for v in variants]
+
+
+@pytest.mark.parametrize("variant", LOSS_VARIANTS, ids=_variant_ids(LOSS_VARIANTS))
 @pytest.mark.parametrize("chan", [2, 3])
 def test_a_lost_current_sensor_leads_to_a_controlled_landing(chan, variant):
     """A current sensor lost for good at an 8 mm hover: after SENSOR_BLIND_SAMPLES the board lands on its coil
@@ -874,7 +886,7 @@ def test_a_lost_current_sensor_leads_to_a_controlled_landing(chan, variant):
     assert sup.counters["sensor_losses"] == 1 and f"current sensor {chan - 1} lost" in sup.fault
 
 
-@pytest.mark.parametrize("variant", LOSS_VARIANTS, ids=[f"m{v[0]:g}+{v[1]:g}kg-R{v[2]:g}-K{v[3]:g}" for v in LOSS_VARIANTS])
+@pytest.mark.parametrize("variant", LOSS_VARIANTS, ids=_variant_ids(LOSS_VARIANTS))
 @pytest.mark.parametrize("chan", [0, 1])
 def test_a_lost_gap_sensor_leads_to_a_landing_on_the_coil_flux(chan, variant):
     """A gap sensor lost for good at an 8 mm hover: after SENSOR_BLIND_SAMPLES the board lands with that gap
@@ -908,7 +920,7 @@ def test_a_lost_gap_sensor_leads_to_a_landing_on_the_coil_flux(chan, variant):
 K_DECIDE = 300 + SENSOR_BLIND_SAMPLES
 
 
-@pytest.mark.parametrize("variant", LOSS_VARIANTS[:3], ids=[f"m{v[0]:g}+{v[1]:g}kg-R{v[2]:g}-K{v[3]:g}" for v in LOSS_VARIANTS[:3]])
+@pytest.mark.parametrize("variant", LOSS_VARIANTS[:3], ids=_variant_ids(LOSS_VARIANTS[:3]))
 @pytest.mark.parametrize("chan", [0, 1])
 def test_a_flux_landing_that_loses_its_current_faults_instead_of_landing_blind(chan, variant):
     """Gap j lost for good (a landing on coil j's flux), then current j lost for good 20 samples later: no gap j
@@ -936,7 +948,7 @@ def test_a_flux_landing_that_loses_its_current_faults_instead_of_landing_blind(c
     assert min(X[-1, 0], X[-1, 2]) == SUPPORT and impacts and max(impacts) < 0.4  # dropped onto the support
 
 
-@pytest.mark.parametrize("variant", LOSS_VARIANTS[:3], ids=[f"m{v[0]:g}+{v[1]:g}kg-R{v[2]:g}-K{v[3]:g}" for v in LOSS_VARIANTS[:3]])
+@pytest.mark.parametrize("variant", LOSS_VARIANTS[:3], ids=_variant_ids(LOSS_VARIANTS[:3]))
 @pytest.mark.parametrize("other", ["gap", "current"])
 @pytest.mark.parametrize("n_nan", [1, 2, SENSOR_BLIND_SAMPLES])
 @pytest.mark.parametrize("chan", [0, 1])

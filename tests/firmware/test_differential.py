@@ -189,7 +189,8 @@ def run_case(case: Case) -> Result:
     r = Result(case, k + 1, counters=dict(py.counters), modes=set(mp))
     rp, rc = _runs(mp), _runs(mc)
     if [m for m, _ in rp] != [m for m, _ in rc]:
-        r.diffs.append(f"mode sequence: python {[(Mode(m).name, k) for m, k in rp]} c {[(Mode(m).name, k) for m, k in rc]}")
+        r.diffs.append(f"mode sequence: python {[(Mode(m).name, k) for m, k in rp]} "
+                       f"c {[(Mode(m).name, k) for m, k in rc]}")
     else:
         for (m, ka), (_, kb) in zip(rp, rc, strict=True):
             if abs(ka - kb) > 1:

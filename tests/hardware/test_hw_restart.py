@@ -144,8 +144,10 @@ def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path
     pc = cfg["plant_sim"]
     assert rig["failed"] == "", (rig["failed"], rig["min_gap_mm"], rig["reason"], script.phase, script.t)
     assert rig["min_gap_mm"] > pc["trip_gap_min"] * 1e3, rig
-    assert rig["landings"] >= 2 and rig["land_speed_max_mm_s"] <= pc["landing_speed"] * 1e3, (rig["landings"], rig["land_speed_max_mm_s"], rig["reason"], script.t)
-    assert rig["mode"] in ("LAND", "LANDED") and rig["reason"] == "LAND requested", rig  # the driver's stop, not its watchdog
+    assert rig["landings"] >= 2 and rig["land_speed_max_mm_s"] <= pc["landing_speed"] * 1e3, (
+        rig["landings"], rig["land_speed_max_mm_s"], rig["reason"], script.t)
+    # the driver's stop, not its watchdog
+    assert rig["mode"] in ("LAND", "LANDED") and rig["reason"] == "LAND requested", rig
     # the fault on /diagnostics, in the bag; the levitation after the arm, in the bag
     r = BagReader(bag)
     faults = [s.message for _, _, m in r.messages([contract.DIAGNOSTICS.name]) for s in m.status

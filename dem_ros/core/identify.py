@@ -740,8 +740,9 @@ def _refine(fit: RunData, geo: Mapping[str, float], T: np.ndarray, v0: np.ndarra
     block = _block_length(block, gs, [fit.t, fit.t, th])
     contrib = _block_sums(scores, np.concatenate([fit.t, fit.t, th]), block) @ np.linalg.pinv(J.T @ J)
     if note:
-        notes.append("autocorrelation times of the refined residuals (samples): coil 1 {:.3g}, coil 2 {:.3g}, "
-                     "heave {:.3g}; intervals from time blocks of {:.3g} s".format(*taus, block))
+        notes.append("autocorrelation times of the refined residuals (samples; heave: windows): coil 1 {:.3g}, "
+                     "coil 2 {:.3g}, heave {:.3g}; intervals from time blocks of {:.3g} s"
+                     .format(*(_tau(g) for g in gs), block))
     return sol.x * scale, contrib, J
 
 

@@ -47,7 +47,7 @@ TOLERANCE = {"R1": 0.03, "R2": 0.03, "K1": 0.03, "K2": 0.03, "K": 0.03, "m": 0.0
 #: --rigs: the largest max(K1, K2)/min(K1, K2) - 1 of the emulated rigs. The laws take one K, and the adaptive
 #: law's lift-off from the hover it initialises with one K has a pitch transient that grows with the split
 #: (offline S1: 0.57 mm at 3 %, 2.0 mm at 10 %, 3.5 mm at 20 %). With K1, K2 drawn independently within +-20 %,
-#: 40 emulated rigs: splits up to 12 % levitated in 20 of 20, 18-21 % in 5 of 9, 26-48 % in none of 11 (the
+#: 40 emulated rigs: splits up to 12 % levitated in 20 of 20, 17-21 % in 4 of 8, 26-48 % in none of 12 (the
 #: board's braking bound landed the plate, or it came to rest on its support)
 MAX_SPLIT = 0.10
 

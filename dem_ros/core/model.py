@@ -14,7 +14,8 @@ the corrected dynamics are (docs/manual/model.md; errata 1-3)::
     d2'' = -B F1 - A F2 + D N1 + C N2 + g                           (Eq. 3b)
     i_j' = (delta_j / 2K)(u_j - R_j i_j) + i_j delta_j' / delta_j    (from u = R_j i + d(2K i/delta)/dt)
 
-(each coil has its own resistance R_j; the control laws assume R1 = R2 = R).
+(each coil has its own resistance R_j, and each magnet its own force coefficient K_j in F_j and in its coil
+equation: K1 = K2 = K unless set; the control laws assume R1 = R2 = R and K1 = K2 = K).
 
 With a_j = i_j^2/delta_j, b_j = i_j/delta_j, q_j = b_j^2 the output has
 relative degree (3, 3) and (docs/manual/model.md a-b)::
@@ -49,6 +50,7 @@ __all__ = [
     "derived",
     "dynamics",
     "equilibrium",
+    "force_coefficients",
     "gap_weights",
     "hover_current",
     "hover_forces",
@@ -62,9 +64,9 @@ __all__ = [
     "theta_of",
 ]
 
-# Layout of the plant parameter vector ``p`` used by the kernels (R1, R2: per coil).
-IP, IQ, IA, IB, IC, ID, IK, IR1, IN1, IN2, IG, IR2 = range(12)
-NPP = 12
+# Layout of the plant parameter vector ``p`` used by the kernels (R1, R2: per coil; IK: K1 of magnet 1, IK2: K2).
+IP, IQ, IA, IB, IC, ID, IK, IR1, IN1, IN2, IG, IR2, IK2 = range(13)
+NPP = 13
 
 # Layout of a row of the plant schedule (time-varying truth, one row per sample):
 # mass m (kg), pitch inertia I (kg m^2), loads N1, N2 (N), resistances R1, R2 (ohm).
@@ -95,12 +97,19 @@ def coil_resistances(cfg: Mapping[str, Any]) -> tuple[float, float]:
     return (cfg.get("R1") or R, cfg.get("R2") or R)
 
 
+def force_coefficients(cfg: Mapping[str, Any]) -> tuple[float, float]:
+    """(K1, K2) (N m^2/A^2): ``K1``/``K2`` when set (non-zero), else ``K`` for both magnets."""
+    K = cfg["K"]
+    return (cfg.get("K1") or K, cfg.get("K2") or K)
+
+
 def plant_vector(cfg: Mapping[str, Any], m: float | None = None) -> np.ndarray:
-    """Kernel parameter vector from a ``plant_sim``-like dict (L, l, I, m, K, R [, R1, R2], N1, N2, g)."""
+    """Kernel parameter vector from a ``plant_sim``-like dict (L, l, I, m, K [, K1, K2], R [, R1, R2], N1, N2, g)."""
     mass = cfg["m"] if m is None else m
     P, Q, A, B, C, D = derived(cfg["L"], cfg["l"], mass, cfg["I"])
     R1, R2 = coil_resistances(cfg)
-    return np.array([P, Q, A, B, C, D, cfg["K"], R1, cfg["N1"], cfg["N2"], cfg["g"], R2])
+    K1, K2 = force_coefficients(cfg)
+    return np.array([P, Q, A, B, C, D, K1, R1, cfg["N1"], cfg["N2"], cfg["g"], R2, K2])
 
 
 @njit(cache=True)
@@ -125,20 +134,20 @@ def apply_schedule(p: np.ndarray, row: np.ndarray, L: float, l: float) -> None:
 @njit(cache=True)
 def dynamics(x: np.ndarray, u: np.ndarray, p: np.ndarray, dx: np.ndarray) -> None:
     """dx = f(x) + G(x) u, written into ``dx`` (shape (6,))."""
-    P, Q, A, B, C, D, K = p[IP], p[IQ], p[IA], p[IB], p[IC], p[ID], p[IK]
+    P, Q, A, B, C, D, K, K2 = p[IP], p[IQ], p[IA], p[IB], p[IC], p[ID], p[IK], p[IK2]
     d1 = P * x[0] + Q * x[2]
     d2 = Q * x[0] + P * x[2]
     dd1 = P * x[1] + Q * x[3]
     dd2 = Q * x[1] + P * x[3]
     F1 = K * x[4] * x[4] / (d1 * d1)
-    F2 = K * x[5] * x[5] / (d2 * d2)
+    F2 = K2 * x[5] * x[5] / (d2 * d2)
     load = p[IG]
     dx[0] = x[1]
     dx[1] = -A * F1 - B * F2 + C * p[IN1] + D * p[IN2] + load
     dx[2] = x[3]
     dx[3] = -B * F1 - A * F2 + D * p[IN1] + C * p[IN2] + load
     dx[4] = d1 / (2.0 * K) * (u[0] - p[IR1] * x[4]) + x[4] * dd1 / d1
-    dx[5] = d2 / (2.0 * K) * (u[1] - p[IR2] * x[5]) + x[5] * dd2 / d2
+    dx[5] = d2 / (2.0 * K2) * (u[1] - p[IR2] * x[5]) + x[5] * dd2 / d2
 
 
 @njit(cache=True)
@@ -281,13 +290,15 @@ def equilibrium(cfg: Mapping[str, Any], d1: float, d2: float,
                 R: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(x0, u0): the exact equilibrium with gaps (d1, d2) (m) and the voltages (V) that hold it.
 
-    Currents i_j = delta_j sqrt(F_j / K) with F_j of :func:`hover_forces` and delta_j of Eq. 6;
+    Currents i_j = delta_j sqrt(F_j / K_j) with F_j of :func:`hover_forces`, delta_j of Eq. 6 and K_j of
+    :func:`force_coefficients`;
     voltages u_j = R_j i_j (R: per-coil resistances, default :func:`coil_resistances`).
     """
     P, Q = (cfg["L"] + cfg["l"]) / (2 * cfg["L"]), (cfg["L"] - cfg["l"]) / (2 * cfg["L"])
     F1, F2 = hover_forces(cfg)
     de1, de2 = P * d1 + Q * d2, Q * d1 + P * d2
-    i1, i2 = de1 * np.sqrt(F1 / cfg["K"]), de2 * np.sqrt(F2 / cfg["K"])
+    K1, K2 = force_coefficients(cfg)
+    i1, i2 = de1 * np.sqrt(F1 / K1), de2 * np.sqrt(F2 / K2)
     R1, R2 = coil_resistances(cfg) if R is None else R
     return np.array([d1, 0.0, d2, 0.0, i1, i2]), np.array([R1 * i1, R2 * i2])
 

@@ -266,6 +266,9 @@ def _check_plant(v: Mapping[str, Any]) -> str | None:
     for name in ("R1", "R2"):
         if 0.0 < v[name] < 0.01:
             return f"{name} = {v[name]:g} ohm: expected 0 (take R) or a resistance in [0.01, 1e4] ohm"
+    for name in ("K1", "K2"):
+        if 0.0 < v[name] < 1e-7:
+            return f"{name} = {v[name]:g} N*m^2/A^2: expected 0 (take K) or a force coefficient in [1e-07, 1]"
     for name in ("d1_0", "d2_0"):
         if v[name] != 0.0 and not v["gap_min"] < v[name] < v["gap_max"]:
             return (f"{name} = {v[name]:g} m must be 0 (take gap0) or lie inside (gap_min, gap_max) = "
@@ -378,6 +381,9 @@ SCHEMA = Schema(
                       "where the added mass sits: fraction of L from O towards magnet 1 (0: at O; 0.3: S6)", -1.0, 1.0),
             ParamSpec("R1", float, 0.0, "ohm", "true resistance of coil 1 at t = 0 (0: R)", 0.0, 1e4),
             ParamSpec("R2", float, 0.0, "ohm", "true resistance of coil 2 at t = 0 (0: R)", 0.0, 1e4),
+            ParamSpec("K1", float, 0.0, "N*m^2/A^2",
+                      "true force coefficient of magnet 1 (its F and its coil's flux 2 K1 i/delta; 0: K)", 0.0, 1.0),
+            ParamSpec("K2", float, 0.0, "N*m^2/A^2", "true force coefficient of magnet 2 (0: K)", 0.0, 1.0),
             ParamSpec("R1_rise", float, 0.0, "",
                       "coil heating: relative rise of R1 reached at heating_end, linear from heating_start "
                       "(0.2: +20 %)", -0.5, 2.0),

@@ -15,7 +15,7 @@
     dem-ros study     robustness over plant truth x controllers, on Dask distributed
     dem-ros faults    the fault catalogue (#12) injected into the real graph: outcome per fault
     dem-ros view      the running graph live in Foxglove (a WebSocket server)
-    dem-ros identify  R1, R2, K and m of a rig from a recorded run (or --rigs N: on emulated rigs)
+    dem-ros identify  R1, R2, K (K1, K2) and m of a rig from a recorded run (or --rigs N: on emulated rigs)
     dem-ros calibrate the gap sensors' calibration from a shim session (calibrate gaps; CSV or live)
 
 Bad input ends with a one-line error and exit status 2, never a traceback.
@@ -396,7 +396,7 @@ _COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
     "param": ("get or set a parameter of a running node (DDS parameter services)", _add_param),
     "view": ("watch the running graph live in Foxglove (a WebSocket server; docs/manual/live-view.md)", _add_view),
     "study": ("robustness study: plant truth (grid or Monte Carlo) x controllers on Dask distributed", _add_study),
-    "identify": ("R1, R2, K and m of a rig from a recorded run, with 95 %% intervals", _add_identify),
+    "identify": ("R1, R2, K (K1, K2) and m of a rig from a recorded run, with 95 %% intervals", _add_identify),
     "calibrate": ("calibrate the gap sensors from a shim session (CSV, or live over the link)", _add_calibrate),
 }
 

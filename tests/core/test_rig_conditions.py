@@ -17,7 +17,7 @@ from dem_ros.core.scenarios import plant_schedule, sensor_model
 PC = default_config()["plant_sim"]
 NEW = {"R1": 18.0, "R2": 22.0, "R1_rise": 0.2, "R2_rise": 0.1, "heating_start": 5.0, "heating_end": 50.0,
        "d1_0": 0.0085, "d2_0": 0.0075, "mass_offset": 0.3, "gap_offset_1": 1e-4, "gap_offset_2": -2e-4,
-       "gap_scale_1": 1.02, "gap_scale_2": 0.97}
+       "gap_scale_1": 1.02, "gap_scale_2": 0.97, "K1": 4.0e-4, "K2": 4.8e-4}
 
 
 def _pc(**changes):
@@ -34,6 +34,8 @@ def test_every_new_setting_reachable_by_set(name):
 @pytest.mark.parametrize("changes,field,allowed", [
     ({"R1": -1.0}, "plant_sim.R1", "[0, 10000] ohm"),
     ({"R2": 0.001}, "R2", "0 (take R)"),
+    ({"K1": 1e-9}, "K1", "0 (take K)"),
+    ({"K2": 2.0}, "plant_sim.K2", "[0, 1] N*m^2/A^2"),
     ({"R1_rise": 5.0}, "plant_sim.R1_rise", "[-0.5, 2]"),
     ({"d1_0": 0.05}, "d1_0", "(gap_min, gap_max)"),
     ({"d2_0": 0.2}, "plant_sim.d2_0", "[0, 0.1] m"),
@@ -53,6 +55,28 @@ def test_R_sets_both_coils_and_R1_R2_override():
     assert p[model.IR1] == p[model.IR2] == 18.0
     p = model.plant_vector(_pc(R=18.0, R2=25.0))
     assert (p[model.IR1], p[model.IR2]) == (18.0, 25.0)
+
+
+def test_K_sets_both_magnets_and_K1_K2_override():
+    p = model.plant_vector(_pc(K=4e-4))
+    assert p[model.IK] == p[model.IK2] == 4e-4
+    p = model.plant_vector(_pc(K=4e-4, K2=5e-4))
+    assert (p[model.IK], p[model.IK2]) == (4e-4, 5e-4)
+
+
+def test_each_magnet_pulls_and_each_coil_stores_flux_with_its_own_K():
+    """F_j = K_j i_j^2/delta_j^2 in Eq. 3 and i_j' = (delta_j / 2K_j)(u_j - R i_j): only magnet 2 sees K2."""
+    pc = _pc(K1=4e-4, K2=5e-4)
+    x = np.array([0.008, 0, 0.008, 0, 4.0, 4.0])
+    dx, dx1 = np.empty(6), np.empty(6)
+    model.dynamics(x, np.array([90.0, 90.0]), model.plant_vector(pc), dx)
+    model.dynamics(x, np.array([90.0, 90.0]), model.plant_vector(_pc(K=4e-4)), dx1)
+    A, B = 1 / pc["m"] + pc["L"] * pc["l"] / pc["I"], 1 / pc["m"] - pc["L"] * pc["l"] / pc["I"]
+    dF2 = 1e-4 * 4.0 ** 2 / 0.008 ** 2
+    assert dx[1] - dx1[1] == pytest.approx(-B * dF2, rel=1e-9)
+    assert dx[3] - dx1[3] == pytest.approx(-A * dF2, rel=1e-9)
+    assert dx[4] == dx1[4]
+    assert dx[5] == pytest.approx(0.008 / (2 * 5e-4) * (90.0 - 20.0 * 4.0), rel=1e-12)
 
 
 def test_each_coil_obeys_its_own_resistance():
@@ -90,13 +114,14 @@ def test_S6_off_centre_load_is_the_weight_and_inertia_of_a_point_mass(scenarios)
 def _equilibrium_sympy(pc, d1v, d2v):
     """Eq. 3 and the coil equation at rest, solved again with sympy for (i1, i2, u1, u2)."""
     i1, i2, u1, u2 = sp.symbols("i1 i2 u1 u2", positive=True)
-    L, l, m, I, K = (sp.nsimplify(pc[k]) for k in ("L", "l", "m", "I", "K"))
+    L, l, m, I = (sp.nsimplify(pc[k]) for k in ("L", "l", "m", "I"))
+    K1, K2 = (sp.nsimplify(k) for k in model.force_coefficients(pc))
     N1, N2, g = sp.nsimplify(pc["N1"]), sp.nsimplify(pc["N2"]), sp.nsimplify(pc["g"])
     d1, d2 = sp.nsimplify(d1v), sp.nsimplify(d2v)
     P, Q = (L + l) / (2 * L), (L - l) / (2 * L)
     A, B, C, D = 1 / m + L * l / I, 1 / m - L * l / I, 1 / m + L**2 / I, 1 / m - L**2 / I
     de1, de2 = P * d1 + Q * d2, Q * d1 + P * d2
-    F1, F2 = K * i1**2 / de1**2, K * i2**2 / de2**2
+    F1, F2 = K1 * i1**2 / de1**2, K2 * i2**2 / de2**2
     R1, R2 = model.coil_resistances(pc)
     sol = sp.solve([-A * F1 - B * F2 + C * N1 + D * N2 + g, -B * F1 - A * F2 + D * N1 + C * N2 + g,
                     u1 - sp.nsimplify(R1) * i1, u2 - sp.nsimplify(R2) * i2], [i1, i2, u1, u2], dict=True)
@@ -105,7 +130,8 @@ def _equilibrium_sympy(pc, d1v, d2v):
 
 
 @pytest.mark.parametrize("d1,d2,extra", [(0.0085, 0.0075, {}), (0.006, 0.010, {"R1": 17.0, "R2": 23.0}),
-                                         (0.008, 0.008, {"N1": 40.0, "N2": 33.0})])
+                                         (0.008, 0.008, {"N1": 40.0, "N2": 33.0}),
+                                         (0.007, 0.0075, {"K1": 3.8e-4, "K2": 5.1e-4, "R2": 24.0})])
 def test_uneven_hover_starts_in_exact_equilibrium(d1, d2, extra):
     pc = _pc(d1_0=d1, d2_0=d2, **extra)
     x0, u0 = model.initial_state(pc)

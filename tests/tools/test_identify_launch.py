@@ -1,6 +1,7 @@
 """``dem-ros identify`` on a real rig run: ``dem-ros launch --hardware rig`` (the emulator as its own process
 behind UDP, hw_driver, the graph's nodes, the recorder) on a plant none of the defaults describe, with the
-excitation reference of the bring-up guide; the bag it recorded is identified by the command.
+excitation reference of the bring-up guide; the bag it recorded is identified by the command. Two rigs: magnets
+alike (one K is given) and magnets of different K (K1 and K2 are given, checked by the moment balance).
 
 Identification uses what the board applied (``/dem/applied_voltage``), so late or held commands on a loaded
 machine do not bias it. The graph runs composed beside the driver (the rig's configuration); a run that
@@ -14,16 +15,22 @@ import subprocess
 import sys
 from pathlib import Path
 
-from dem_ros.core.identify import PARAMS
+import pytest
+
+from dem_ros.core.identify import PARAMS, SPLIT
 from dem_ros.tools.identify import EXCITATION, TOLERANCE
 
 ROOT = Path(__file__).resolve().parents[2]
 TRUTH = {"R1": 17.6, "R2": 23.3, "K": 4.374e-4 * 1.13, "m": 14.852 * 0.88}
+#: magnets of different K: K1 +15.5 %, K2 +10.5 % (a split (K1 - K2)/(K1 + K2) of +2.2 %); the board's model K
+#: their mean
+SPLIT_TRUTH = TRUTH | {"K1": 4.374e-4 * 1.155, "K2": 4.374e-4 * 1.105, "K": 4.374e-4 * 1.13}
 
 
-def test_identify_a_recorded_rig_run_of_the_whole_graph(tmp_path, domain_id):
+@pytest.mark.parametrize("truth", [TRUTH, SPLIT_TRUTH], ids=["one K", "K1 K2"])
+def test_identify_a_recorded_rig_run_of_the_whole_graph(tmp_path, domain_id, truth):
     env = dict(os.environ, PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(domain_id))
-    sets = [f"plant_sim.{k}={v}" for k, v in TRUTH.items()] + [f"plant_sim.R={TRUTH['R1']}",
+    sets = [f"plant_sim.{k}={v}" for k, v in truth.items()] + [f"plant_sim.R={truth['R1']}",
                                                                 "controller.command_delay=2"]
     sets += [f"{g}.{k}={v}" for g, vals in EXCITATION.items() for k, v in vals.items()]
     p = subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", "launch", "--hardware", "rig", "--compose",
@@ -39,7 +46,14 @@ def test_identify_a_recorded_rig_run_of_the_whole_graph(tmp_path, domain_id):
     print(q.stdout)
     assert q.returncode == 0, q.stdout + q.stderr
     res = json.loads((tmp_path / "id.json").read_text())
-    for k in PARAMS:
+    split = res["k_split"]
+    if truth is TRUTH:  # magnets alike: one K, or K1 and K2 whose intervals overlap
+        assert split["verdict"] == "one K: agree" or (
+            res["estimates"]["K1"]["ci95"][1] >= res["estimates"]["K2"]["ci95"][0]
+            and res["estimates"]["K2"]["ci95"][1] >= res["estimates"]["K1"]["ci95"][0]), split
+    else:
+        assert split["verdict"] == "split" and split["consistent"], split
+    for k in PARAMS + (SPLIT if split["split"] else ()):
         e = res["estimates"][k]
-        assert abs(e["value"] / TRUTH[k] - 1) <= TOLERANCE[k], (k, e, TRUTH[k])
-        assert e["ci95"][0] <= TRUTH[k] <= e["ci95"][1], (k, e, TRUTH[k])
+        assert abs(e["value"] / truth[k] - 1) <= TOLERANCE[k], (k, e, truth[k])
+        assert e["ci95"][0] <= truth[k] <= e["ci95"][1], (k, e, truth[k])

@@ -117,6 +117,7 @@ from ..model import (
     ID,
     IG,
     IK,
+    IK2,
     IN1,
     IN2,
     IP,
@@ -538,6 +539,7 @@ def _predict(mode: int, cp: np.ndarray, theta: np.ndarray, v: np.ndarray, scale:
     p[IC] = mu + cp[CP_CC]
     p[ID] = mu - cp[CP_CC]
     p[IK] = Kc
+    p[IK2] = Kc
     p[IR1] = R + rho
     p[IR2] = R - rho
     p[IN1] = cp[CP_N1]

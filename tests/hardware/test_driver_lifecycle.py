@@ -19,8 +19,19 @@ import time
 import pytest
 
 from dem_ros import contract
+from dem_ros.hardware.boardcfg import config_crc
 from dem_ros.hardware.driver import DriverState
-from dem_ros.hardware.link import PROTOCOL_VERSION, CommandFrame, Hello, Mode, SensorFrame, decode, encode
+from dem_ros.hardware.link import (
+    PROTOCOL_VERSION,
+    CommandFrame,
+    ConfigAck,
+    ConfigFrame,
+    Hello,
+    Mode,
+    SensorFrame,
+    decode,
+    encode,
+)
 from dem_ros.nodes.hw_driver import HwDriverNode
 from dem_ros.transport.dds import lifecycle_msgs as lm
 from dem_ros.transport.lifecycle import event_topic
@@ -35,7 +46,8 @@ DELAY, PERIOD_S = 8, 0.005
 
 
 class Board:
-    """A board on loopback UDP that answers hellos and follows the driver's RUN / LAND / OFF commands."""
+    """A board on loopback UDP that answers hellos and configurations and follows the driver's RUN / LAND / OFF
+    commands."""
 
     def __init__(self, land_frames: int = 30) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -67,6 +79,9 @@ class Board:
                         self.hellos += 1
                         self.peer = addr
                         self.sock.sendto(encode(Hello(PROTOCOL_VERSION, 7, 1000, 16, 10.0, 50, DELAY)), addr)
+                    elif isinstance(f, ConfigFrame):  # the driver's configuration: taken (a board at rest)
+                        crc = config_crc(f)
+                        self.sock.sendto(encode(ConfigAck(crc, crc, 0, True, self.mode)), addr)
                     elif isinstance(f, CommandFrame):
                         self.commands.append(f)
                         if f.mode == Mode.LAND and self.mode in (Mode.RUN, Mode.HOLD):

@@ -19,9 +19,6 @@ from .config import (
     BIAS_BANDWIDTH,
     CAPTURE_ACCEL,
     CAPTURE_TIME,
-    HOLD_DESCENT_FRACTION,
-    HOLD_GUARD_AFTER,
-    HOLD_RISE_FRACTION,
     I_OFF,
     OBS_BANDWIDTH,
     REF_ACCEL,
@@ -72,12 +69,6 @@ class Supervisor(SensorLosses):
         self._u_max = c["u_max"]
         self._i_max = c["i_max"]
         self._hold_ns = round(c["hold_timeout"] * 1e9)
-        # the hold's speed guard: the held plate's rate limits [m/s] (descending, rising) and the observer's age
-        # [samples] from which it acts
-        self._hold_descent = HOLD_DESCENT_FRACTION * c["landing_speed"]
-        self._hold_rise = HOLD_RISE_FRACTION * c["landing_speed"]
-        self._guard_samples = round(HOLD_GUARD_AFTER / self.dt)
-        self._obs_age = 0  # samples the observer has run (counted up to _guard_samples)
         self.estimate = np.zeros((3, 2))
         self._acc = np.zeros(2)
         self._i_last = (0.0, 0.0)
@@ -217,8 +208,6 @@ class Supervisor(SensorLosses):
             self._check.reset()
         self._blind_now[0] = 0.0 if ok[0] else 1.0
         self._blind_now[1] = 0.0 if ok[1] else 1.0
-        if self._obs_age < self._guard_samples:
-            self._obs_age += 1
         if not self._obs_ready:
             self.estimate[0, :] = (y0, y1)
             self.estimate[1:, :] = 0.0
@@ -337,31 +326,14 @@ class Supervisor(SensorLosses):
             self.mode, self.reason = Mode.HOLD, "command missing"
             self.counters["hold_events"] += 1
         held = t_ns - self._t_fresh
-        j = self._held_too_fast()
-        if held <= self._hold_ns and j < 0:
+        if held <= self._hold_ns:
             self.counters["holds"] += 1
             if held > self.counters["longest_hold_us"] * 1000:
                 self.counters["longest_hold_us"] = held // 1000
             return self._u_last
         self.command_timeout = True
-        if j >= 0:  # the held voltage no longer holds the plate: land before it outruns the landing speed
-            self.land(f"no command for {held * 1e-6:.1f} ms and end {j + 1} moves at {self.estimate[1, j] * 1e3:+.1f} "
-                      f"mm/s (a held plate lands beyond {-self._hold_rise * 1e3:g}..{self._hold_descent * 1e3:g} mm/s)")
-        else:
-            self.land(f"no command for {held * 1e-6:.1f} ms (hold_timeout {self._hold_ns * 1e-6:g} ms)")
+        self.land(f"no command for {held * 1e-6:.1f} ms (hold_timeout {self._hold_ns * 1e-6:g} ms)")
         return None
-
-    def _held_too_fast(self) -> int:
-        """The hold's speed guard: the end (0, 1) whose estimated rate is beyond the hold's limits (descending
-        faster than HOLD_DESCENT_FRACTION or rising faster than HOLD_RISE_FRACTION of landing_speed; end 1 first),
-        or -1 (also while the observer is younger than HOLD_GUARD_AFTER)."""
-        if self._obs_age < self._guard_samples:
-            return -1
-        for j in (0, 1):
-            v = float(self.estimate[1, j])
-            if v > self._hold_descent or v < -self._hold_rise:
-                return j
-        return -1
 
     def _safe(self, cand: np.ndarray, U: float) -> bool:
         """Does the plate stop at least trip_gap_min from the rail at both ends if ``cand`` is applied for one

@@ -146,9 +146,6 @@ def _why_text(w: _Why, external: str) -> str:
     if c == 4:
         return (f"predicted stopping gap {a[0] * 1e3:.3f} mm below trip_gap_min at end {ch + 1} "
                 f"(gap {a[1] * 1e3:.3f} mm, rate {a[2] * 1e3:+.1f} mm/s)")
-    if c == 5 and sub == 1:
-        return (f"no command for {a[0] * 1e3:.1f} ms and end {ch + 1} moves at {a[1] * 1e3:+.1f} mm/s (a held plate "
-                f"lands beyond {a[2] * 1e3:g}..{a[3] * 1e3:g} mm/s)")
     if c == 5:
         return f"no command for {a[0] * 1e3:.1f} ms (hold_timeout)"
     if c == 6:

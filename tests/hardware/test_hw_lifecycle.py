@@ -73,7 +73,9 @@ class Script:
 
     def __call__(self, t: float | None, procs: dict, restart) -> set[str]:
         st = _rig_status(self.workdir)
-        if self.first_landing is None and st.get("landings", 0) >= 1:
+        # the first status after a landing that still names its reason (the rig reports at 1 Hz: a landing, LANDED
+        # and the driver's OFF that clears the reason can all fall between two reports)
+        if self.first_landing is None and st.get("landings", 0) >= 1 and st.get("reason"):
             self.first_landing = st
         flying = st.get("mode") == "RUN" and max(st.get("gaps_mm", [99, 99])) < self.support_mm - 1.0
         if self.phase != "client" and self.lifted is None and flying and st.get("landings", 0) == 1:

@@ -15,6 +15,10 @@
 #define REF_ACCEL 0.2f
 #define CAPTURE_ACCEL 5.0f
 #define CAPTURE_TIME 0.01f
+#define HOLD_DESCENT_FRACTION 0.7f
+#define HOLD_RISE_FRACTION 1.0f
+#define HOLD_RISE_GAIN_FRACTION 0.5f
+#define HOLD_GUARD_AFTER (3.0f / BIAS_BANDWIDTH)
 #define LANDING_OVERSHOOT 3e-4f
 #define I_OFF 0.02f
 #define BOUND_MARGIN 0.25f
@@ -377,6 +381,10 @@ int sup_init(sup_t *s, const sup_config_t *cfg, int mode, const float *u0)
     s->k_margin = BOUND_MARGIN / (1.0f - BOUND_MARGIN);
     s->n_arm = (uint32_t)(FLUX_CHECK_ARM / cfg->dt + 0.5f);
     s->hold_us = (int64_t)(cfg->hold_timeout * 1e6f + 0.5f);
+    s->hold_descent = HOLD_DESCENT_FRACTION * cfg->landing_speed;
+    s->hold_rise = HOLD_RISE_FRACTION * cfg->landing_speed;
+    s->hold_rise_gain = HOLD_RISE_GAIN_FRACTION * cfg->landing_speed;
+    s->n_guard = (uint32_t)(HOLD_GUARD_AFTER / cfg->dt + 0.5f);
     s->r_est[0] = s->r_est[1] = cfg->R;
     s->stop_gap[0] = s->stop_gap[1] = INFINITY;
     s->min_stop_gap = INFINITY;
@@ -646,10 +654,26 @@ static void both_implausible(sup_t *s, int bad, float y0, float y1, float u[2])
     fault_now(s, &w, u);
 }
 
-/* RUN/HOLD: the fresh command clipped, or the held one; 0 once the hold timed out (LAND) */
+/* the hold's speed guard: the end whose estimated rate is beyond the hold's limits, or -1 (also while the
+ * observer is younger than HOLD_GUARD_AFTER); end 1 first. Beyond: descending faster than hold_descent, or rising
+ * faster than hold_rise and faster by hold_rise_gain than at the hold's first sample (hold_v0) */
+static int held_too_fast(const sup_t *s)
+{
+    int j;
+    if (s->obs_age < s->n_guard) return -1;
+    for (j = 0; j < 2; ++j) {
+        const float v = s->est[1][j];
+        if (v > s->hold_descent || (v < -s->hold_rise && v < s->hold_v0[j] - s->hold_rise_gain)) return j;
+    }
+    return -1;
+}
+
+/* RUN/HOLD: the fresh command clipped, or the held one; 0 once the hold timed out or the held plate moves too
+ * fast (LAND) */
 static int run_candidate(sup_t *s, int64_t t, int mode, int fresh, float a, float b, float cand[2])
 {
     int64_t held;
+    int fast;
     if (fresh) {
         const float lim = s->cfg.u_max;
         const float ua = pmin(pmax(a, -lim), lim), ub = pmin(pmax(b, -lim), lim);
@@ -673,10 +697,13 @@ static int run_candidate(sup_t *s, int64_t t, int mode, int fresh, float a, floa
     if (mode == SUP_RUN) {
         s->mode = SUP_HOLD;
         why(&s->reason, SUP_WHY_COMMAND_MISSING, 0, 0, 0, 0, 0, 0);
+        s->hold_v0[0] = s->est[1][0];
+        s->hold_v0[1] = s->est[1][1];
         s->counters.hold_events += 1;
     }
     held = t - s->t_fresh;
-    if (held <= s->hold_us) {
+    fast = held_too_fast(s);
+    if (held <= s->hold_us && fast < 0) {
         s->counters.holds += 1;
         if (held > (int64_t)s->counters.longest_hold_us) s->counters.longest_hold_us = (uint32_t)held;
         cand[0] = s->u_last[0];
@@ -686,7 +713,11 @@ static int run_candidate(sup_t *s, int64_t t, int mode, int fresh, float a, floa
     s->command_timeout = 1;
     {
         sup_why_t w;
-        why(&w, SUP_WHY_HOLD_TIMEOUT, 0, 0, (float)held * 1e-6f, 0, 0, 0);
+        if (fast >= 0) /* the held voltage no longer holds the plate: land before it outruns the landing speed */
+            why(&w, SUP_WHY_HOLD_TIMEOUT, fast, 1, (float)held * 1e-6f, s->est[1][fast], -s->hold_rise,
+                s->hold_descent);
+        else
+            why(&w, SUP_WHY_HOLD_TIMEOUT, 0, 0, (float)held * 1e-6f, 0, 0, 0);
         land(s, &w);
     }
     return 0;
@@ -841,6 +872,7 @@ void sup_step(sup_t *s, int64_t t_us, const float y[2], const float i[2], const 
     }
     s->blind_now[0] = ok[0] ? 0.0f : 1.0f;
     s->blind_now[1] = ok[1] ? 0.0f : 1.0f;
+    if (s->obs_age < s->n_guard) s->obs_age += 1u;
     if (!s->obs_ready) {
         float de1, de2;
         s->est[0][0] = yy[0];

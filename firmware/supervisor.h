@@ -43,7 +43,8 @@ enum sup_why_code {
     SUP_WHY_I_MAX,           /* a0: the coil current [A] */
     SUP_WHY_GAP_MAX,         /* a0: the gap [m] */
     SUP_WHY_STOP_GAP,        /* ch: end; a0: stopping gap [m], a1: gap [m], a2: rate [m/s] */
-    SUP_WHY_HOLD_TIMEOUT,    /* a0: time without a command [s] */
+    SUP_WHY_HOLD_TIMEOUT,    /* a0: time without a command [s]; sub 1: the held plate moved too fast (ch: end,
+                                a1: its rate [m/s], a2, a3: the hold's limits [m/s], rising and descending) */
     SUP_WHY_COMMAND_MISSING, /* HOLD */
     SUP_WHY_EXTERNAL,        /* land() / estop() from outside: ch = the caller's code */
     SUP_WHY_ESTOP,           /* estop(): ch = the caller's code */
@@ -88,6 +89,9 @@ typedef struct {
     float Lo[3], m_inv[2][2], k_margin;
     int64_t hold_us;
     uint32_t n_arm;
+    float hold_descent, hold_rise; /* the hold's speed guard: a held plate beyond these rates [m/s] lands */
+    float hold_rise_gain;          /* ... rising: once also this much faster [m/s] than at the hold's start */
+    uint32_t n_guard;              /* ... once the observer has run this many samples */
     /* state */
     int mode;
     sup_why_t reason, fault;
@@ -95,6 +99,8 @@ typedef struct {
     float est[3][2]; /* observer [gap m, rate m/s, missed acceleration m/s^2] per load point */
     float acc[2], i_last[2], ref[3][2], ui[2], u[2], u_last[2];
     int obs_ready, has_t_fresh, braking, command_timeout;
+    uint32_t obs_age; /* samples the observer has run (counted up to n_guard) */
+    float hold_v0[2]; /* the observer's rates [m/s] at the hold's first sample */
     int64_t t_fresh;
     float gated[2], wild[2], blind_now[2];
     uint32_t blind[4];

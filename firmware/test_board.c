@@ -167,6 +167,46 @@ static void test_landings(void)
     }
 }
 
+/* hover at 10.2 mm (a lift-off's top, 1 mm under the support) under the hover command; at sample 200 one command
+ * 3 % under it (the force below the weight: the controller slowing a rise), then none: the held plate falls back
+ * toward its support. The hold's speed guard lands it before its descent outruns landing_speed (measured: LAND
+ * 13 ms after the last command, descent 9.1 mm/s; the 50 ms hold alone let it reach the support at 57.5 mm/s). */
+static void test_held_plate_lands_early(void)
+{
+    const sup_config_t c = table2();
+    static sup_t s;
+    plant_t p;
+    float u0[2], u[2], held[2], vmax = 0.0f, closest = 1.0f;
+    int k, first = -1, landed = -1;
+    char why[200];
+    plant_hover(&c, &p, 0.0102f, u0);
+    held[0] = 0.97f * u0[0];
+    held[1] = 0.97f * u0[1];
+    sup_init(&s, &c, SUP_OFF, NULL);
+    for (k = 0; k < 3000 && landed < 0; ++k) {
+        float y[2], i[2];
+        plant_currents(&c, &p, i);
+        y[0] = p.y[0];
+        y[1] = p.y[1];
+        sup_step(&s, (int64_t)k * 1000, y, i, k < 200 ? u0 : (k == 200 ? held : NULL), SUP_RUN, 200.0f, NULL, u);
+        if (s.mode == SUP_LAND && first < 0) first = k;
+        if (s.mode == SUP_LANDED) landed = k;
+        plant_advance(&c, &p, u);
+        if (k > 200 && s.mode != SUP_LANDED) {
+            if (p.v[0] > vmax) vmax = p.v[0];
+            if (p.v[1] > vmax) vmax = p.v[1];
+        }
+        if (p.y[0] < closest) closest = p.y[0];
+        if (p.y[1] < closest) closest = p.y[1];
+    }
+    snprintf(why, sizeof why, "LAND at %d (the last command at 200), reason %d/%d, LANDED at %d, descent %.2f mm/s, "
+             "closest %.3f mm", first, s.reason.code, s.reason.sub, landed, (double)(vmax * 1e3f),
+             (double)(closest * 1e3f));
+    check(first > 200 && first < 250 && s.reason.code == SUP_WHY_HOLD_TIMEOUT && s.reason.sub == 1 && landed > 0 &&
+          vmax <= 1.17f * c.landing_speed && closest > 0.0097f && s.command_timeout, "held_plate_lands_before_it_falls",
+          why);
+}
+
 static void test_limits(void)
 {
     const sup_config_t c = table2();
@@ -386,6 +426,7 @@ int main(void)
 {
     test_config();
     test_landings();
+    test_held_plate_lands_early();
     test_limits();
     test_board_configure();
     test_board();

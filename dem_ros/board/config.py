@@ -17,6 +17,10 @@ __all__ = [
     "BIAS_BANDWIDTH",
     "BOUND_MARGIN",
     "CURRENT_BANDWIDTH",
+    "HOLD_DESCENT_FRACTION",
+    "HOLD_GUARD_AFTER",
+    "HOLD_RISE_FRACTION",
+    "HOLD_RISE_GAIN_FRACTION",
     "INNOVATION_LIMIT",
     "LANDING_OVERSHOOT",
     "OBS_BANDWIDTH",
@@ -26,6 +30,7 @@ __all__ = [
     "SAFETY_KEYS",
     "SENSOR_BLIND_SAMPLES",
     "SPEED_FRACTION",
+    "hold_guard_text",
     "kernel_vector",
 ]
 
@@ -42,6 +47,23 @@ SPEED_FRACTION = 0.4  # the reference descends at this fraction of landing_speed
 REF_ACCEL = 0.2  # m/s^2, the reference's acceleration to v_ref
 CAPTURE_ACCEL = 5.0  # m/s^2, the reference's largest deceleration of a plate rising when the landing starts
 CAPTURE_TIME = 0.01  # s: it decelerates a rising plate's speed v at |v| / CAPTURE_TIME (at least REF_ACCEL)
+# the hold's speed guard (docs/manual/board.md, "Modes", HOLD): a held plate whose estimated rate at either end
+# exceeds these fractions of landing_speed (descending, rising) lands at once instead of being held on
+HOLD_DESCENT_FRACTION = 0.7  # the rest of landing_speed: the observer's lag and the law's reaction (measured)
+HOLD_RISE_FRACTION = 1.0  # a rising plate is captured by the landing law; above the rate noise of S3c's sensors
+HOLD_RISE_GAIN_FRACTION = 0.5  # ... and only once it rises this much faster than when its hold began: a plate the
+#                                controller lifts fast is held through a late command; one the held voltage speeds up
+HOLD_GUARD_AFTER = 3.0 / BIAS_BANDWIDTH  # s: the guard acts once the observer has run this long (its slowest
+#                                            pole, three time constants: its start-up transient is not a motion)
+
+
+def hold_guard_text(rise: float, descent: float) -> str:
+    """The hold's speed guard in words, from its limits [m/s] (rise negative, up): both boards' landing reason."""
+    gain = -rise * HOLD_RISE_GAIN_FRACTION / HOLD_RISE_FRACTION
+    return (f"a held plate lands descending beyond {descent * 1e3:g} mm/s, or rising beyond {-rise * 1e3:g} mm/s and "
+            f"{gain * 1e3:g} mm/s faster than at its hold's start")
+
+
 LANDING_OVERSHOOT = 3e-4  # m: the reference stops this far beyond landing_gap (the support)
 I_OFF = 0.02  # A: below this, LANDED applies 0 V
 BOUND_MARGIN = 0.25  # the braking bound's model margin e: K, 1/m, 1/I each within a factor 1 -+ e

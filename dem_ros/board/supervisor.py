@@ -19,10 +19,15 @@ from .config import (
     BIAS_BANDWIDTH,
     CAPTURE_ACCEL,
     CAPTURE_TIME,
+    HOLD_DESCENT_FRACTION,
+    HOLD_GUARD_AFTER,
+    HOLD_RISE_FRACTION,
+    HOLD_RISE_GAIN_FRACTION,
     I_OFF,
     OBS_BANDWIDTH,
     REF_ACCEL,
     SENSOR_BLIND_SAMPLES,
+    hold_guard_text,
     kernel_vector,
 )
 from .gapcheck import GapCheck
@@ -69,6 +74,14 @@ class Supervisor(SensorLosses):
         self._u_max = c["u_max"]
         self._i_max = c["i_max"]
         self._hold_ns = round(c["hold_timeout"] * 1e9)
+        # the hold's speed guard: the held plate's rate limits [m/s] (descending, rising) and the observer's age
+        # [samples] from which it acts
+        self._hold_descent = HOLD_DESCENT_FRACTION * c["landing_speed"]
+        self._hold_rise = HOLD_RISE_FRACTION * c["landing_speed"]
+        self._hold_rise_gain = HOLD_RISE_GAIN_FRACTION * c["landing_speed"]
+        self._hold_v0 = np.zeros(2)  # the observer's rates [m/s] at the hold's first sample
+        self._guard_samples = round(HOLD_GUARD_AFTER / self.dt)
+        self._obs_age = 0  # samples the observer has run (counted up to _guard_samples)
         self.estimate = np.zeros((3, 2))
         self._acc = np.zeros(2)
         self._i_last = (0.0, 0.0)
@@ -208,6 +221,8 @@ class Supervisor(SensorLosses):
             self._check.reset()
         self._blind_now[0] = 0.0 if ok[0] else 1.0
         self._blind_now[1] = 0.0 if ok[1] else 1.0
+        if self._obs_age < self._guard_samples:
+            self._obs_age += 1
         if not self._obs_ready:
             self.estimate[0, :] = (y0, y1)
             self.estimate[1:, :] = 0.0
@@ -324,16 +339,36 @@ class Supervisor(SensorLosses):
             self._t_fresh = t_ns
         if mode == Mode.RUN:
             self.mode, self.reason = Mode.HOLD, "command missing"
+            self._hold_v0 = self.estimate[1].copy()
             self.counters["hold_events"] += 1
         held = t_ns - self._t_fresh
-        if held <= self._hold_ns:
+        j = self._held_too_fast()
+        if held <= self._hold_ns and j < 0:
             self.counters["holds"] += 1
             if held > self.counters["longest_hold_us"] * 1000:
                 self.counters["longest_hold_us"] = held // 1000
             return self._u_last
         self.command_timeout = True
-        self.land(f"no command for {held * 1e-6:.1f} ms (hold_timeout {self._hold_ns * 1e-6:g} ms)")
+        if j >= 0:  # the held voltage no longer holds the plate: land before it outruns the landing speed
+            self.land(f"no command for {held * 1e-6:.1f} ms and end {j + 1} moves at {self.estimate[1, j] * 1e3:+.1f} "
+                      f"mm/s ({hold_guard_text(-self._hold_rise, self._hold_descent)})")
+        else:
+            self.land(f"no command for {held * 1e-6:.1f} ms (hold_timeout {self._hold_ns * 1e-6:g} ms)")
         return None
+
+    def _held_too_fast(self) -> int:
+        """The hold's speed guard: the end (0, 1) whose estimated rate is beyond the hold's limits, or -1 (also
+        while the observer is younger than HOLD_GUARD_AFTER); end 1 first. Beyond: descending faster than
+        HOLD_DESCENT_FRACTION of landing_speed, or rising faster than HOLD_RISE_FRACTION of it *and* faster by
+        HOLD_RISE_GAIN_FRACTION of it than at the hold's first sample (the held voltage speeds the plate up; a
+        lift-off the controller drives fast is held through a late command like any other motion)."""
+        if self._obs_age < self._guard_samples:
+            return -1
+        for j in (0, 1):
+            v = float(self.estimate[1, j])
+            if v > self._hold_descent or (v < -self._hold_rise and v < self._hold_v0[j] - self._hold_rise_gain):
+                return j
+        return -1
 
     def _safe(self, cand: np.ndarray, U: float) -> bool:
         """Does the plate stop at least trip_gap_min from the rail at both ends if ``cand`` is applied for one

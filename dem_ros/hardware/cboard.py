@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..board import PLANT_KEYS, SAFETY_KEYS, Mode, SafetyError
+from ..board.config import hold_guard_text
 from .boardcfg import RESULT_TEXT, BoardConfigError, config_frame
 from .link import CONFIG_RESULTS, CONFIG_SUP_KEYS
 
@@ -146,6 +147,9 @@ def _why_text(w: _Why, external: str) -> str:
     if c == 4:
         return (f"predicted stopping gap {a[0] * 1e3:.3f} mm below trip_gap_min at end {ch + 1} "
                 f"(gap {a[1] * 1e3:.3f} mm, rate {a[2] * 1e3:+.1f} mm/s)")
+    if c == 5 and sub == 1:
+        return (f"no command for {a[0] * 1e3:.1f} ms and end {ch + 1} moves at {a[1] * 1e3:+.1f} mm/s "
+                f"({hold_guard_text(a[2], a[3])})")
     if c == 5:
         return f"no command for {a[0] * 1e3:.1f} ms (hold_timeout)"
     if c == 6:

@@ -2,13 +2,14 @@
 
 A refactoring of the board must not change what it decides or applies. Every sample the board computes in
 the grids of ``test_safety`` (landings from level and tilted hovers with m, R, K off; the worst commands and
-the seeded random rail approaches; captures after a trip; lost, flickering and frozen sensors) and in a
-seeded random input sequence (commands, NaNs, mode requests, bus and applied voltages) is folded into one
-SHA-256 per grid: the mode, the voltages, the observer's estimate, the predicted stopping gaps, the flags
+the seeded random rail approaches; captures after a trip; lost, flickering and frozen sensors; landings started
+during a lift-off) and in a seeded random input sequence (commands, NaNs, mode requests, bus and applied
+voltages) is folded into one SHA-256 per grid: the mode, the voltages, the observer's estimate, the predicted
+stopping gaps, the flags
 (``implausible``, ``command_timeout``) and the snapshot (reasons, fault, counters). The table below holds the
 expected digests; print the current ones with
 
-    .venv/bin/python tests/core/test_board_hashes.py
+    .venv/bin/python tests/board/test_board_hashes.py
 
 The digests are of IEEE doubles as this platform's numba/LLVM computes them (no fastmath in the kernels).
 """
@@ -24,6 +25,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))  # the grids and their drivers live in test_safety
+sys.path.insert(1, str(Path(__file__).parent.parent))  # ... which uses tests/liftoff.py (when run as a script)
 
 import test_safety as ts
 
@@ -161,6 +163,11 @@ def _stuck_sensors() -> None:
             ts.hover_with_losses(stick_both, variant, t_max=3.0, push=push_one, t_after_fault=0.3)
 
 
+def _liftoffs() -> None:
+    for idx, (g, v, a) in enumerate(ts.LIFTOFF_STATES):
+        ts.land_during_liftoff(g, v, a, ts.LIFTOFF_VARIANTS[idx % len(ts.LIFTOFF_VARIANTS)])
+
+
 def _random_inputs() -> None:
     """Seeded random samples straight into the board: commands (none, finite, huge, NaN), gaps and currents
     (NaN now and then), mode requests, a measured bus and applied voltages; clear() after each landing."""
@@ -193,6 +200,7 @@ GRIDS: dict[str, Callable[[], None]] = {
     "captures": _captures,
     "lost_sensors": _lost_sensors,
     "stuck_sensors": _stuck_sensors,
+    "liftoffs": _liftoffs,
     "random_inputs": _random_inputs,
 }
 
@@ -203,7 +211,8 @@ EXPECTED: dict[str, str] = {
     "captures": "c534df71ae9154af/13234",
     "lost_sensors": "6179e1b04fcbfb8b/29530",
     "stuck_sensors": "b8e3383784d724dc/52181",
-    "random_inputs": "c1a7f5faf9d46378/4800",
+    "liftoffs": "c4b7dcf183f75cec/17952",
+    "random_inputs": "995f882270aa3cac/4800",
 }
 
 

@@ -13,7 +13,11 @@ tests/core/test_safety.py, seeded and randomised within them:
 - ``stuck``: gap sensors frozen at a plausible value, the plate pushed at 1 cm/s (the flux check);
 - ``commands``: late and lost commands in bursts, non-finite and clipped commands, bus sags, a failed bridge
   (the applied voltage the board measures);
-- ``cycle``: land (request, e-stop, watchdog, a lost gap sensor), clear(), levitate again, several times a case.
+- ``cycle``: land (request, e-stop, watchdog, a lost gap sensor), clear(), levitate again, several times a case;
+- ``liftoff``: the plate lifted off the rig's support (tests/liftoff.py) to 9.5-10.9 mm, rising at 0-6 mm/s (a third
+  at 10-35 mm/s), its rise
+  slowed or sped up, m, R, K off; then landed by a LAND request or by the watchdog (the commands stop: the hold's
+  speed guard).
 
 Asserted per case: the same mode sequence, each transition within one sample; the same latched decisions
 (trips, landings, landed, implausible sensors, sensor losses, hold events, clips, rejections; the fault's
@@ -31,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
+from liftoff import LiftOff
 
 from dem_ros.board import LANDING_OVERSHOOT, Mode, Supervisor
 from dem_ros.core.model import IP, IQ, equilibrium
@@ -58,7 +63,7 @@ U_TOL_LAND = 2.0
 #: counters that record decisions (brakes, holds and sensor_gaps are per-sample counts of the same decisions)
 DECISIONS = ("trips", "landings", "landed", "implausible", "sensor_losses", "hold_events", "clipped", "rejected",
              "estops", "brake_events")
-N_CASES = {"landing": 60, "approach": 640, "lost": 200, "stuck": 48, "commands": 100, "cycle": 12}
+N_CASES = {"landing": 60, "approach": 640, "lost": 200, "stuck": 48, "commands": 100, "cycle": 12, "liftoff": 24}
 
 
 @pytest.fixture(scope="module")
@@ -94,6 +99,9 @@ class Case:
     # Python board's output), so the C board's flux and coil model integrate what was applied, not its own output
     applied: Callable[[int, np.ndarray], np.ndarray | None] = lambda k, u: u
     call: Callable[[int], tuple[str, str] | None] = lambda k: None  # ("land"|"estop", reason) before sample k
+    x0: np.ndarray | None = None  # the true plant's start (None: the equilibrium at g, rates v)
+    # the command from the true state instead of ``command`` (a controller that sees the plant): (k, x) -> u or None
+    state_command: Callable[[int, np.ndarray], np.ndarray | None] | None = None
     until_done: bool = True  # stop 20 samples after LANDED or FAULT
     clear_after_done: bool = False  # instead, clear() both boards 20 samples after LANDED or FAULT and go on
     label: str = ""
@@ -136,7 +144,7 @@ def run_case(case: Case) -> Result:
     P, Q = plant.p[IP], plant.p[IQ]
     x0, u0 = equilibrium(pc, case.g[0], case.g[1])
     x0[1], x0[3] = case.v
-    plant.x[:] = x0
+    plant.x[:] = x0 if case.x0 is None else case.x0
     py, c = Supervisor(cfg, T), CSupervisor(cfg, T)
     rng = np.random.default_rng(case.seed)
     mp: list[int] = []
@@ -154,7 +162,7 @@ def run_case(case: Case) -> Result:
         z = plant.measurement()
         y, i = z[[0, 2]].copy(), z[[4, 5]].copy()
         case.sense(k, y, i)
-        cmd = case.command(k, u0, rng)
+        cmd = case.command(k, u0, rng) if case.state_command is None else case.state_command(k, plant.x)
         req, bus = case.requested(k), case.bus(k)
         app = case.applied(k, plant.coil_voltage)
         ua = py.step(k * T_NS, y, i, cmd, req, bus=bus, applied=app)
@@ -394,8 +402,34 @@ def cycle_cases(rng: np.random.Generator, n: int) -> list[Case]:
     return out
 
 
+def liftoff_cases(rng: np.random.Generator, n: int) -> list[Case]:
+    """The plate lifted off the rig's support (tests/liftoff.py) to a lift-off's state, then landed: requested (LAND)
+    or by the command watchdog (the commands stop: the hold, its speed guard, LAND)."""
+    out: list[Case] = []
+    for idx in range(n):
+        fm, dm, fR, fK = VARIANTS[idx % len(VARIANTS)]
+        how = ("watchdog", "LAND")[(idx // len(VARIANTS)) % 2]
+        fast = idx % 3 == 2  # a lift-off the controller drives faster than landing_speed (held through a late one)
+        g, v, a = rng.uniform(0.0095, 0.0109), rng.uniform(-0.035, -0.01) if fast else rng.uniform(-0.006, 0.0), \
+            rng.uniform(-0.3, 0.5)
+        pc = SCHEMA.defaults("plant_sim")
+        pc.update(m=TABLE2["m"] * fm + dm, R=TABLE2["R"] * fR, K=TABLE2["K"] * fK)
+        lift = LiftOff(pc, g, v, a)
+
+        def cmd(k: int, x: np.ndarray, lift=lift, how=how) -> np.ndarray | None:
+            return lift.command(k, x) if k < lift.n or how == "LAND" else None
+
+        def req(k: int, lift=lift, how=how) -> Mode:
+            return Mode.LAND if how == "LAND" and k >= lift.n else Mode.RUN
+
+        out.append(Case("liftoff", int(rng.integers(1 << 30)), (fm, dm, fR, fK), (g, g), n=lift.n + 1500,
+                        x0=lift.x0(), state_command=cmd, requested=req,
+                        label=f"{how} at {g * 1e3:.2f} mm {v * 1e3:+.1f} mm/s {a:+.2f} m/s^2"))
+    return out
+
+
 BUILDERS = {"landing": landing_cases, "approach": approach_cases, "lost": lost_cases, "stuck": stuck_cases,
-            "commands": command_cases, "cycle": cycle_cases}
+            "commands": command_cases, "cycle": cycle_cases, "liftoff": liftoff_cases}
 
 
 @pytest.fixture(scope="module")

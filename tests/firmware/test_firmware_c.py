@@ -2,7 +2,8 @@
 portability rules, and the rig emulator running the C board (rig.board=c).
 
 - host: ``make -C firmware test-host`` (sanitizers where the compiler has them): configuration checks,
-  landings on a float32 nominal plant (lost commands, a lost current or gap sensor, a requested landing),
+  landings on a float32 nominal plant (lost commands, a lost current or gap sensor, a requested landing, a held
+  plate falling back toward its support: the hold's speed guard),
   limits, the board's tick on a fake HAL (hello, streaming, command ring, link watchdog);
 - target: ``make -C firmware test-arm``: the same tests built with arm-none-eabi-gcc (Cortex-M4F, hard float)
   and run on qemu-system-arm (mps2-an386, semihosting exit code), where the toolchain is installed;

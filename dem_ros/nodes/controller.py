@@ -76,6 +76,12 @@ __all__ = ["ControllerNode", "main"]
 
 REF_KEEP = 32  # reference samples kept by stamp
 RESTING_S = 0.2  # s: resting this long under the running law -> the board landed it: stop, wait to lift off
+#: the board applies (about) nothing - below OFF_VOLTS on both coils - for OFF_SAMPLES applied samples under the
+#: running law: it is not applying our commands (OFF, or LANDED once the current is gone): stop the law at once, so
+#: that a re-arm finds it premagnetising, not wound up (a law left running through a landing during a lift-off
+#: and a re-arm kicked the plate up at 100-210 mm/s: the board's stopping-distance trip landed it at every re-arm)
+OFF_VOLTS = 1.0
+OFF_SAMPLES = 20
 ECHO_SAMPLES = 20  # premagnetised samples the board must echo before the law starts (5 coil time constants)
 #: counters that make the once-a-second diagnostics WARN when they grew
 _WARN_KEYS = ("stale", "future", "non_finite_input", "non_finite_output", "reference_range", "reference_rate",
@@ -96,6 +102,7 @@ class ControllerNode:
         self.ref_next = 0
         self.xh = np.zeros(6)  # the estimate being acted on [d1, d1', d2, d2', i1, i2]
         self.u_applied: np.ndarray | None = None
+        self.applied_off = 0  # consecutive applied samples of (about) 0 V on both coils
         self.window: list[tuple[np.ndarray, np.ndarray]] | None = []  # hover window (estimate, applied voltage)
         self.window_n = max(round(self.cfg["hover_window"] / self.cfg["dt"]), 1)
         self.landed = False  # the plate rests on its support: premagnetise, then lift off
@@ -206,6 +213,8 @@ class ControllerNode:
                 self.u_applied = np.zeros(2)
             self.u_applied[0] = msg.effort[0]
             self.u_applied[1] = msg.effort[1]
+            off = abs(msg.effort[0]) < OFF_VOLTS and abs(msg.effort[1]) < OFF_VOLTS
+            self.applied_off = self.applied_off + 1 if off else 0
 
     def on_estimate(self, msg) -> None:
         t = stamp_ns(msg)
@@ -240,6 +249,9 @@ class ControllerNode:
             return self._state(t, age, 1.0)
         self.t_acted = t
         ref = self._reference(t)
+        if self.started and self.applied_off >= OFF_SAMPLES:
+            self._stop_law(f"the board applies 0 V ({self.applied_off} samples): it does not apply our commands "
+                           "(landed or off); law stopped, it lifts off when the board applies commands again")
         if not self.started and not self._start(t, msg, xh, ref, age):
             return
         if ref is None:  # the first samples before any reference: hold the measured hover
@@ -338,12 +350,18 @@ class ControllerNode:
         if self.resting_since is None:
             self.resting_since = t
         elif t - self.resting_since >= RESTING_S * 1e9:
-            self.resting_since = None
-            self.started = False
-            self.ctrl = make_controller(self.cfg)
-            self.counts["landed_stops"] += 1
-            self.node.logger.warn("the plate rests on its support under the running law (the board landed it): "
-                                  "law stopped; it lifts off when the board applies commands again")
+            self._stop_law("the plate rests on its support under the running law (the board landed it): law "
+                           "stopped; it lifts off when the board applies commands again")
+
+    def _stop_law(self, why: str) -> None:
+        """The board does not apply our commands (it landed the plate): stop the law (and any lift-off), so that it
+        starts afresh - premagnetising, then lifting off - once the board applies commands again."""
+        self.resting_since = None
+        self.started = False
+        self.liftoff = None
+        self.ctrl = make_controller(self.cfg)
+        self.counts["landed_stops"] += 1
+        self.node.logger.warn(why)
 
     # -- reporting -------------------------------------------------------------
     def _state(self, t: int, age: float, fault: float, header=None) -> None:

@@ -205,3 +205,38 @@ def test_controller_killed_the_board_lands_then_a_restarted_controller_and_arm_l
     assert _min_gap(loop) > pc["trip_gap_min"] + 3e-3
     e = np.array(loop.gaps[-1]) - np.array(loop.refs[max(loop.refs)][:2])
     assert np.all(np.abs(e) < 0.3e-3)
+
+
+def test_a_landing_during_the_lift_off_then_an_arm_at_once_lifts_off_again_without_a_trip():
+    """The board lands the plate while the controller lifts it off (here the driver's LAND, as a host stall's
+    watchdog would), and the operator arms again as soon as it is LANDED: the controller has stopped its law (the
+    board applies 0 V: controller.OFF_SAMPLES), premagnetises and lifts off afresh. Before, the law ran on through
+    the landing (its lift-off reference still running, so the resting watch never fired) and the re-armed board
+    applied its wound-up command: the plate rose at 100-210 mm/s and the stopping-distance trip landed it at every
+    re-arm (the HIL restart test, beside two busy processes)."""
+    loop = RigLoop(start="landed")
+    pc, rig = loop.cfg["plant_sim"], loop.cfg["rig"]
+    loop.run(300)
+    loop.drv.arm()
+    for _ in range(400):  # until the plate is well off its support, mid-lift-off
+        loop.run(20)
+        if loop.ctl.liftoff is not None and loop.gaps[-1][0] < rig["support_gap"] - 0.4e-3:
+            break
+    assert loop.ctl.liftoff is not None, "no lift-off under way"
+    loop.drv.disarm()  # LAND
+    for _ in range(400):
+        loop.run(10)
+        if loop.modes[-1] == Mode.LANDED:
+            break
+    assert loop.modes[-1] == Mode.LANDED
+    landed_at = len(loop.modes)
+    loop.drv.arm()  # at once, as the HIL test's operator does
+    loop.run(6000)
+    assert loop.ctl.counts["landed_stops"] >= 1 and loop.ctl.counts["liftoffs"] == 2, loop.ctl.counts
+    assert loop.board.sup.counters["trips"] == 0, loop.board.sup.reason
+    assert loop.modes[-1] == Mode.RUN and Mode.LAND not in loop.modes[landed_at:]
+    assert _min_gap(loop) > pc["trip_gap_min"] + 3e-3
+    rise = -np.diff(np.array(loop.gaps[landed_at:]), axis=0).max() / 1e-3
+    assert rise < 4 * LIFTOFF_SPEED, f"the second lift-off rose at {rise * 1e3:.1f} mm/s"
+    e = np.array(loop.gaps[-1]) - np.array(loop.refs[max(loop.refs)][:2])
+    assert np.all(np.abs(e) < 0.3e-3)

@@ -520,7 +520,9 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
             shims: tuple[float, float] | None = None, shims_stdin: bool = False) -> dict[str, Any]:
     """Open the board's end of the link and run the board at 1 kHz until ``duration`` (0: until stopped).
 
-    Prints ``RIG {json}`` lines: ``listening`` (with the URL the PC opens), a status every
+    Prints ``RIG {json}`` lines: ``listening`` (with the URL the PC opens), ``mode`` at each of the board's mode
+    changes but RUN <-> HOLD (its time, the mode, the reason: the rig's log names every landing when it happens;
+    holds are counted), a status every
     ``status_every`` s, and the summary at the end. ``stop``: a flag list a signal handler sets.
     """
     from .channel import open_channel
@@ -556,6 +558,7 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
     t0 = time.monotonic_ns()
     next_status = t0
     late_over_1ms = 0
+    mode = int(board.sup.mode)
     try:
         while not stop[0]:
             due = t0 + board.n * dt_ns
@@ -576,6 +579,12 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
             frame = board.tick(overrun=late > dt_ns)
             if frame is not None:
                 ch.send(frame)
+            if int(board.sup.mode) != mode:  # (after the frame: the line is off the board's 1 ms path)
+                was, mode = mode, int(board.sup.mode)
+                if {was, mode} != {Mode.RUN, Mode.HOLD}:  # a late command held, or the next: counted, not logged
+                    print("RIG " + json.dumps({"event": "mode", "t_s": round(board.n * board.dt, 3),
+                                               "mode": Mode(mode).name, "reason": getattr(board.sup, "reason", ""),
+                                               "wall_ns": time.time_ns()}), file=out, flush=True)
             if now >= next_status:
                 next_status += int(status_every * 1e9)
                 s = board.summary()

@@ -17,7 +17,7 @@
 #define CAPTURE_TIME 0.01f
 #define HOLD_DESCENT_FRACTION 0.7f
 #define HOLD_RISE_FRACTION 1.0f
-#define HOLD_RISE_GAIN_FRACTION 0.5f
+#define HOLD_SPEEDUP_FRACTION 0.5f
 #define HOLD_GUARD_AFTER (3.0f / BIAS_BANDWIDTH)
 #define LANDING_OVERSHOOT 3e-4f
 #define I_OFF 0.02f
@@ -383,7 +383,7 @@ int sup_init(sup_t *s, const sup_config_t *cfg, int mode, const float *u0)
     s->hold_us = (int64_t)(cfg->hold_timeout * 1e6f + 0.5f);
     s->hold_descent = HOLD_DESCENT_FRACTION * cfg->landing_speed;
     s->hold_rise = HOLD_RISE_FRACTION * cfg->landing_speed;
-    s->hold_rise_gain = HOLD_RISE_GAIN_FRACTION * cfg->landing_speed;
+    s->hold_speedup = HOLD_SPEEDUP_FRACTION * cfg->landing_speed;
     s->n_guard = (uint32_t)(HOLD_GUARD_AFTER / cfg->dt + 0.5f);
     s->r_est[0] = s->r_est[1] = cfg->R;
     s->stop_gap[0] = s->stop_gap[1] = INFINITY;
@@ -655,15 +655,15 @@ static void both_implausible(sup_t *s, int bad, float y0, float y1, float u[2])
 }
 
 /* the hold's speed guard: the end whose estimated rate is beyond the hold's limits, or -1 (also while the
- * observer is younger than HOLD_GUARD_AFTER); end 1 first. Beyond: descending faster than hold_descent, or rising
- * faster than hold_rise and faster by hold_rise_gain than at the hold's first sample (hold_v0) */
+ * observer is younger than HOLD_GUARD_AFTER); end 1 first. Beyond: descending faster than hold_descent or rising
+ * faster than hold_rise, and that way faster by hold_speedup than at the hold's first sample (hold_v0) */
 static int held_too_fast(const sup_t *s)
 {
     int j;
     if (s->obs_age < s->n_guard) return -1;
     for (j = 0; j < 2; ++j) {
-        const float v = s->est[1][j];
-        if (v > s->hold_descent || (v < -s->hold_rise && v < s->hold_v0[j] - s->hold_rise_gain)) return j;
+        const float v = s->est[1][j], dv = v - s->hold_v0[j]; /* dv > 0: the hold sped it toward the support */
+        if ((v > s->hold_descent && dv > s->hold_speedup) || (v < -s->hold_rise && -dv > s->hold_speedup)) return j;
     }
     return -1;
 }

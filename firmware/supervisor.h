@@ -90,7 +90,7 @@ typedef struct {
     int64_t hold_us;
     uint32_t n_arm;
     float hold_descent, hold_rise; /* the hold's speed guard: a held plate beyond these rates [m/s] lands */
-    float hold_rise_gain;          /* ... rising: once also this much faster [m/s] than at the hold's start */
+    float hold_speedup;            /* ... once also this much faster that way [m/s] than at the hold's start */
     uint32_t n_guard;              /* ... once the observer has run this many samples */
     /* state */
     int mode;

@@ -20,7 +20,7 @@ __all__ = [
     "HOLD_DESCENT_FRACTION",
     "HOLD_GUARD_AFTER",
     "HOLD_RISE_FRACTION",
-    "HOLD_RISE_GAIN_FRACTION",
+    "HOLD_SPEEDUP_FRACTION",
     "INNOVATION_LIMIT",
     "LANDING_OVERSHOOT",
     "OBS_BANDWIDTH",
@@ -51,16 +51,17 @@ CAPTURE_TIME = 0.01  # s: it decelerates a rising plate's speed v at |v| / CAPTU
 # exceeds these fractions of landing_speed (descending, rising) lands at once instead of being held on
 HOLD_DESCENT_FRACTION = 0.7  # the rest of landing_speed: the observer's lag and the law's reaction (measured)
 HOLD_RISE_FRACTION = 1.0  # a rising plate is captured by the landing law; above the rate noise of S3c's sensors
-HOLD_RISE_GAIN_FRACTION = 0.5  # ... and only once it rises this much faster than when its hold began: a plate the
-#                                controller lifts fast is held through a late command; one the held voltage speeds up
+HOLD_SPEEDUP_FRACTION = 0.5  # ... each only once the plate moves this much faster that way than at the hold's first
+#                              sample: a plate the controller moves fast is held through a late command like any
+#                              other; what lands is a plate the held voltage speeds up
 HOLD_GUARD_AFTER = 3.0 / BIAS_BANDWIDTH  # s: the guard acts once the observer has run this long (its slowest
 #                                            pole, three time constants: its start-up transient is not a motion)
 
 
 def hold_guard_text(rise: float, descent: float) -> str:
     """The hold's speed guard in words, from its limits [m/s] (rise negative, up): both boards' landing reason."""
-    gain = -rise * HOLD_RISE_GAIN_FRACTION / HOLD_RISE_FRACTION
-    return (f"a held plate lands descending beyond {descent * 1e3:g} mm/s, or rising beyond {-rise * 1e3:g} mm/s and "
+    gain = descent * HOLD_SPEEDUP_FRACTION / HOLD_DESCENT_FRACTION
+    return (f"a held plate lands descending beyond {descent * 1e3:g} mm/s or rising beyond {-rise * 1e3:g} mm/s, "
             f"{gain * 1e3:g} mm/s faster than at its hold's start")
 
 

@@ -22,7 +22,7 @@ from .config import (
     HOLD_DESCENT_FRACTION,
     HOLD_GUARD_AFTER,
     HOLD_RISE_FRACTION,
-    HOLD_RISE_GAIN_FRACTION,
+    HOLD_SPEEDUP_FRACTION,
     I_OFF,
     OBS_BANDWIDTH,
     REF_ACCEL,
@@ -78,7 +78,7 @@ class Supervisor(SensorLosses):
         # [samples] from which it acts
         self._hold_descent = HOLD_DESCENT_FRACTION * c["landing_speed"]
         self._hold_rise = HOLD_RISE_FRACTION * c["landing_speed"]
-        self._hold_rise_gain = HOLD_RISE_GAIN_FRACTION * c["landing_speed"]
+        self._hold_speedup = HOLD_SPEEDUP_FRACTION * c["landing_speed"]
         self._hold_v0 = np.zeros(2)  # the observer's rates [m/s] at the hold's first sample
         self._guard_samples = round(HOLD_GUARD_AFTER / self.dt)
         self._obs_age = 0  # samples the observer has run (counted up to _guard_samples)
@@ -359,14 +359,17 @@ class Supervisor(SensorLosses):
     def _held_too_fast(self) -> int:
         """The hold's speed guard: the end (0, 1) whose estimated rate is beyond the hold's limits, or -1 (also
         while the observer is younger than HOLD_GUARD_AFTER); end 1 first. Beyond: descending faster than
-        HOLD_DESCENT_FRACTION of landing_speed, or rising faster than HOLD_RISE_FRACTION of it *and* faster by
-        HOLD_RISE_GAIN_FRACTION of it than at the hold's first sample (the held voltage speeds the plate up; a
-        lift-off the controller drives fast is held through a late command like any other motion)."""
+        HOLD_DESCENT_FRACTION, or rising faster than HOLD_RISE_FRACTION, of landing_speed, *and* that way faster by
+        HOLD_SPEEDUP_FRACTION of it than at the hold's first sample: the held voltage speeds the plate up. A plate
+        the controller itself moves fast (a lift-off rising at 30 mm/s, falling back at 15) is held through a late
+        command like any other motion; landing it there would start the landing at the controller's speed."""
         if self._obs_age < self._guard_samples:
             return -1
         for j in (0, 1):
             v = float(self.estimate[1, j])
-            if v > self._hold_descent or (v < -self._hold_rise and v < self._hold_v0[j] - self._hold_rise_gain):
+            dv = v - float(self._hold_v0[j])  # what the hold changed (positive: toward the support)
+            down = v > self._hold_descent and dv > self._hold_speedup
+            if down or (v < -self._hold_rise and -dv > self._hold_speedup):
                 return j
         return -1
 

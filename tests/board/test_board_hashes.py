@@ -211,8 +211,8 @@ EXPECTED: dict[str, str] = {
     "captures": "c534df71ae9154af/13234",
     "lost_sensors": "6179e1b04fcbfb8b/29530",
     "stuck_sensors": "b8e3383784d724dc/52181",
-    "liftoffs": "c4b7dcf183f75cec/17952",
-    "random_inputs": "995f882270aa3cac/4800",
+    "liftoffs": "5f5398db90d22056/17952",
+    "random_inputs": "ae94cac21b94af0d/4800",
 }
 
 

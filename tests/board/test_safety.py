@@ -465,9 +465,10 @@ def test_a_landing_started_during_a_lift_off_descends_within_the_landing_speed(i
 def test_a_fast_lift_off_is_held_through_late_commands():
     """A lift-off that the controller drives faster than landing_speed is held through a late command like any
     other motion (the lifecycle rig's re-activated lift-off rose at 32.7 mm/s): the hold's speed guard lands a
-    rising plate only once it rises HOLD_RISE_GAIN_FRACTION of landing_speed faster than at its hold's start (the
-    held voltage speeds it up). Here up to 30 mm/s with every 20th command of the path missing: held each time,
-    never landed. Before the rise was compared with its start the first late command above 10 mm/s landed it."""
+    moving plate only once it moves HOLD_SPEEDUP_FRACTION of landing_speed faster than at its hold's start (the
+    held voltage speeds it up; the same for a descent). Here up to 30 mm/s with every 20th command of the path
+    missing: held each time, never landed. Before the rise was compared with its start the first late command above
+    10 mm/s landed it."""
     pc = SCHEMA.defaults("plant_sim")
     pc.update(noise_scale=0.03, seed=1, measure_velocity=False)
     plant = DemPlant(pc)

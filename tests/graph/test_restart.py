@@ -32,8 +32,8 @@ T0 = 1_800_000_000 * 10**9  # ROS time of board sample 0 [ns]
 class RigLoop:
     """Board + driver + the real nodes on a MemoryBus, stepped one board tick at a time."""
 
-    def __init__(self, start: str = "hover", preroll: float = 0.3, **ref):
-        cfg = default_config()
+    def __init__(self, start: str = "hover", preroll: float = 0.3, cfg: dict | None = None, **ref):
+        cfg = default_config() if cfg is None else cfg
         cfg["plant_sim"]["measure_velocity"] = False
         cfg["rig"]["start"] = start
         self.cfg = cfg
@@ -240,3 +240,29 @@ def test_a_landing_during_the_lift_off_then_an_arm_at_once_lifts_off_again_witho
     assert rise < 4 * LIFTOFF_SPEED, f"the second lift-off rose at {rise * 1e3:.1f} mm/s"
     e = np.array(loop.gaps[-1]) - np.array(loop.refs[max(loop.refs)][:2])
     assert np.all(np.abs(e) < 0.3e-3)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "open in issue #19: the controller's lift-off is smooth only with a 1-sample command delay. Tick by tick, with "
+    "command_delay 2, 3 or 4 the plate rises at 41-116 mm/s to within 1.7-2.0 mm of the rail, falls back at "
+    "108-187 mm/s and the board lands it (measured 2026-11-27; delay 1: 19.5 mm/s, smallest gap 8.32 mm). The "
+    "commands in flight at the lift-off's start (the premagnetising ramp's) are not the cause: taken into the law's "
+    "prediction they changed nothing. The HIL restart test runs at delay 4 and fails through this"))
+@pytest.mark.parametrize("delay", [4])
+def test_a_lift_off_with_a_command_delay_is_as_smooth_as_without(delay):
+    """The lift-off of the first test, the commands taking ``delay`` samples to the coils (as the HIL restart test
+    and a loaded rig run them): within 4 x LIFTOFF_SPEED up, never within 3 mm of trip_gap_min, no landing."""
+    cfg = default_config()
+    for g in ("controller", "hw_driver", "plant_sim"):
+        cfg[g]["command_delay"] = delay
+    cfg["controller"]["max_age"] = (delay + 1) * cfg["controller"]["dt"]
+    loop = RigLoop(start="landed", cfg=cfg)
+    loop.run(300)
+    loop.drv.arm()
+    loop.run(5000)
+    gaps = np.array(loop.gaps)
+    rig, pc = loop.cfg["rig"], loop.cfg["plant_sim"]
+    off = int(np.argmax(gaps[:, 0] < rig["support_gap"] - 1e-6))
+    rise = (-np.diff(gaps[off:], axis=0) / 1e-3).max()
+    assert Mode.LAND not in loop.modes and loop.modes[-1] == Mode.RUN, loop.board.sup.reason
+    assert rise < 4 * LIFTOFF_SPEED and gaps.min() > pc["trip_gap_min"] + 3e-3, (rise, gaps.min())

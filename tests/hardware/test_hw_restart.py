@@ -22,8 +22,21 @@ sequence tick by tick, with no clock, is tests/graph/test_restart.py). The comma
 delay is 4 samples so a loaded machine keeps the loop in time (the controller predicts over it), and
 the driver's own watchdogs (``hw_driver.command_timeout``, ``link_timeout``) are 0.3 s: a host stall of
 50 ms on a loaded 2-core machine must not fault the driver before the kill; the board's hold_timeout
-(50 ms) stays what lands the plate. A stall can still make the board land the plate by itself (no
-command for 50 ms): the script then re-arms (the same restart path), at most ``REARMS`` times.
+(50 ms) stays what lands the plate. A stall can still make the board land the plate by itself: no command for
+50 ms (beside two busy processes the kernel's real-time budget stops every FIFO thread of a CPU for ~50 ms now and
+then: STALL lines of cause "runnable"), the hold's speed guard, or the stopping-distance trip when the law, late,
+sped the plate toward the rail. The script then re-arms at once (the same restart path; the controller has
+stopped its law when the board applied 0 V), at most ``REARMS`` times. The script reads the board's mode from the
+rig's ``mode`` lines (logged at each change), so it stops the driver only while the board runs; a landing of the
+board's own in the ~0.1 s between its look and the SIGINT leaves the driver nothing to land, and is said so.
+
+On demand (``DEM_ROS_HIL=1``): beside two busy processes it fails about one run in two, through the controller's
+lift-off under the 4-sample command delay (tests/graph/test_restart.py,
+``test_a_lift_off_with_a_command_delay_is_as_smooth_as_without``, strict xfail: tick by tick the plate rises at
+41-116 mm/s to within 1.7-2.0 mm of the rail and falls back at 108-187 mm/s). Measured 2026-11-27 beside two
+busy ``yes``: 6 passes in 13, six of them beside other test runs too (0-3 re-arms, fastest descent while
+landing 4.6-4.8 mm/s, smallest gap 1.8-5.0 mm); the failures: a landing started while the lift-off fell back
+(12.6, 14.8, 85.9, 132.3 mm/s against the bound of 10) and re-arms given up after 300 s.
 """
 
 from __future__ import annotations
@@ -44,19 +57,36 @@ from dem_ros.tools.launcher import run_graph
 
 DELAY = 4
 LIMIT_S = 300.0  # s: the whole sequence, start-up included, on a loaded machine; then the run is stopped
-REARMS = 3  # re-arms after a landing the board made by itself during the lift-off (a host stall)
+REARMS = 6  # re-arms after a landing the board made by itself during the lift-off (a host stall)
 
 
 def _rig_status(workdir: Path) -> dict:
-    """The emulated board's newest status line (mode, true gaps, landings), {} before the first."""
+    """The emulated board as its log last told, {} before the first status: the true gaps of its newest status
+    line (once a second), the mode and reason of its newest ``mode`` line (logged at each change, when it happens),
+    ``landings`` (the mode changes into LAND, or into LANDED from RUN/HOLD/OFF) and ``landed_wall_ns`` (when the
+    newest landing began, wall clock)."""
     try:
         lines = (workdir / "rig.log").read_text(errors="replace").splitlines()
     except OSError:
         return {}
-    for line in reversed(lines):
-        if line.startswith("RIG ") and '"status"' in line:
-            return json.loads(line[4:])
-    return {}
+    status: dict = {}
+    mode: dict | None = None
+    landings, landed_wall_ns, prev = 0, None, "OFF"
+    for line in lines:
+        if not line.startswith("RIG "):
+            continue
+        if '"event": "status"' in line:
+            status = json.loads(line[4:])
+        elif '"event": "mode"' in line:
+            mode = json.loads(line[4:])
+            if mode["mode"] == "LAND" or (mode["mode"] == "LANDED" and prev != "LAND"):
+                landings, landed_wall_ns = landings + 1, mode["wall_ns"]
+            prev = mode["mode"]
+    if not status:
+        return {}
+    if mode is not None:
+        status.update(mode=mode["mode"], reason=mode["reason"], landings=landings, landed_wall_ns=landed_wall_ns)
+    return status
 
 
 class Script:
@@ -72,6 +102,7 @@ class Script:
         self.rearms = 0
         self.landings_at_arm = 0
         self.liftoffs_at_arm = 0  # the controller's 'lift-off done' lines when the driver was (re-)armed
+        self.stop_wall_ns = 0  # when the driver was stopped (wall clock, as the rig's mode lines)
         self.client = HwClient(domain)  # discovered while the graph starts
 
     def arm(self) -> None:
@@ -111,15 +142,15 @@ class Script:
         elif self.phase == "lift" and flying and "lifted" not in self.t:
             self.t["lifted"] = now  # off the support (1 mm): the lift-off is under way
         elif self.phase == "lift" and flying and self._log().count("lift-off done") > self.liftoffs_at_arm:
-            self.phase, self.t["tracking"] = "stop", now
+            self.phase, self.t["tracking"], self.stop_wall_ns = "stop", now, time.time_ns()
             procs["hw_driver"].send_signal(signal.SIGINT)  # the driver lands the plate, then exits: the run ends
         return {"controller"}
 
 
 @pytest.mark.skipif(os.environ.get("DEM_ROS_HIL") != "1", reason=(
-    "on demand (DEM_ROS_HIL=1): beside two busy processes about 1 run in 12 fails its landing-speed bound: a board "
-    "landing during the lift-off, within ~1 mm of the support, dropped the plate onto it at ~140 mm/s (a free fall "
-    "of 1 mm; bound 10 mm/s); open in issue #19"))
+    "on demand (DEM_ROS_HIL=1): beside two busy processes about 1 run in 2 fails: the controller's lift-off under "
+    "a 4-sample command delay rises and falls back at 41-187 mm/s (tick by tick: tests/graph/test_restart.py, strict "
+    "xfail), so a landing started then exceeds landing_speed or the re-arms are given up; open in issue #19"))
 def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path, domain_id):
     cfg = get_scenario("S1").config()
     cfg["plant_sim"]["measure_velocity"] = False  # a rig has no gap-rate sensors
@@ -146,8 +177,14 @@ def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path
     assert rig["min_gap_mm"] > pc["trip_gap_min"] * 1e3, rig
     assert rig["landings"] >= 2 and rig["land_speed_max_mm_s"] <= pc["landing_speed"] * 1e3, (
         rig["landings"], rig["land_speed_max_mm_s"], rig["reason"], script.t)
-    # the driver's stop, not its watchdog
-    assert rig["mode"] in ("LAND", "LANDED") and rig["reason"] == "LAND requested", rig
+    # the driver's stop, not its watchdog: unless the board was landing by itself already when the driver was
+    # stopped (a host stall in the ~0.1 s between the script's look at the rig's log and its SIGINT), then there was
+    # nothing left for the driver to land
+    final = _rig_status(workdir)
+    began = final.get("landed_wall_ns")
+    landed_before_stop = began is not None and began < script.stop_wall_ns and rig["reason"] != "LAND requested"
+    assert rig["mode"] in ("LAND", "LANDED") and (rig["reason"] == "LAND requested" or landed_before_stop), (
+        rig, final, script.stop_wall_ns)
     # the fault on /diagnostics, in the bag; the levitation after the arm, in the bag
     r = BagReader(bag)
     faults = [s.message for _, _, m in r.messages([contract.DIAGNOSTICS.name]) for s in m.status
@@ -158,4 +195,5 @@ def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path
           f" {script.rearms} re-arms;"
           f" lift-off done, tracking the reference {script.t['tracking'] - script.t['lifted']:.1f} s later); "
           f"fastest descent while landing {rig['land_speed_max_mm_s']:.2f} mm/s (bound {pc['landing_speed'] * 1e3:g}), "
-          f"smallest gap {rig['min_gap_mm']:.3f} mm (trip_gap_min {pc['trip_gap_min'] * 1e3:g})")
+          f"smallest gap {rig['min_gap_mm']:.3f} mm (trip_gap_min {pc['trip_gap_min'] * 1e3:g})"
+          + (f"; the board had landed by itself before the stop ({rig['reason']})" if landed_before_stop else ""))

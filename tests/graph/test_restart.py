@@ -244,10 +244,10 @@ def test_a_landing_during_the_lift_off_then_an_arm_at_once_lifts_off_again_witho
 
 @pytest.mark.xfail(strict=True, reason=(
     "open in issue #19: the controller's lift-off is smooth only with a 1-sample command delay. Tick by tick, with "
-    "command_delay 2, 3 or 4 the plate rises at 41-116 mm/s to within 1.7-2.0 mm of the rail, falls back at "
-    "108-187 mm/s and the board lands it (measured 2026-11-27; delay 1: 19.5 mm/s, smallest gap 8.32 mm). The "
-    "commands in flight at the lift-off's start (the premagnetising ramp's) are not the cause: taken into the law's "
-    "prediction they changed nothing. The HIL restart test runs at delay 4 and fails through this"))
+    "command_delay 2, 3 or 4 the plate rises several times faster than the lift-off's speed to within 2 mm of the "
+    "rail, falls back and the board lands it (figures in docs/results.md, 'Hardware in the loop'). The commands in "
+    "flight at the lift-off's start (the premagnetising ramp's) are not the cause: taken into the law's prediction "
+    "they changed nothing. The HIL restart test runs at delay 4 and fails through this"))
 @pytest.mark.parametrize("delay", [4])
 def test_a_lift_off_with_a_command_delay_is_as_smooth_as_without(delay):
     """The lift-off of the first test, the commands taking ``delay`` samples to the coils (as the HIL restart test

@@ -147,8 +147,8 @@ class Script:
 
 @pytest.mark.skipif(os.environ.get("DEM_ROS_HIL") != "1", reason=(
     "on demand (DEM_ROS_HIL=1): beside two busy processes about 1 run in 2 fails: the controller's lift-off under "
-    "a 4-sample command delay rises and falls back at up to ~140 mm/s (tick by tick: tests/graph/test_restart.py, strict "
-    "xfail), so a landing started then exceeds landing_speed or the re-arms are given up; open in issue #19"))
+    "a 4-sample command delay rises and falls back at up to ~140 mm/s (tick by tick: tests/graph/test_restart.py, "
+    "strict xfail), so a landing started then exceeds landing_speed or the re-arms are given up; open in issue #19"))
 def test_killed_controller_lands_then_restart_and_arm_lift_off_over_udp(tmp_path, domain_id):
     cfg = get_scenario("S1").config()
     cfg["plant_sim"]["measure_velocity"] = False  # a rig has no gap-rate sensors

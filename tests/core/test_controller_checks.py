@@ -7,9 +7,11 @@ import pytest
 
 from dem_ros.core.controllers.checks import InputChecks, reference_speed_bound
 from dem_ros.core.controllers.hover import (
+    LIFT_DETECT,
     LIFTOFF_CLEARANCE,
     LIFTOFF_SPEED,
     PREMAG_FRACTION,
+    departure_acceleration,
     lift_fraction,
     liftoff_duration,
     liftoff_reference,
@@ -133,8 +135,10 @@ def test_stamps_are_judged_on_the_plants_clock():
     assert off.estimate(0) == "" and off.estimate(10**12) == ""  # 0: no stamp checks
 
 
-def test_liftoff_reference_is_c3_and_its_derivatives_are_its_derivatives():
-    """Finite differences of the blend's position, speed and acceleration match the published derivatives."""
+@pytest.mark.parametrize("v0,a0", [(None, None), ((-5.8e-3, -4e-3), (-0.21, -0.15))])
+def test_liftoff_reference_is_c3_and_its_derivatives_are_its_derivatives(v0, a0):
+    """Finite differences of the blend's position, speed and acceleration match the published derivatives; from rest,
+    or starting with the rates of a plate that is already moving (the catch term), which fade."""
     y0 = np.array([0.0112, 0.0110])
     T = 1.3
 
@@ -143,14 +147,17 @@ def test_liftoff_reference_is_c3_and_its_derivatives_are_its_derivatives():
         return np.array([0.008 + 5e-4 * s, 0.0075, 1e-3 * c, 0, -2e-3 * s, 0, -4e-3 * c, 0])
 
     h = 1e-5
-    for t in np.linspace(0.0, T + 0.2, 37):
-        f = [liftoff_reference(y0, stream(t + d), t + d, T) for d in (-h, 0.0, h)]
+    for t in np.linspace(0.0 if v0 is None else 2 * h, T + 0.2, 37):  # (the catch term starts at t = 0)
+        f = [liftoff_reference(y0, stream(t + d), t + d, T, v0, a0) for d in (-h, 0.0, h)]
         for i in range(3):  # d/dt of [y, y', y''] against [y', y'', y''']
             fd = (f[2][2 * i:2 * i + 2] - f[0][2 * i:2 * i + 2]) / (2 * h)
             assert np.allclose(fd, f[1][2 * i + 2:2 * i + 4], rtol=1e-4, atol=1e-7 * 10**i), (t, i)
-    start, end = liftoff_reference(y0, stream(0.0), 0.0, T), liftoff_reference(y0, stream(T), T, T)
-    assert np.array_equal(start, np.r_[y0, np.zeros(6)])  # at rest where the plate lies
-    assert np.allclose(end, stream(T))  # handed over to the stream
+    start, end = liftoff_reference(y0, stream(0.0), 0.0, T, v0, a0), liftoff_reference(y0, stream(T), T, T, v0, a0)
+    if v0 is None:
+        assert np.array_equal(start, np.r_[y0, np.zeros(6)])  # at rest where the plate lies
+    else:  # where the plate is, as fast as it moves
+        assert np.allclose(start[:6], np.r_[y0, v0, a0], rtol=1e-12, atol=0.0)
+    assert np.allclose(end, stream(T), rtol=0.0, atol=1e-7)  # handed over to the stream (the catch faded: e^-26)
 
 
 def test_liftoff_duration_and_target():
@@ -173,3 +180,28 @@ def test_lift_fraction_and_premagnetisation():
     i_pm, u_pm = premagnetise(np.array([0.0112, 0, 0.0112, 0, 0, 0]), CC)
     assert lift_fraction(np.array([0.0112, 0, 0.0112, 0, *i_pm]), CC) == pytest.approx(PREMAG_FRACTION)
     assert np.allclose(u_pm, CC["R_nominal"] * i_pm)
+
+
+def test_departure_acceleration_is_exact_for_a_constant_one_and_never_overstates_the_real_departure():
+    """Constant acceleration from rest: exact. The magnets' departure, y_rest - y = A (cosh(lambda t) - 1) (lambda
+    42 1/s, about sqrt(2 g / y) at the support): between 1/2 and 1 of the true acceleration A lambda^2 cosh(lambda t).
+    Not risen LIFT_DETECT / 2, or not rising: 0."""
+    g = 9.81
+    rest = np.array([0.0112, 0.0112])
+    for a in (0.05, 0.2, 0.5):
+        t = 0.05  # s: risen 62 um or more
+        y = rest - a * t * t / 2
+        np.testing.assert_allclose(departure_acceleration(rest, y, np.array([-a * t, -a * t]), g), [-a, -a], rtol=1e-12)
+    lam, A = 42.0, 2e-6
+    for t in np.linspace(0.02, 0.2, 19):
+        dy, v, a = A * (np.cosh(lam * t) - 1), A * lam * np.sinh(lam * t), A * lam**2 * np.cosh(lam * t)
+        if dy < LIFT_DETECT / 2:  # not yet risen
+            continue
+        est = -departure_acceleration(rest, rest - dy, np.array([-v, -v]), g)
+        assert np.all((0.5 * a <= est) & (est <= a * (1 + 1e-12))), (t, est, a)
+    lifted = rest - np.array([LIFT_DETECT, LIFT_DETECT / 4])
+    assert departure_acceleration(rest, lifted, np.array([-5e-3, -5e-3]), g)[1] == 0.0  # magnet 2 still down
+    assert np.all(departure_acceleration(rest, rest - LIFT_DETECT, np.array([1e-3, 0.0]), g) == 0.0)  # falling, still
+    # a lagging estimate (fast, barely risen): at most the negative stiffness's lambda^2 dy, lambda^2 = 2 g / y
+    capped = departure_acceleration(rest, rest - LIFT_DETECT, np.array([-1.0, -1.0]), g)
+    assert capped == pytest.approx(-2 * g * LIFT_DETECT / rest, rel=1e-12)

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 from test_rig_conditions import _equilibrium_sympy
 
+from dem_ros.core import model
 from dem_ros.core.controllers import make_controller
+from dem_ros.core.controllers.hover import hover_residuals
 from dem_ros.core.model import initial_state
 from dem_ros.core.params import apply_overrides, default_config
 from dem_ros.core.scenarios import NOISE_UNIT
@@ -70,3 +72,35 @@ def test_a_window_of_zero_current_determines_nothing():
     ctrl.reset(Z, U)
     assert ctrl.hover_fit.determined < 3
     assert np.all(np.isfinite(ctrl.diag[:3]))
+
+
+@pytest.mark.parametrize("name", ["adaptive", "adaptive_enhanced"])
+def test_a_plate_leaving_its_support_is_fitted_with_its_acceleration(name):
+    """A plate just off its support: the currents 1 % above the hover's, so the plant (model.dynamics) accelerates it
+    up. Fitted as a hover, the law's model would take that net force for a bias (the lift-off rose 1 mm above its
+    reference, the error's steady state k1 a / k3); fitted with the measured accelerations, the model's heave
+    acceleration at that state is the plant's, and the coil equations are solved as before."""
+    pc = CFG["plant_sim"]
+    x0, u0 = initial_state(pc)
+    x = x0.copy()
+    x[4:] *= 1.01
+    u = u0 * 1.01
+    dx = np.empty(6)
+    model.dynamics(x, u, model.plant_vector(pc), dx)
+    a = dx[[1, 3]]
+    assert np.all(a < -0.1)  # m/s^2: up (gaps shrink), as a plate leaving its support
+    cc = CFG["controller"]
+    geo = _geo(cc)
+    for accel, expected in ((None, 0.0), (a, a)):
+        ctrl = make_controller(cc, name)
+        ctrl.reset(x, u, accel)
+        r, _ = hover_residuals(ctrl.hover_fit.phi, x[None], u[None], geo)  # r[:, 2:]: the model's y'' at x, u
+        assert r[0, 2:].sum() == pytest.approx(np.sum(expected), abs=1e-9)
+        _, R, _, rho = ctrl.hover_fit.phi
+        assert (R + rho, R - rho) == (pytest.approx(pc["R"], rel=1e-9), pytest.approx(pc["R"], rel=1e-9))
+
+
+def _geo(cc):
+    P, Q = model.gap_weights(cc["L"], cc["l"])
+    return {"P": P, "Q": Q, "cA": cc["L"] * cc["l"] / cc["I"], "cC": cc["L"] ** 2 / cc["I"], "N1": cc["N1"],
+            "N2": cc["N2"], "g": cc["g"], "floor": cc["gap_floor"]}

@@ -130,9 +130,9 @@ def test_a_controller_started_on_a_landed_plate_lifts_it_off_once_the_board_foll
     off = int(np.argmax(gaps[:, 0] < rig["support_gap"] - 1e-6))  # the tick the plate left its support
     assert off > 1000  # premagnetised, then the force rose slowly: it stayed down for a while
     lift = gaps[off:off + 1000]
-    # measured (deterministic loop): from 11.2 mm up to 9.71 mm at <= 14.1 mm/s, settling toward 10.2 mm
+    # measured (deterministic loop): from 11.2 mm up to 9.70 mm at <= 9.6 mm/s in its first second (was 19.5)
     assert lift.min() > rig["support_gap"] - 2e-3  # overshoot toward the rail < 2 mm
-    assert (-np.diff(lift, axis=0) / 1e-3).max() < 4 * LIFTOFF_SPEED  # rising speed [m/s]
+    assert (-np.diff(lift, axis=0) / 1e-3).max() < 3 * LIFTOFF_SPEED  # rising speed [m/s]
     assert gaps.min() > pc["trip_gap_min"] + 3e-3  # never near the rail
     loop.run(3000)  # then tracks the reference (its schedule steps magnet 1 to 5 mm at t = 1 s)
     e = np.array(loop.gaps[-1]) - np.array(loop.refs[max(loop.refs)][:2])
@@ -245,19 +245,15 @@ def test_a_landing_during_the_lift_off_then_an_arm_at_once_lifts_off_again_witho
     assert np.all(np.abs(e) < 0.3e-3)
 
 
-#: the controller's lift-off under a command delay of 3 or more: the plate rises and falls back several times faster
-#: than the lift-off's speed and, at 4, comes within a few mm of the rail (docs/results.md, "Hardware in the loop").
-#: With the law's integral action off (ki 0) the same lift-off is smooth at 4; held off during the lift-off only, a
-#: second lift-off after a landing (delay 1) oscillated between 5 and 11 mm: the integral does more than this
-ROUGH_LIFTOFF = pytest.mark.xfail(strict=True, reason="open in issue #19: the lift-off is smooth up to a 2-sample "
-                                  "command delay only")
-
-
-@pytest.mark.parametrize("delay", [2, pytest.param(3, marks=ROUGH_LIFTOFF), pytest.param(4, marks=ROUGH_LIFTOFF)])
+@pytest.mark.parametrize("delay", [2, 3, 4, 6])
 def test_a_lift_off_with_a_command_delay_is_as_smooth_as_without(delay):
     """The lift-off of the first test, the commands taking ``delay`` samples to the coils and the controller
-    predicting over them (as a loaded rig runs them; the HIL restart test at 4): within 5 x LIFTOFF_SPEED up (the
-    first test's, delay 1, within 4), never within 3 mm of trip_gap_min, no landing."""
+    predicting over them (as a loaded rig runs them; the HIL tests at 4): within 3 x LIFTOFF_SPEED up, never back
+    within 0.25 mm of its support once 1 mm off it, never within 3 mm of trip_gap_min, no landing.
+
+    Measured (deterministic loop): up at 9.7 / 10.2 / 10.8 / 11.8 mm/s at delays 2 / 3 / 4 / 6, back to
+    0.36-0.85 mm off the support. Before the law's hover fit took in the plate's acceleration as it leaves the
+    support (and the lift-off reference its rates), 76.6 and 139.5 mm/s at 3 and 4, within 2.3 mm of the rail."""
     cfg = default_config()
     for g in ("controller", "hw_driver", "plant_sim"):
         cfg[g]["command_delay"] = delay
@@ -271,4 +267,7 @@ def test_a_lift_off_with_a_command_delay_is_as_smooth_as_without(delay):
     off = int(np.argmax(gaps[:, 0] < rig["support_gap"] - 1e-6))
     rise = (-np.diff(gaps[off:], axis=0) / 1e-3).max()
     assert Mode.LAND not in loop.modes and loop.modes[-1] == Mode.RUN, loop.board.sup.reason
-    assert rise < 5 * LIFTOFF_SPEED and gaps.min() > pc["trip_gap_min"] + 3e-3, (rise, gaps.min())
+    up = int(np.argmax(gaps.max(axis=1) < rig["support_gap"] - 1e-3))  # both magnets 1 mm off the support
+    assert up > off and gaps[up:].max() < rig["support_gap"] - 0.25e-3, gaps[up:].max()
+    assert rise < 3 * LIFTOFF_SPEED and gaps.min() > pc["trip_gap_min"] + 3e-3, (rise, gaps.min())
+

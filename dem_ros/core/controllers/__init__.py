@@ -54,7 +54,8 @@ class Controller:
     name: str
     diag: np.ndarray
 
-    def reset(self, meas0: np.ndarray, u0: np.ndarray) -> None:  # pragma: no cover - interface
+    def reset(self, meas0: np.ndarray, u0: np.ndarray,
+              accel: np.ndarray | None = None) -> None:  # pragma: no cover - interface
         raise NotImplementedError
 
     def step(self, meas: np.ndarray, ref: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
@@ -137,8 +138,12 @@ class CEController(Controller):
         self._Bd[:] = self.F.Bd
 
     # -- state ------------------------------------------------------------
-    def reset(self, meas0: np.ndarray | None, u0: np.ndarray | None) -> None:
-        """Fresh estimates and zero filters; with a measured hover (meas0, u0), hover-initialise A1/A2."""
+    def reset(self, meas0: np.ndarray | None, u0: np.ndarray | None, accel: np.ndarray | None = None) -> None:
+        """Fresh estimates and zero filters; with a measured hover (meas0, u0), hover-initialise A1/A2.
+
+        ``accel`` (2,) or (n, 2): the gaps' measured accelerations [m/s^2] at meas0 when the plate is not at rest
+        (it leaves its support: A2 fits the heave equation to them, so that the law's model does not take the
+        lift-off's net force for a force bias; A1 ignores them)."""
         c = self.cfg
         cp = self.cp
         window = None
@@ -177,7 +182,7 @@ class CEController(Controller):
                 self.v[:n] = [1.0, 1.0, 1.0, 0.0]
                 self.P[:n, :n] = np.diag([c["P0_m"], c["P0_R"], c["P0_K"], c["P0_rho"]])
                 if window is not None and c["hover_init"]:
-                    self._hover_init_a2(*window)
+                    self._hover_init_a2(*window, accel)
                 self.theta[:] = _theta(self.scale[:n] * self.v[:n], cp)
             self.v0[:] = self.v
         if u0 is not None:
@@ -193,7 +198,7 @@ class CEController(Controller):
         else:
             kernels.physical_estimates(self.theta, self.diag)
 
-    def _hover_init_a2(self, Zw: np.ndarray, Uw: np.ndarray) -> None:
+    def _hover_init_a2(self, Zw: np.ndarray, Uw: np.ndarray, accel: np.ndarray | None = None) -> None:
         """Notes 6 A2 (iv) from a window of pre-roll samples: :func:`.hover.solve_hover`."""
         cp = self.cp
         geo = {"P": cp[kernels.CP_P], "Q": cp[kernels.CP_Q], "cA": cp[kernels.CP_CA], "cC": cp[kernels.CP_CC],
@@ -202,7 +207,8 @@ class CEController(Controller):
         hi = np.array([cp[kernels.CP_MU_MAX], cp[kernels.CP_R_MAX], cp[kernels.CP_K_MAX], cp[kernels.CP_RHO_MAX]])
         n = kernels.NPHI
         scale = self.scale[:n].copy()
-        fit = solve_hover(scale * self.v[:n], scale, self.P[:n, :n], Zw, Uw, geo, lo, hi)
+        A = None if accel is None else np.broadcast_to(np.asarray(accel, float), (len(Zw), 2))
+        fit = solve_hover(scale * self.v[:n], scale, self.P[:n, :n], Zw, Uw, geo, lo, hi, A=A)
         self.v[:n] = fit.phi / scale
         self.hover_fit = fit
 
@@ -260,7 +266,7 @@ class PIDController(Controller):
         self.cp[:] = [c["pid_kp"], c["pid_kd"], c["pid_ki"], c["pid_kc"], c["R_nominal"],
                       np.sqrt(F0 / c["K_nominal"]), c["dt"], min(c["voltage_limit"], c["u_max"])]
 
-    def reset(self, meas0: np.ndarray | None, u0: np.ndarray | None) -> None:
+    def reset(self, meas0: np.ndarray | None, u0: np.ndarray | None, accel: np.ndarray | None = None) -> None:
         self.integ[:] = 0.0
         self.u = np.zeros(2) if u0 is None else np.asarray(u0, float).copy()
 

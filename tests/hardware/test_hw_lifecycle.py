@@ -37,6 +37,22 @@ DELAY = 4
 LIMIT_S = 400.0  # s: the whole sequence, start-up included, on a loaded machine; then the run is stopped
 
 
+def _first_landing(workdir: Path) -> dict | None:
+    """The emulated board's first ``mode`` line into LAND (or LANDED): the rig logs one at each mode change, with
+    its reason (its once-a-second status can miss it: a landing, LANDED and the driver's OFF that clears the reason
+    all fell between two reports in a CI run)."""
+    try:
+        lines = (workdir / "rig.log").read_text(errors="replace").splitlines()
+    except OSError:
+        return None
+    for line in lines:
+        if line.startswith("RIG ") and '"event": "mode"' in line:
+            ev = json.loads(line[4:])
+            if ev.get("mode") in ("LAND", "LANDED"):
+                return ev
+    return None
+
+
 def _rig_status(workdir: Path) -> dict:
     """The emulated board's newest status line (mode, true gaps, landings; once a second), {} before the first."""
     try:
@@ -62,7 +78,7 @@ class Script:
         self.nodes: subprocess.Popen | None = None  # then `ros2 lifecycle nodes`, stock rclpy
         self.nodes_out = workdir.parent / "client-nodes.log"
         self.phase = "client"
-        self.first_landing: dict | None = None  # the board's status once it has landed the plate the first time
+        self.first_landing: dict | None = None  # the board's mode line as it first landed the plate (with why)
         self.lifted: dict | None = None  # the board's status once the plate is off its support after the activate
 
     def _liftoffs(self) -> int:
@@ -73,10 +89,8 @@ class Script:
 
     def __call__(self, t: float | None, procs: dict, restart) -> set[str]:
         st = _rig_status(self.workdir)
-        # the first status after a landing that still names its reason (the rig reports at 1 Hz: a landing, LANDED
-        # and the driver's OFF that clears the reason can all fall between two reports)
-        if self.first_landing is None and st.get("landings", 0) >= 1 and st.get("reason"):
-            self.first_landing = st
+        if self.first_landing is None:
+            self.first_landing = _first_landing(self.workdir)
         flying = st.get("mode") == "RUN" and max(st.get("gaps_mm", [99, 99])) < self.support_mm - 1.0
         if self.phase != "client" and self.lifted is None and flying and st.get("landings", 0) == 1:
             self.lifted = st

@@ -74,15 +74,14 @@ i.e. at the support the model's motion (magnet force, load, beta_j, rate) points
 magnets carry less than the load at that load point and the support carries the rest. Then the
 support holds the plate: d_j^- = d_j, d_j'^- = 0 (rows d_j, d_j' of F become [e_j; 0]), with no process noise on
 d_j' nor on beta_j: the contact force, not a bias, explains the missing fall, and beta_j is 0 (it cannot be
-observed there; a bias left from the landing's transient, +0.1 m/s^2 on the emulated rig, held the estimate on the
-support for 45 ms after the plate had left it: 0.21 mm up at 18 mm/s before the estimate was re-initialised, its
-rate 0, and the controller's lift-off started blind to its speed). As soon as the magnets carry the load (lift-off)
-the free prediction moves the gap toward the rail and the model is the flying one again. Where the sensor puts the
-support is measured, not assumed: a gap on its support whose reading the innovation gate rejects, the last
-``SUPPORT_REINIT`` rejected readings in a row steady (each within 2 sqrt(chi2) sigma_gap of the first), is
-re-initialised from the reading (d_j = z_j, d_j' = 0, their covariance rows cleared, P_jj = sigma_gap^2; counted,
-no fault): a plate that dropped onto its support, or a support a little off d_s. Off the support a steady rejected
-reading is never taken over (a stuck sensor on a moving plate must latch its fault).
+observed there; a bias left from the landing's transient held the estimate on the support after the plate had left
+it, and the controller's next lift-off started blind to its speed: docs/manual/estimator.md). As soon as the
+magnets carry the load (lift-off) the free prediction moves the gap toward the rail and the model is the flying one
+again. Where the sensor puts the support is measured, not assumed: a gap on its support whose reading the
+innovation gate rejects, the last ``SUPPORT_REINIT`` rejected readings in a row steady (each within 2 sqrt(chi2)
+sigma_gap of the first), is re-initialised from the reading (d_j = z_j, d_j' = 0, their covariance rows cleared,
+P_jj = sigma_gap^2; counted, no fault): a plate that dropped onto its support, or a support a little off d_s. Off
+the support a steady rejected reading is never taken over (a stuck sensor on a moving plate must latch its fault).
 
 Numerical guard: the update is skipped (counted) when S is not finite or singular, and a state or
 covariance that became non-finite (a gap near zero makes the model singular: delta^-2 terms) is

@@ -89,8 +89,7 @@ OFF_VOLTS = 1.0
 OFF_SAMPLES = 20
 ECHO_SAMPLES = 20  # premagnetised samples the board must echo before the law starts (5 coil time constants)
 #: the coils' resistances in the law's hover fit at lift-off: from the last this many echoed premagnetised samples
-#: (from one sample they differed by 0.15 ohm, 0.75 %, under 0.01 A of current noise: the plate left its support
-#: tilting)
+#: (from one sample, current noise alone makes them differ, and the plate leaves its support tilting)
 LIFT_WINDOW = 50
 #: counters that make the once-a-second diagnostics WARN when they grew
 _WARN_KEYS = ("stale", "future", "non_finite_input", "non_finite_output", "reference_range", "reference_rate",
@@ -343,7 +342,8 @@ class ControllerNode:
             accel = departure_acceleration(self.y_rest, y, np.array([xh[1], xh[3]]), self.cfg["g"])
             i_w = np.mean([z[4:6] for z, _ in self.premag_window], axis=0)
             u_w = np.mean([u for _, u in self.premag_window], axis=0)
-            u_fit = np.where(i_w > 0.0, u_w / np.where(i_w > 0.0, i_w, 1.0) * xh[4:6], ua)
+            R_w = np.divide(u_w, i_w, out=np.zeros(2), where=i_w > 0.0)
+            u_fit = np.where(i_w > 0.0, R_w * xh[4:6], ua)
             self.ctrl = make_controller(self.cfg)
             self.ctrl.reset(xh.copy(), u_fit, accel)
             self.liftoff = (y, t, liftoff_duration(y, liftoff_target(self.y_rest, ref)[0]), np.array([xh[1], xh[3]]),

@@ -225,23 +225,21 @@ def _solved(a: np.ndarray) -> np.ndarray:
 # 3. *raise the force* at RAMP_RATE (share of the nominal hover force per second, up to
 #    RAMP_MAX) until the plate leaves its support by LIFT_DETECT: the force then just exceeds
 #    the true load. The plate is not at rest there: the magnets' negative stiffness has
-#    accelerated it for some 20 ms (on the emulated rig 5.4-5.8 mm/s and 0.18-0.21 m/s^2 up);
+#    accelerated it for some 20 ms;
 # 4. start the law *with* its hover fit from that sample, the heave equation equal to the
 #    measured accelerations (``solve_hover(A=...)``: fitted as a rest, the model takes the net
 #    force for a bias, and the law's error settles at k1 a / k3, about 1 mm above its
 #    reference), and the *lift-off reference* (:func:`liftoff_reference`): a C^3 blend from
 #    where the plate is, with its rates, to the reference stream, at least LIFTOFF_CLEARANCE
 #    off the support (:func:`liftoff_target`). Both matter most when commands take several
-#    samples to the coils (measured, command delay 4: the plate rose at 139.5 mm/s and came
-#    within 2.3 mm of the rail; with both, 10.3 mm/s: tests/graph/test_restart.py).
+#    samples to the coils (tests/graph/test_restart.py; figures: docs/results.md,
+#    "Hardware in the loop").
 
 RESTING_FRACTION = 0.25  # the magnets carry less than this share of the load: the plate rests on its support
 PREMAG_FRACTION = 0.5  # premagnetise to this share of the hover force (the plate stays on its support)
 RAMP_RATE = 0.2  # 1/s: the premagnetising force rises by this share of the nominal hover force per second
 RAMP_MAX = 1.5  # the ramp stops at this share (the plate cannot be that much heavier than its data sheet)
-#: m: the plate has left its support when a gap is this much smaller than where it rested (10 sigma of a 5 um gap
-#: noise; at 0.1 mm the departure had reached 5-6 mm/s and the lift-off overshot twice as far)
-LIFT_DETECT = 1e-4
+LIFT_DETECT = 1e-4  # m: the plate has left its support when a gap is this much smaller than where it rested
 LIFTOFF_SPEED = 5e-3  # m/s: peak speed of the lift-off blend (half the board's default landing speed)
 LIFTOFF_MIN_S = 0.5  # s: the shortest lift-off blend
 LIFTOFF_CLEARANCE = 1e-3  # m: the lift-off takes the plate at least this far off its support
@@ -299,9 +297,8 @@ def departure_acceleration(y_rest: np.ndarray, y: np.ndarray, v: np.ndarray, g: 
     Exact for a constant acceleration; the departure itself accelerates (the magnets' negative stiffness: from rest,
     y_rest - y = A (cosh(lambda t) - 1)), so it gives between 1/2 and 1 of the true one: it never overstates it,
     which would leave the law's model a bias the other way (toward the support). Robust where a difference of
-    estimated rates is not: under 5 um of gap noise on the emulated rig a 5-sample difference ranged from -100 %
-    to +110 % of the true acceleration (once with the wrong sign), this from 0.55 to 0.95 of it. A magnet that has
-    not risen LIFT_DETECT / 2, or does not rise, gets 0; at most 2 g (y_rest - y) / y_rest up.
+    estimated rates is not (under gap noise that can even take the wrong sign). A magnet that has not risen
+    LIFT_DETECT / 2, or does not rise, gets 0; at most 2 g (y_rest - y) / y_rest up.
     """
     dy = np.asarray(y_rest, float) - np.asarray(y, float)
     v = np.asarray(v, float)
@@ -309,7 +306,7 @@ def departure_acceleration(y_rest: np.ndarray, y: np.ndarray, v: np.ndarray, g: 
     rising = (dy >= LIFT_DETECT / 2) & (v < 0.0)
     # at most what the magnets' negative stiffness gives a plate that left its rest at the hover force:
     # lambda^2 dy, lambda^2 = 2 g / y (F ~ 1/y^2); a lagging estimate (rates that caught up late, the gap not yet)
-    # overstates v^2 / 2 dy (measured 0.86 m/s^2 after a landing): the law then lets the plate fall back
+    # overstates v^2 / 2 dy: the law would then let the plate fall back
     a[rising] = -np.minimum(v[rising] ** 2 / (2 * dy[rising]), 2 * g * dy[rising] / np.asarray(y_rest, float)[rising])
     return a
 

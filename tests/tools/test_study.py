@@ -23,6 +23,7 @@ from dem_ros.core.params import ConfigError, apply_overrides
 from dem_ros.core.scenarios import get_scenario
 from dem_ros.core.simulate import simulate
 from dem_ros.tools import study as st
+from dem_ros.tools.study.run import _warm_worker
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
@@ -34,7 +35,7 @@ def kernels():
     """Compile (or load) the kernels once here: the processes started below share the cache
     (NUMBA_CACHE_DIR, set on importing dem_ros.tools), so their time limits cover loading, not a
     first compile of minutes on a busy machine."""
-    st._warm_worker()
+    _warm_worker()
 
 
 @pytest.fixture(scope="module")

@@ -21,6 +21,7 @@ from numba import njit, prange
 
 from .controllers import CEController, Controller, PIDController, make_controller
 from .controllers import kernels as CK
+from .controllers.sequence import ControlSequence
 from .estimator import NS, KalmanEstimator, PassThrough, ekf_step, make_estimator
 from .hold import command_sample
 from .model import IP, IQ, NPP, SM, apply_schedule, initial_state, plant_vector, rk4
@@ -293,6 +294,16 @@ def preroll(pc: Mapping[str, Any], est: KalmanEstimator | PassThrough, x0: np.nd
     return Preroll(Zw, np.repeat(u0[None], n_win, axis=0), gaps)
 
 
+def _start_law(ccfg: Mapping[str, Any], ctrl: Controller, pre: Preroll) -> None:
+    """Start the law from the pre-roll's hover window, by the controller node's own hover fit
+    (:meth:`.controllers.sequence.ControlSequence.fit_window`: one start for the graph and the offline loop)."""
+    if not ControlSequence(ccfg, ctrl).fit_window(pre.window_z, pre.window_u):
+        from .params import ConfigError
+
+        raise ConfigError("the pre-roll's plate rests on its support (the magnets carry less than a quarter of its"
+                          " load): the offline loop starts from a hover; check plant_sim's initial gap and mass")
+
+
 def simulate(
     cfg: Mapping[str, Mapping[str, Any]],
     *,
@@ -336,7 +347,7 @@ def simulate(
     ctrl = make_controller(cfg["controller"], controller)
     est = make_estimator(cfg["estimator"], estimator, pc["measure_velocity"])
     pre = preroll(pc, est, x0, u0, sg, sb, cfg["controller"]["hover_window"], seed)
-    ctrl.reset(pre.window_z, pre.window_u)
+    _start_law(cfg["controller"], ctrl, pre)
     r, ref = reference_trajectory({**cfg["reference"], "dt": dt}, n, hover_start(pre.gaps))
     x = x0.copy()
     pp = plant_vector(pc)
@@ -411,7 +422,7 @@ def simulate_batch(cfg: Mapping[str, Mapping[str, Any]], mass_offsets: np.ndarra
     sg, sb = sensor_model(pc)
     pre = preroll(pc, make_estimator(cfg["estimator"], "none", pc["measure_velocity"]), x0, u0, sg, sb,
                   cfg["controller"]["hover_window"])
-    ctrl.reset(pre.window_z, pre.window_u)
+    _start_law(cfg["controller"], ctrl, pre)
     _, ref = reference_trajectory({**cfg["reference"], "dt": pc["dt"]}, n, hover_start(pre.gaps))
 
     law = _law_args(ctrl)

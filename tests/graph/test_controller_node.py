@@ -78,7 +78,7 @@ def test_hover_window_holds_the_applied_voltage_then_initialises_from_it():
     """Pre-roll samples: the node holds the applied voltage for hover_window, then the law starts from that
     window (the same hover fit as the offline simulator)."""
     bus, ctl, cmds, _, _ = _graph("-p", "hover_window:=0.01")
-    n = ctl.window_n
+    n = ctl.seq.window_n
     assert n == 10
     JS = bus.msg("sensor_msgs/msg/JointState")
     t0 = bus.now_ns
@@ -92,8 +92,8 @@ def test_hover_window_holds_the_applied_voltage_then_initialises_from_it():
                                                    effort=(4.0, 4.0), frame=contract.FRAME_PREROLL))
         bus.spin_once()
     assert [cmds[t0 + k * T] for k in range(n - 1)] == [[80.0, 80.0]] * (n - 1)  # held while collecting
-    assert ctl.started and ctl.ctrl.hover_fit.samples == n and ctl.ctrl.hover_fit.determined == 3
-    assert ctl.ctrl.diag[1] == 20.0  # R_hat = u/i of the window
+    assert ctl.seq.started and ctl.seq.law.hover_fit.samples == n and ctl.seq.law.hover_fit.determined == 3
+    assert ctl.seq.law.diag[1] == 20.0  # R_hat = u/i of the window
     assert all(abs(v - 80.0) < 1e-6 for k in range(n, n + 5) for v in cmds[t0 + k * T])  # the law holds the hover
 
 
@@ -103,7 +103,7 @@ def test_an_applied_voltage_with_a_refused_stamp_is_not_taken_as_the_applied_vol
     overwrote ``u_applied``: the hover window took 4 V for that sample (R_hat 18.1 instead of 20) and a
     restart on the next estimate would start the law from it. Refused stamp: nothing of the sample is taken."""
     bus, ctl, cmds, _, _ = _graph("-p", "hover_window:=0.01")
-    n = ctl.window_n
+    n = ctl.seq.window_n
     JS = bus.msg("sensor_msgs/msg/JointState")
     t0 = bus.now_ns
     bad = 4
@@ -123,8 +123,8 @@ def test_an_applied_voltage_with_a_refused_stamp_is_not_taken_as_the_applied_vol
             assert ctl.counts["plant_stamp_jump"] == 1
             assert ctl.u_applied is not None and ctl.u_applied.tolist() == [80.0, 80.0]
             assert cmds[t] == [80.0, 80.0]  # the hover held with the plant's voltage, not the copy's 4 V
-    assert ctl.started and ctl.ctrl.hover_fit.samples == n
-    assert ctl.ctrl.diag[1] == 20.0  # R_hat = u/i of the window: the refused sample's 4 V is not in it
+    assert ctl.seq.started and ctl.seq.law.hover_fit.samples == n
+    assert ctl.seq.law.diag[1] == 20.0  # R_hat = u/i of the window: the refused sample's 4 V is not in it
     assert all(abs(v - 80.0) < 1e-6 for k in range(n, n + 3) for v in cmds[t0 + k * T])
     assert ctl.node.callback_errors == {}
 

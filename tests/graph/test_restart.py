@@ -120,12 +120,12 @@ def test_a_controller_started_on_a_landed_plate_lifts_it_off_once_the_board_foll
     loop = RigLoop(start="landed")
     pc, rig = loop.cfg["plant_sim"], loop.cfg["rig"]
     loop.run(500)  # driver inactive: the board ignores every command
-    assert loop.ctl.landed and not loop.ctl.started
+    assert loop.ctl.seq.landed and not loop.ctl.seq.started
     assert _min_gap(loop) == pytest.approx(rig["support_gap"])  # nothing moved
     loop.drv.arm()
     loop.run(4000)
     assert loop.drv.state == DriverState.ACTIVE and loop.modes[-1] == Mode.RUN
-    assert loop.ctl.counts["liftoffs"] == 1 and loop.ctl.started
+    assert loop.ctl.seq.counts["liftoffs"] == 1 and loop.ctl.seq.started
     gaps = np.array(loop.gaps)
     off = int(np.argmax(gaps[:, 0] < rig["support_gap"] - 1e-6))  # the tick the plate left its support
     assert off > 1000  # premagnetised, then the force rose slowly: it stayed down for a while
@@ -144,7 +144,7 @@ def test_a_controller_restarted_mid_run_starts_from_the_applied_voltage_without_
     loop = RigLoop()
     loop.drv.arm()
     loop.run(1500)
-    assert loop.drv.state == DriverState.ACTIVE and loop.ctl.started
+    assert loop.drv.state == DriverState.ACTIVE and loop.ctl.seq.started
     u_before = loop.board.applied.copy()
     loop.kill("controller")
     loop.run(20)
@@ -153,7 +153,7 @@ def test_a_controller_restarted_mid_run_starts_from_the_applied_voltage_without_
     loop.run(2000)
     first = loop.cmds[min(t for t in loop.cmds if t > T0 + (loop.board.n - 2000) * MS)]
     assert np.all(np.abs(np.array(first) - u_before) < 5.0)  # no kick: within 5 V of what the coils held
-    assert loop.modes[-1] == Mode.RUN and loop.ctl.counts["starts"] == 1
+    assert loop.modes[-1] == Mode.RUN and loop.ctl.seq.counts["starts"] == 1
     assert _min_gap(loop, k) > loop.cfg["plant_sim"]["trip_gap_min"] + 1e-3
 
 
@@ -200,10 +200,10 @@ def test_controller_killed_the_board_lands_then_a_restarted_controller_and_arm_l
     loop.start("controller")
     loop.run(3000 if restart_before_landing else 300)
     assert loop.modes[-1] == Mode.LANDED and loop.board.plant.x[0] == pytest.approx(rig["support_gap"])
-    assert not loop.ctl.started  # resting: the law waits (a law run against a landed board would wind up)
+    assert not loop.ctl.seq.started  # resting: the law waits (a law run against a landed board would wind up)
     loop.drv.arm()
     loop.run(5000)
-    assert loop.drv.state == DriverState.ACTIVE and loop.modes[-1] == Mode.RUN and loop.ctl.counts["liftoffs"] == 1
+    assert loop.drv.state == DriverState.ACTIVE and loop.modes[-1] == Mode.RUN and loop.ctl.seq.counts["liftoffs"] == 1
     assert _min_gap(loop) > pc["trip_gap_min"] + 3e-3
     e = np.array(loop.gaps[-1]) - np.array(loop.refs[max(loop.refs)][:2])
     assert np.all(np.abs(e) < 0.3e-3)
@@ -222,9 +222,9 @@ def test_a_landing_during_the_lift_off_then_an_arm_at_once_lifts_off_again_witho
     loop.drv.arm()
     for _ in range(400):  # until the plate is well off its support, mid-lift-off
         loop.run(20)
-        if loop.ctl.liftoff is not None and loop.gaps[-1][0] < rig["support_gap"] - 0.4e-3:
+        if loop.ctl.seq.liftoff is not None and loop.gaps[-1][0] < rig["support_gap"] - 0.4e-3:
             break
-    assert loop.ctl.liftoff is not None, "no lift-off under way"
+    assert loop.ctl.seq.liftoff is not None, "no lift-off under way"
     loop.drv.disarm()  # LAND
     for _ in range(400):
         loop.run(10)
@@ -234,7 +234,7 @@ def test_a_landing_during_the_lift_off_then_an_arm_at_once_lifts_off_again_witho
     landed_at = len(loop.modes)
     loop.drv.arm()  # at once, as the HIL test's operator does
     loop.run(6000)
-    assert loop.ctl.counts["landed_stops"] >= 1 and loop.ctl.counts["liftoffs"] == 2, loop.ctl.counts
+    assert loop.ctl.seq.counts["landed_stops"] >= 1 and loop.ctl.seq.counts["liftoffs"] == 2, loop.ctl.seq.counts
     assert loop.board.sup.counters["trips"] == 0, loop.board.sup.reason
     assert loop.modes[-1] == Mode.RUN and Mode.LAND not in loop.modes[landed_at:]
     assert _min_gap(loop) > pc["trip_gap_min"] + 3e-3

@@ -159,8 +159,13 @@ sys.exit(main([]))
 """
 
 
-def test_free_running_plant_waits_for_the_controllers_command_writer(tmp_path):
-    env = _env(_domain(2))
+def test_free_running_plant_waits_for_the_controllers_command_writer(tmp_path, monkeypatch):
+    """Without a controller the plant's loop never starts: it says so on /diagnostics report after report; a
+    controller started then is bound and the plate levitates."""
+    from dem_ros.transport import make_node
+
+    domain = _domain(2)
+    env = _env(domain)
     log = tmp_path / "plant.log"
     ctl = None
     with log.open("w") as f:
@@ -172,7 +177,18 @@ def test_free_running_plant_waits_for_the_controllers_command_writer(tmp_path):
         while time.monotonic() < end and REPORT_PREFIX not in log.read_text() and plant.poll() is None:
             time.sleep(0.1)
         assert REPORT_PREFIX in log.read_text(), log.read_text()[-2000:]
-        time.sleep(3.0)  # start_delay 0, no subscriber needed: only the missing controller holds it back
+        # start_delay 0, no subscriber needed: only the missing controller holds it back. The plant's own word for
+        # it: its loop status, WARN "waiting for 'controller''s /dem/command writer", in three reports in a row
+        monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+        probe = make_node("probe", transport="dds", args=[])
+        waiting: list[str] = []
+        probe.subscribe(contract.DIAGNOSTICS, lambda m: waiting.extend(
+            st.message for st in m.status if st.name == contract.LOOP_STATUS))
+        end = time.monotonic() + 60
+        while time.monotonic() < end and len(waiting) < 3 and plant.poll() is None:
+            probe.spin_once(0.05)
+        probe.shutdown()
+        assert len(waiting) >= 3 and all("waiting for 'controller'" in w for w in waiting), waiting
         text = log.read_text()
         assert plant.poll() is None and "levitating at" not in text, text[-2000:]
         ctl = subprocess.Popen([sys.executable, "-c", CONTROLLER], env=env, cwd=str(ROOT),

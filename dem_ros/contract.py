@@ -30,7 +30,8 @@ from dataclasses import dataclass, replace
 DOMAIN_ID_MAX = 101
 
 __all__ = ["CONTROLLER_STATE_NAMES", "CONTROLLER_STATUS", "ESTIMATOR_STATUS", "FORMER_STATUS_NAMES", "FRAME",
-           "FRAME_PREROLL", "HW_LOOP_STATUS", "HW_STATE_STATUS", "INPUTS_TASK", "LOOP_STATUS", "MAGNETS",
+           "FRAME_PREROLL", "HW_LOOP_STATUS", "HW_RECORDING_STATUS", "HW_STATE_STATUS", "INPUTS_TASK", "LOOP_STATUS",
+           "MAGNETS",
            "RECORDER_STATUS", "RECORDING_STATUS", "REFERENCE_NAMES", "REFERENCE_STATUS", "TOPICS",
            "TOPIC_STATUS_SUFFIX", "QoS", "Topic", "inputs_status", "markdown_table", "status_level", "status_name",
            "topic_status"]
@@ -50,8 +51,11 @@ ESTIMATOR_STATUS = "estimator: filter"
 CONTROLLER_STATUS = "controller: law"
 #: the reference's schedule: where it is, refused measurements
 REFERENCE_STATUS = "reference: schedule"
-#: the reference node's watch on the recorder (ERROR, latched: the recorder went silent, the recording is lost)
-RECORDING_STATUS = "reference: recording"
+#: the plant's watch on the recorder (nodes/recording_watch.py; ERROR, latched: the recorder went silent, the
+#: recording is lost)
+RECORDING_STATUS = "plant_sim: recording"
+#: the hardware driver's watch on the recorder: the same, standing in for the plant's on a rig
+HW_RECORDING_STATUS = "hw_driver: recording"
 #: the recorder's once-a-second status (received / written / dropped); its silence is a lost recording
 RECORDER_STATUS = "recorder: bag"
 #: the task of each node's input bindings (nodes/common.Inputs): ``"<node>: inputs"``
@@ -60,7 +64,8 @@ INPUTS_TASK = "inputs"
 TOPIC_STATUS_SUFFIX = " topic status"
 #: the names the statuses had before they followed the convention (bags recorded then): their names now
 FORMER_STATUS_NAMES = {"estimator": ESTIMATOR_STATUS, "controller": CONTROLLER_STATUS, "reference": REFERENCE_STATUS,
-                       "recording": RECORDING_STATUS, "recorder": RECORDER_STATUS}
+                       "recording": RECORDING_STATUS, "recorder": RECORDER_STATUS,
+                       "reference: recording": RECORDING_STATUS}
 
 
 def inputs_status(node: str) -> str:
@@ -189,6 +194,16 @@ PARAMETER_EVENTS = Topic(
     "standard ROS 2 parameter change events",
 )
 
+#: rcl's /rosout QoS (Jazzy), as both transports' node loggers publish it
+QOS_ROSOUT = QoS(reliable=True, transient_local=True, depth=1000)
+ROSOUT = Topic(
+    "/rosout", "rcl_interfaces/msg/Log", QOS_ROSOUT, None, "every node",
+    ("recorder",),
+    "standard ROS 2 log records: stamp (the logger's wall clock), level (10 DEBUG, 20 INFO, 30 WARN, 40 ERROR, "
+    "50 FATAL), name (the node's logger), msg; recorded as `ros2 bag record -a` would (dem-ros faults judges "
+    "WARN and ERROR records from it)",
+)
+
 HW_STATE = Topic(
     "/dem/hw/state", "diagnostic_msgs/msg/DiagnosticStatus", QOS_LATCHED, 10.0, "hw_driver",
     ("dem-ros hw", "recorder"),
@@ -208,7 +223,7 @@ HW_ESTOP = Topic(
 )
 
 TOPICS = (MEASUREMENT, TRUTH, APPLIED, ESTIMATE, REFERENCE, COMMAND, CONTROLLER_STATE, DIAGNOSTICS, RUN_INFO,
-          PARAMETER_EVENTS, HW_STATE, HW_REQUEST, HW_ESTOP)
+          PARAMETER_EVENTS, ROSOUT, HW_STATE, HW_REQUEST, HW_ESTOP)
 
 
 def markdown_table() -> str:

@@ -29,10 +29,12 @@ def test_status_names_are_node_colon_task_and_former_names_map_to_them():
 
     names = [contract.LOOP_STATUS, contract.HW_LOOP_STATUS, contract.HW_STATE_STATUS, contract.ESTIMATOR_STATUS,
              contract.CONTROLLER_STATUS, contract.REFERENCE_STATUS, contract.RECORDING_STATUS,
-             contract.RECORDER_STATUS, contract.inputs_status("controller")]
+             contract.HW_RECORDING_STATUS, contract.RECORDER_STATUS, contract.inputs_status("controller")]
     assert len(set(names)) == len(names)
     assert all(re.fullmatch(r"[a-z_]+: .+", n) for n in names), names
     assert contract.status_name("controller") == contract.CONTROLLER_STATUS  # a bag recorded before
-    assert contract.status_name("recording") == "reference: recording"
+    assert contract.status_name("recording") == contract.RECORDING_STATUS == "plant_sim: recording"
+    assert contract.status_name("reference: recording") == contract.RECORDING_STATUS  # the watch left the reference
+    assert contract.HW_RECORDING_STATUS == "hw_driver: recording"
     assert contract.status_name(contract.LOOP_STATUS) == contract.LOOP_STATUS  # the names now are themselves
     assert contract.status_name("plant_sim: inputs") == "plant_sim: inputs"

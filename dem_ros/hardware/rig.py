@@ -53,6 +53,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import signal
 import sys
 import time
@@ -62,6 +63,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import runstate
 from ..core.hold import command_sample
 from .boardcfg import BUSY, OK, check_config, config_crc, config_frame, python_sup_result
 from .link import (
@@ -515,15 +517,25 @@ def _realtime() -> str:
     return f"SCHED_FIFO {g.fifo_priority}" if g.fifo_priority else "normal priority (" + "; ".join(g.missing) + ")"
 
 
+def _say(out: Any, event: str, **values: Any) -> None:
+    """One event of the emulator: a ``RIG {json}`` line on ``out`` (for people and scripts) and the same event on a
+    launcher's run-state pipe (:mod:`dem_ros.runstate`, node ``rig``; nothing when started by hand)."""
+    print("RIG " + json.dumps({"event": event, **values}), file=out, flush=True)
+    runstate.announce(event, "rig", **values)
+
+
 def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, duration: float = 0.0,
             status_every: float = 1.0, stop: list[bool] | None = None, out=sys.stdout,
-            shims: tuple[float, float] | None = None, shims_stdin: bool = False) -> dict[str, Any]:
+            shims: tuple[float, float] | None = None, shims_stdin: bool = False,
+            summary_file: str | None = None) -> dict[str, Any]:
     """Open the board's end of the link and run the board at 1 kHz until ``duration`` (0: until stopped).
 
     Prints ``RIG {json}`` lines: ``listening`` (with the URL the PC opens), ``mode`` at each of the board's mode
     changes but RUN <-> HOLD (its time, the mode, the reason: the rig's log names every landing when it happens;
     holds are counted), a status every
-    ``status_every`` s, and the summary at the end. ``stop``: a flag list a signal handler sets.
+    ``status_every`` s, and the summary at the end; each also as a run-state event for a launcher (:func:`_say`),
+    the summary there as the name of ``summary_file`` (written with it as JSON: a summary can outgrow an event).
+    ``stop``: a flag list a signal handler sets.
     """
     from .channel import open_channel
 
@@ -539,11 +551,9 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
     if shims_stdin:  # an emulated calibration session: 'shims MM[,MM]' lines place the plate on shims
         def place(v: tuple[float, float] | None) -> None:
             board.shims = v
-            print("RIG " + json.dumps({"event": "shims", "mm": [round(x * 1e3, 6) for x in v] if v else None}),
-                  file=out, flush=True)
+            _say(out, "shims", mm=[round(x * 1e3, 6) for x in v] if v else None)
 
-        ShimInput(sys.stdin, place, lambda m: print("RIG " + json.dumps({"event": "input", "message": m}), file=out,
-                                                    flush=True))
+        ShimInput(sys.stdin, place, lambda m: _say(out, "input", message=m))
     ch = open_channel(cfg["rig"]["url"], "board")
     peer = getattr(ch, "peer_url", cfg["rig"]["url"])
     stop = stop if stop is not None else [False]
@@ -552,8 +562,7 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
     gc.collect()  # the start-up garbage now, at normal priority: a collection under SCHED_FIFO would stall
     gc.freeze()  # the board's clock (and every process below it) for tens of ms
     rt = _realtime()
-    print("RIG " + json.dumps({"event": "listening", "url": peer, "scheduling": rt, "faults": len(faults),
-                               "board": board.board_name}), file=out, flush=True)
+    _say(out, "listening", url=peer, scheduling=rt, faults=len(faults), board=board.board_name)
     dt_ns = round(board.dt * 1e9)
     t0 = time.monotonic_ns()
     next_status = t0
@@ -582,16 +591,14 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
             if int(board.sup.mode) != mode:  # (after the frame: the line is off the board's 1 ms path)
                 was, mode = mode, int(board.sup.mode)
                 if {was, mode} != {Mode.RUN, Mode.HOLD}:  # a late command held, or the next: counted, not logged
-                    print("RIG " + json.dumps({"event": "mode", "t_s": round(board.n * board.dt, 3),
-                                               "mode": Mode(mode).name, "reason": getattr(board.sup, "reason", ""),
-                                               "wall_ns": time.time_ns()}), file=out, flush=True)
+                    _say(out, "mode", t_s=round(board.n * board.dt, 3), mode=Mode(mode).name,
+                         reason=getattr(board.sup, "reason", ""), wall_ns=time.time_ns())
             if now >= next_status:
                 next_status += int(status_every * 1e9)
                 s = board.summary()
-                print("RIG " + json.dumps({"event": "status", "t_s": round(board.n * board.dt, 3), "mode": s["mode"],
-                                           "gaps_mm": s["gaps_mm"], "late_over_1ms": late_over_1ms,
-                                           "rx_frames": s["rx_frames"], "fresh": s["commands_fresh"],
-                                           "landings": s["landings"], "reason": s["reason"]}), file=out, flush=True)
+                _say(out, "status", t_s=round(board.n * board.dt, 3), mode=s["mode"], gaps_mm=s["gaps_mm"],
+                     late_over_1ms=late_over_1ms, rx_frames=s["rx_frames"], fresh=s["commands_fresh"],
+                     landings=s["landings"], reason=s["reason"])
             if duration and board.n * board.dt >= duration:
                 break
     finally:
@@ -600,6 +607,12 @@ def run_rig(cfg: Mapping[str, Mapping[str, Any]], faults: list[Fault], *, durati
     s["late_over_1ms"] = late_over_1ms
     s["channel"] = dict(ch.stats)
     print("RIG " + json.dumps({"event": "summary", **s}), file=out, flush=True)
+    if summary_file:
+        tmp = summary_file + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(s, f)
+        os.replace(tmp, summary_file)  # whole or not at all
+        runstate.announce("summary", "rig", file=summary_file)
     return s
 
 
@@ -626,6 +639,8 @@ def build_parser(p: argparse.ArgumentParser | None = None) -> argparse.ArgumentP
     p.add_argument("--shims", default=None, metavar="MM[,MM]", help="rest the plate on shims of these thicknesses "
                    "(coils off): a calibration session (dem-ros calibrate gaps --url)")
     p.add_argument("--shims-stdin", action="store_true", help="read 'shims MM[,MM]' / 'shims off' lines from stdin")
+    p.add_argument("--summary-file", default=None, metavar="PATH",
+                   help="also write the summary at the end to PATH as JSON (dem-ros launch reads it there)")
     return p
 
 
@@ -657,7 +672,8 @@ def cmd_rig(args: argparse.Namespace) -> int:
             shims = parse_shims(args.shims) if args.shims else None
         except ValueError as exc:
             raise RigError(str(exc)) from None
-        summary = run_rig(cfg, faults, duration=args.duration, stop=stop, shims=shims, shims_stdin=args.shims_stdin)
+        summary = run_rig(cfg, faults, duration=args.duration, stop=stop, shims=shims, shims_stdin=args.shims_stdin,
+                          summary_file=args.summary_file)
     except (RigError, ConfigError, ChannelError, FirmwareError, SafetyError) as exc:
         print(f"dem-ros rig: error: {exc}", file=sys.stderr)
         return 2

@@ -109,11 +109,12 @@ def _node_cmd(name: str, transport: str, params: Path, extra: list[str]) -> list
             "--ros-args", "--params-file", str(params)]
 
 
+#: the run's run-state events (JSON lines, dem_ros.runstate), beside the node logs
+RUN_STATE_FILE = "run_state.jsonl"
+RIG_SUMMARY_FILE = "rig_summary.json"  # the emulated board's summary at its end (dem-ros rig --summary-file)
 #: s: start-up bounds. A node must be set up (its "ready" event) within READY_S of its start; the board must
 #: answer the driver's hello within BOARD_S of the driver's "ready"; t = 0 must come within T0_S of the last
 #: node's "ready" (the plant's pre-roll, or the driver's arming and pre-roll)
-#: the run's run-state events (JSON lines, dem_ros.runstate), beside the node logs
-RUN_STATE_FILE = "run_state.jsonl"
 READY_S = 120.0
 BOARD_S = 10.0
 T0_S = 60.0
@@ -227,6 +228,53 @@ class _Graph:
         elif kind == "finished":
             self.finished = ev
 
+    # -- the emulated rig -----------------------------------------------------------------------------------
+    def _start_rig(self) -> str:
+        """Start ``dem-ros rig`` (UDP on a free loopback port, or a pty) and return the URL the driver opens, from
+        the emulator's ``listening`` run-state event; its RIG lines go to rig.log (for people)."""
+        import socket
+
+        assert self.hardware is not None
+        if self.hardware == "rig":
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:  # a free port (the rig binds it next)
+                sock.bind(("127.0.0.1", 0))
+                url = f"udp://127.0.0.1:{sock.getsockname()[1]}"
+        else:
+            url = "pty://"
+        self.cfg["rig"]["url"] = url
+        params = write_params_file(self.cfg, self.workdir / "rig_params.yaml")
+        cmd = [sys.executable, "-m", "dem_ros.hardware.rig", "--params", str(params), "--url", url,
+               "--summary-file", str(self.workdir / RIG_SUMMARY_FILE)]
+        for f in self.faults:
+            cmd += ["--fault", f]
+        log = self.workdir / "rig.log"
+        with open(log, "w") as out:
+            self.rig = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+                                        env=self.env, pass_fds=(self.state_w,))
+        end = time.monotonic() + 60.0
+        while time.monotonic() < end and self.rig.poll() is None:
+            self._events()
+            for ev in self.events:
+                if ev.get("node") == "rig" and ev.get("event") == "listening":
+                    return str(ev["url"])
+            time.sleep(0.05)
+        if self.rig.poll() is None:
+            self.rig.kill()
+            self.rig.wait()
+        raise StartupError(f"dem-ros rig did not start (code {self.rig.returncode}); see {log}")
+
+    def _stop_rig(self) -> dict | None:
+        """Stop the emulator (after the driver: it has landed the plate) and return its summary (None: it wrote
+        none)."""
+        if self.rig is None:
+            return None
+        _interrupt(self.rig)
+        self._events()  # its last mode changes and statuses
+        try:
+            return json.loads((self.workdir / RIG_SUMMARY_FILE).read_text())
+        except (OSError, ValueError):
+            return None
+
     # -- start -------------------------------------------------------------------------------------------
     def _popen(self, name: str, params: Path, extra: list[str], append: bool = False) -> None:
         with open(self.logs[name], "ab" if append else "wb") as log_file:  # the child writes through its own fd
@@ -286,7 +334,7 @@ class _Graph:
             self.logs[name] = self.workdir / f"{name}.log"
             node_params = self.params
             if name == "hw_driver" and self.hardware in ("rig", "rig-serial"):  # the emulator first, then its driver
-                self.rig, url = _start_rig(self.cfg, self.hardware, self.faults, self.workdir)
+                url = self._start_rig()
                 self.cfg["hw_driver"]["url"] = url
                 node_params = write_params_file(self.cfg, self.workdir / "hw_driver_params.yaml")
             if name == "plant_sim":  # last, once the others are set up: it starts its clock at once
@@ -415,7 +463,7 @@ class _Graph:
             if name == "recorder":
                 time.sleep(0.3)  # last samples in flight
             _interrupt(proc)
-        self.rig_summary = _stop_rig(self.rig)
+        self.rig_summary = self._stop_rig()
         halt.close()
         for fd in (self.state_r, self.state_w):
             with contextlib.suppress(OSError):
@@ -518,39 +566,6 @@ def _report_exit(exits: list[dict[str, Any]], seen: set[int], name: str, proc: s
           + what.get(name, "its topics stop") + f"; see {log}", file=sys.stderr, flush=True)
 
 
-def _start_rig(cfg: dict, kind: str, faults: Sequence[str], workdir: Path) -> tuple[subprocess.Popen, str]:
-    """Start ``dem-ros rig`` (UDP on a free loopback port, or a pty) and return (process, the URL the driver opens)."""
-    import socket
-
-    if kind == "rig":
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:  # a free port (the rig binds it next)
-            sock.bind(("127.0.0.1", 0))
-            url = f"udp://127.0.0.1:{sock.getsockname()[1]}"
-    else:
-        url = "pty://"
-    cfg["rig"]["url"] = url
-    params = write_params_file(cfg, workdir / "rig_params.yaml")
-    cmd = [sys.executable, "-m", "dem_ros.hardware.rig", "--params", str(params), "--url", url]
-    for f in faults:
-        cmd += ["--fault", f]
-    log = workdir / "rig.log"
-    with open(log, "w") as out:
-        proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
-    end = time.monotonic() + 60.0
-    while time.monotonic() < end:
-        for line in log.read_text(errors="replace").splitlines():
-            if line.startswith("RIG ") and '"listening"' in line:
-                proc.log = log  # type: ignore[attr-defined]
-                return proc, json.loads(line[4:])["url"]
-        if proc.poll() is not None:
-            break
-        time.sleep(0.05)
-    if proc.poll() is None:
-        proc.kill()
-        proc.wait()
-    raise StartupError(f"dem-ros rig did not start (code {proc.returncode}); see {log}")
-
-
 def _interrupt(proc: subprocess.Popen, timeout: float = 10.0) -> None:
     """Ctrl-C for a node or the emulator (it shuts down cleanly); killed if not gone within ``timeout`` [s]."""
     if proc.poll() is None:
@@ -560,18 +575,6 @@ def _interrupt(proc: subprocess.Popen, timeout: float = 10.0) -> None:
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait()
-
-
-def _stop_rig(proc: subprocess.Popen | None) -> dict | None:
-    """Stop the emulator (after the driver: it has landed the plate) and return its summary."""
-    if proc is None:
-        return None
-    _interrupt(proc)
-    summary = None
-    for line in proc.log.read_text(errors="replace").splitlines():  # type: ignore[attr-defined]
-        if line.startswith("RIG ") and '"summary"' in line:
-            summary = json.loads(line[4:])
-    return summary
 
 
 def _resolve_transport(transport: str) -> str:

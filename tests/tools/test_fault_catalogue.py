@@ -5,8 +5,8 @@ checked for coverage of issue #11 and its rows' design (no real run needed), and
 (e-stop, corrupt frames, through :func:`run_row`). What they assert is what the design guarantees whatever the
 host's load: the fault counted and reported, no rail contact and a landing no faster than ``landing_speed``
 (the emulator's truth). Whether the plate *levitates* through a ridden-through fault is a free-running timing
-property (docs/manual/faults.md; a host stall over ``hold_timeout`` lands the plate by itself), so a
-landing there is accepted when the board's reason is its watchdog, and the e-stop row is skipped when such a
+property (docs/manual/faults.md; a host stall over ``hold_timeout`` lands the plate by itself), so the corrupt
+frames' outcome is asserted on demand only (``DEM_ROS_RIG_TIMING=1``), and the e-stop row is skipped when such a
 landing came before the e-stop (the e-stop then lands nothing). The other rig rows stay out of the suite:
 dropout-short, spike and linkloss-20ms are "levitating" rows, which a stall makes land (a timing property:
 the catalogue run measures them); linkloss-50ms sits at the hold_timeout by design; dropout-long, stuck, sag,
@@ -55,7 +55,7 @@ def test_the_catalogue_covers_the_issue():
 
 def test_the_plants_last_word_and_a_restart_outage_are_read_from_the_run_state_events(tmp_path):
     """Structured (dem_ros.runstate events, as the launcher keeps them beside the logs), never log text."""
-    from dem_ros.tools.faults import _outage_s, _plant_end, run_events
+    from dem_ros.tools.faults.judge import _outage_s, _plant_end, run_events
     from dem_ros.tools.launcher import RUN_STATE_FILE
 
     events = [{"event": "ready", "node": "estimator", "time_ns": 90 * 10**9},
@@ -140,16 +140,13 @@ def test_an_unknown_rig_row_is_a_usage_error(tmp_path, domain_id):
     assert r.returncode == 2 and "unknown row(s) bad-cdr" in r.stderr and "estop" in r.stderr, r.stderr
 
 
-def test_the_emulators_status_lines_and_counters_are_read(tmp_path):
-    from dem_ros.tools.faults import _counted, _rig_log
+def test_the_emulators_statuses_and_counters_are_read():
+    from dem_ros.tools.faults.judge import _counted, _rig_statuses
 
-    log = tmp_path / "rig.log"
-    log.write_text('RIG {"event": "listening", "url": "udp://127.0.0.1:1"}\n'
-                   'RIG {"event": "status", "t_s": 1.0, "mode": "RUN", "gaps_mm": [8.0, 8.0]}\nnoise\n'
-                   'RIG {"event": "summary", "min_gap_mm": 4.9, "land_speed_max_mm_s": 4.2, "faults": []}\n')
-    statuses, summary = _rig_log(log)
-    assert [s["mode"] for s in statuses] == ["RUN"] and summary is not None and summary["min_gap_mm"] == 4.9
-    assert _rig_log(tmp_path / "none.log") == ([], None)
+    events = [{"event": "listening", "node": "rig", "url": "udp://127.0.0.1:1"},
+              {"event": "status", "node": "hw_driver", "mode": "x"},
+              {"event": "status", "node": "rig", "t_s": 1.0, "mode": "RUN", "gaps_mm": [8.0, 8.0]}]
+    assert [s["mode"] for s in _rig_statuses(events)] == ["RUN"] and _rig_statuses([]) == []
     spec = {f.name: f for f in RIG_CATALOGUE}["dropout-long"]
     ok, said, got = _counted(spec, {"driver": {"sensor_holds": "3", "trips": "1"}, "board": {"sensor_losses": 1}})
     assert ok and got == {"driver sensor_holds": 3, "driver trips": 1, "board sensor_losses": 1}, said
@@ -174,12 +171,20 @@ def test_rig_rows_estop_and_corrupt_frames_are_counted_reported_and_never_unsafe
     assert 22 <= sent <= 78 and 1 <= corrupt.counts["driver corrupt"] <= sent, corrupt  # CRC: each one at most once
     assert ("'corrupt' in " in corrupt.reported
             and "hw_driver: loop" in corrupt.reported.split("'corrupt' in ")[1]), corrupt
-    if corrupt.outcome == "landed safely":  # not the fault's (a few 1-ms holds): a host stall over hold_timeout
-        assert "watchdog" in corrupt.detail or "no command" in corrupt.detail, corrupt
-    else:
-        assert corrupt.outcome == "levitating" and corrupt.passed, corrupt
     estop = out["estop"]
     if "before the fault" in estop.detail:
         pytest.skip(f"the board landed the plate before the e-stop (a host stall over hold_timeout): {estop.detail}")
     assert estop.outcome == "landed safely" and estop.passed, estop
     assert estop.counts["driver estops"] >= 1 and "e-stop" in estop.detail and "hw_driver: loop ERROR" in estop.reported
+
+
+@pytest.mark.skipif(os.environ.get("DEM_ROS_RIG_TIMING") != "1", reason=(
+    "on demand (DEM_ROS_RIG_TIMING=1): whether the plate levitates through corrupt frames is a free-running timing "
+    "property: a host stall longer than hold_timeout lands the plate by itself, whatever the fault"))
+def test_rig_corrupt_frames_are_ridden_through_levitating(tmp_path, domain_id):
+    """The corrupt row's design outcome: each corrupt frame dropped and counted, the board holds one sample, the plate
+    levitates to the end (a real ``dem-ros launch --hardware rig --compose`` run, 3 s, the fault at 1.5 s)."""
+    spec = {f.name: f for f in RIG_CATALOGUE}["corrupt"]
+    row = run_row(spec, compose=True, scenario="S1", duration=3.0, at=1.5, free_run=False, workdir=tmp_path,
+                  domain_id=domain_id, sets=[])
+    assert row.outcome == "levitating" and row.passed, row

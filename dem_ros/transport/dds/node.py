@@ -311,7 +311,10 @@ class DdsNode:
         self._p.add_node(self)
         self.logger = NodeLogger(lambda: self.logger_name)
         self._p.publish_graph()
-        self._rosout_pub = self._make_writer("/rosout", "rcl_interfaces/msg/Log", QOS_ROSOUT)
+        # composed, the container's own readers take no sample of its participant over DDS: /rosout goes to them
+        # intra-process, as every topic of the container (its recorder is its first node: it has every record)
+        self._rosout_pub = self._make_writer("/rosout", "rcl_interfaces/msg/Log", QOS_ROSOUT,
+                                             intra=self._ex.intra_process)
         self.logger.sink = self._rosout
         self._events_pub = self.publisher(contract.PARAMETER_EVENTS)
         self._csid = 0

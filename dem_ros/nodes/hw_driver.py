@@ -31,9 +31,10 @@ counted (``publish_errors`` on ``/diagnostics``: WARN) and the next one is publi
 State and link statistics: ``/dem/hw/state`` (DiagnosticStatus, latched, 10 Hz and on
 every change) and ``/diagnostics`` (1 Hz). Requests: the services ``~/arm``, ``~/disarm``,
 ``~/estop``, ``~/status`` (std_srvs/Trigger), the topic ``/dem/hw/request`` (std_msgs/String:
-``arm``, ``disarm``, ``estop [reason]``, ``clear``; what ``dem-ros hw`` sends) and
+``arm``, ``disarm``, ``estop [reason]``, ``clear``; what ``dem-ros hw``, :mod:`dem_ros.tools.hw`, sends) and
 ``/dem/hw/estop`` (any message: e-stop, its data the reason); answers and state changes go
-to ``/dem/hw/state``.
+to ``/dem/hw/state``. As the plant node of the graph, the driver also watches the recorder
+(:class:`~dem_ros.nodes.recording_watch.RecordingWatch`, status ``hw_driver: recording``).
 
 Managed node. The node is a ROS 2 lifecycle node on every transport (``~/get_state``, ``~/change_state``, ...,
 ``~/transition_event``: :meth:`dem_ros.transport.api.Node.serve_lifecycle`), its state machine
@@ -80,8 +81,9 @@ from ..runstate import announce
 from ..transport import Node, run_node
 from ..transport.lifecycle import DEFERRED, STATES, CallbackAnswer, CallbackResult, LifecycleMachine, TransitionEvent
 from .common import OK, WARN, CommandSource, Diagnostics, LatencyStats, diag_array, joint_state, stamp_ns, worth_logging
+from .recording_watch import RecordingWatch
 
-__all__ = ["HwClient", "HwDriverNode", "main", "request"]
+__all__ = ["HwDriverNode", "main"]
 
 RING = 256  # receive times kept by sample number (latency: sample received -> command sent)
 #: link and board counters whose growth makes the next /diagnostics report a WARN
@@ -169,6 +171,8 @@ class HwDriverNode:
         self.starting = False
         node.timer(0.1, self.tick)
         node.timer(1.0, self.status)
+        # /diagnostics "hw_driver: recording": the recorder's liveness (the graph's plant node watches it)
+        self.recording = RecordingWatch(node, contract.HW_RECORDING_STATUS, self.experiment_t)
         node.logger.info(f"link {c['url']}; ready")
 
     # -- the managed node: transition callbacks (executor thread) --------------------------------
@@ -579,6 +583,11 @@ class HwDriverNode:
         c = self.drv.counters
         return 1 if (c["lost"] or c["corrupt"] or c["hold_samples"] or self.source.foreign) else 0
 
+    def experiment_t(self) -> float | None:
+        """The experiment time of the newest sample from the board [s]; None before t = 0."""
+        s, e = self.drv.last_sample, self.epoch_seq
+        return (s.seq - e) * self.cfg["dt"] if s is not None and e is not None and s.seq >= e else None
+
     def stats(self) -> dict:
         with self.lock:
             st = self.drv.status()
@@ -664,96 +673,6 @@ class HwDriverNode:
         self.reader.join(timeout=1.0)
         if self.ch is not None:  # (closed after a cleanup)
             self.ch.close()
-
-
-#: what the driver's answer to each request starts with (``HwDriver.arm/disarm/estop``)
-_ANSWERS = {"arm": ("armed", "already active"), "disarm": ("disarmed",), "estop": ("e-stop",)}
-
-
-class HwClient:
-    """A client of the running hw_driver (``dem-ros hw``, a test's operator): one DDS participant for all its
-    requests, so that discovery (seconds on a loaded host) is paid once, when it is made, not at each request.
-
-    Requests go on ``/dem/hw/request`` (an e-stop on ``/dem/hw/estop``); the answer is the driver's latched
-    ``/dem/hw/state`` (its key/values plus ``state`` and ``level``). A request is repeated until the state
-    shows the answer (each is idempotent), for at most ``timeout_s``.
-    """
-
-    def __init__(self, domain_id: int | None = None):
-        import os
-
-        from ..transport import make_node
-
-        if domain_id is not None:
-            os.environ["ROS_DOMAIN_ID"] = str(domain_id)
-        self.node = make_node("dem_ros_hw", transport="dds", args=[])
-        self.states: list = []
-        self.node.subscribe(contract.HW_STATE, self.states.append)
-        self.pubs = {t.name: self.node.publisher(t) for t in (contract.HW_REQUEST, contract.HW_ESTOP)}
-        self.String = self.node.msg("std_msgs/msg/String")
-
-    @staticmethod
-    def _values(st) -> dict[str, str]:
-        out = {kv.key: kv.value for kv in st.values}
-        out["state"] = st.message
-        out["level"] = str(contract.status_level(st))
-        return out
-
-    def request(self, verb: str, reason: str = "", *, timeout_s: float = 5.0) -> dict[str, str]:
-        """``arm``, ``disarm``, ``estop`` or ``status``: the driver's state once it shows the answer.
-
-        Raises:
-            TimeoutError: no hw_driver answered (or confirmed) within ``timeout_s``.
-        """
-        if verb not in ("arm", "disarm", "estop", "status"):
-            raise ValueError(f"unknown request {verb!r}: arm, disarm, estop, status")
-        deadline = time.monotonic() + timeout_s
-        node = self.node
-        while time.monotonic() < deadline and not self.states:  # discovery: the latched state arrives
-            node.spin_once(0.05)
-        if not self.states:
-            raise TimeoutError(f"no hw_driver answered on {contract.HW_STATE.name} within {timeout_s:g} s")
-        if verb == "status":
-            node.spin_once(0.05)
-            return self._values(self.states[-1])
-        msg = self.String()
-        msg.data = reason if verb == "estop" else verb
-        if verb == "estop" and not reason:
-            msg.data = "dem-ros hw estop"
-        pub = self.pubs[(contract.HW_ESTOP if verb == "estop" else contract.HW_REQUEST).name]
-        seen = len(self.states)  # an answer counts from a state published after the first send
-        next_send = 0.0
-        while time.monotonic() < deadline:
-            if time.monotonic() >= next_send:
-                pub.publish(msg)
-                next_send = time.monotonic() + 0.3
-            node.spin_once(0.05)
-            for st in self.states[seen:]:
-                v = self._values(st)
-                if v.get("answer", "").startswith(_ANSWERS[verb]) or (verb == "estop" and v["state"] == "fault"):
-                    return v
-            seen = max(seen, len(self.states) - 1)
-        raise TimeoutError(f"hw_driver did not confirm '{verb}' within {timeout_s:g} s"
-                           f" (state {self._values(self.states[-1])['state']})")
-
-    def close(self) -> None:
-        self.node.shutdown()
-
-
-def request(verb: str, reason: str = "", *, domain_id: int | None = None, timeout_s: float = 5.0) -> dict[str, str]:
-    """``dem-ros hw arm|disarm|estop|status``: one request to the running hw_driver (a :class:`HwClient` of its
-    own), its state once it shows the answer.
-
-    Raises:
-        TimeoutError: no hw_driver answered within ``timeout_s``.
-    """
-    if verb not in ("arm", "disarm", "estop", "status"):
-        raise ValueError(f"unknown request {verb!r}: arm, disarm, estop, status")
-    client = HwClient(domain_id)
-    try:
-        return client.request(verb, reason, timeout_s=timeout_s)
-    finally:
-        client.close()
 
 
 def main(args=None) -> int:

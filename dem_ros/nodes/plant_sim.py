@@ -40,6 +40,10 @@ whose graph information comes late is held, not dropped (docs/manual/trust.md). 
 
 Latency = receive time of a command - publish time of the measurement it
 answers. A hardware driver replaces this node by honouring the same topics.
+
+The node also watches the recorder (:class:`~dem_ros.nodes.recording_watch.RecordingWatch`, status
+``plant_sim: recording``): a recorder that falls silent latches ERROR there, with the experiment time of its
+last report.
 """
 
 from __future__ import annotations
@@ -59,6 +63,7 @@ from ..core.warmup import warm_up
 from ..runstate import announce
 from ..transport import Node, run_node
 from .common import ERROR, OK, WARN, CommandSource, Diagnostics, JointStates, LatencyStats, all_finite, stamp_ns
+from .recording_watch import RecordingWatch
 
 __all__ = ["PlantSimNode", "main"]
 
@@ -118,6 +123,8 @@ class PlantSimNode:
         self.late = LatencyStats()
         self.timer = node.timer(c["dt"], self.tick)
         node.timer(1.0, self.status)
+        # /diagnostics "plant_sim: recording": the recorder's liveness (the graph's plant node watches it)
+        self.recording = RecordingWatch(node, contract.RECORDING_STATUS, self.experiment_t)
 
     # -- parameters / inputs ------------------------------------------------------------------
     def on_change(self, values) -> str | None:
@@ -295,6 +302,11 @@ class PlantSimNode:
         self.pub_meas.publish(J.make(h, self.names, [z[0], z[2]], vel, [z[4], z[5]]))
 
     # -- reporting ----------------------------------------------------------------------------
+    def experiment_t(self) -> float | None:
+        """The experiment time of the newest published sample [s]; None before t = 0."""
+        k = self.k_next - 1
+        return k * self.cfg["dt"] if self.started and k >= 0 else None
+
     def stats(self) -> dict:
         lat = self.lat.summary_us()
         late = self.late.summary_us()

@@ -15,16 +15,6 @@ the plate is (the first measured gaps) until the plant's loop status gives ``epo
 resumes the schedule at the sample the plant is at (t = stamp - epoch), gliding from there
 through M(s): the step times stay those of the experiment, never re-based to the restart.
 
-The recording is watched here, by a node that lives on the loop's path: the recorder reports on
-``/diagnostics`` once a second (status ``recorder: bag``); this node checks once a second (its own timer,
-status ``reference: recording``) whether a report came since its previous check. After the recorder has been
-seen, ``RECORDER_MISSED`` consecutive checks without a report latch ERROR on ``reference: recording`` and log it,
-with the experiment time of the recorder's last report: a recorder killed or hung loses the recording
-from there, and nobody else alive can say so (the bag ends without a word). Periods are counted, not
-wall seconds: after a stall of the host or the executor (seconds without either timer) this node's
-timer may fire before the recorder's, which is one missed check, not a dead recorder; a dead one is
-reported 2 to 3 s after its last report.
-
 Implausible measurements are refused (counted, logged once a second), never acted on: fewer than two
 gaps, a stamp more than ``FUTURE_S`` ahead of this node's clock (a rogue or broken clock: a +1 h stamp
 would otherwise make the node compute an hour of reference before it answers again), or a jump of
@@ -48,8 +38,6 @@ __all__ = ["ReferenceNode", "main"]
 PREROLL_KEEP = 1000  # pre-roll gaps whose median is the rest (1 s: the default pre-roll; bounded per sample)
 FUTURE_S = 1.0  # stamps may lead this node's clock by transport jitter, never by a second
 MAX_CATCH_UP_S = 10.0  # lost measurements are caught up sample by sample, at most this much at once
-RECORDER_CHECK_S = 1.0  # this node checks the recorder's reports this often (the recorder reports once a second)
-RECORDER_MISSED = 2  # consecutive checks without a report: the recorder is dead or hung
 
 
 class ReferenceNode:
@@ -74,13 +62,6 @@ class ReferenceNode:
         # a restart; with "reference: /dem/reference topic status"
         self.diag = Diagnostics(node, contract.REFERENCE_STATUS, warn_on=("refused",), values=self._diag_values)
         self.pub = self.diag.diagnosed(contract.REFERENCE)
-        self.last_t: int | None = None  # stamp of the newest measurement [ns]
-        self.recorder_seen: tuple[int, int | None] | None = None  # (our clock, newest stamp) at its last report
-        self.recorder_reports = 0  # the recorder's reports received
-        self._reports_checked = 0  # ... of which were there at the previous check
-        self.recorder_missed = 0  # consecutive checks with no report since the one before
-        self.recording = Diagnostics(node, contract.RECORDING_STATUS, values=self._recording_values, timer=False)
-        node.timer(RECORDER_CHECK_S, self._check_recorder)
         # the plant's measurement, bound to the plant's (or the driver's) writer (docs/manual/trust.md)
         self.inputs = Inputs(node)
         self.inputs.bind(contract.MEASUREMENT, PLANT_SOURCES, self.on_measurement)
@@ -115,36 +96,6 @@ class ReferenceNode:
         return {"refused": self.refused, "schedule_t_s": "none" if t is None else round(t, 3),
                 "epoch_ns": self.epoch if self.epoch is not None else "none"}
 
-    def _check_recorder(self) -> None:
-        """Once a second: did the recorder report since the previous check? ``RECORDER_MISSED`` checks in a row
-        without latch the fault (module docstring); then the status ``reference: recording`` is published."""
-        seen = self.recorder_seen
-        if seen is not None:
-            if self.recorder_reports != self._reports_checked:
-                self._reports_checked = self.recorder_reports
-                self.recorder_missed = 0
-            else:
-                self.recorder_missed += 1
-            if self.recorder_missed >= RECORDER_MISSED and self.recording.faulted is None:
-                silent = (self.node.now_ns() - seen[0]) * 1e-9
-                at, epoch = seen[1], self.epoch
-                when = f"t = {(at - epoch) * 1e-9:.3f} s" if at is not None and epoch is not None else "before t = 0"
-                self.recording.fault(f"the recorder has sent no status for {silent:.1f} s ({self.recorder_missed} "
-                                     f"checks in a row; its last at {when} of the experiment): it is dead or hung, the"
-                                     " recording is lost from there")
-                return  # (published at once by the fault)
-        self.recording.publish()
-
-    def _recording_values(self) -> dict:
-        """The recorder's liveness as seen here (module docstring)."""
-        seen = self.recorder_seen
-        if seen is None:
-            return {"recorder": "not seen"}
-        silent = (self.node.now_ns() - seen[0]) * 1e-9
-        state = "alive" if not self.recorder_missed else "silent" if self.recorder_missed >= RECORDER_MISSED else "late"
-        return {"recorder": state, "recorder_missed_checks": self.recorder_missed,
-                "recorder_silent_s": round(silent, 1)}
-
     def _refuse(self, why: str) -> None:
         self.refused += 1
         now = self.node.now_ns()
@@ -155,10 +106,7 @@ class ReferenceNode:
     def on_diagnostics(self, msg) -> None:
         """The plant's (or the hardware driver's) loop status carries the experiment's t = 0 (``epoch_ns``)."""
         for st in msg.status:
-            if st.name == contract.RECORDER_STATUS:
-                self.recorder_seen = (self.node.now_ns(), self.last_t)
-                self.recorder_reports += 1
-            elif st.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
+            if st.name in (contract.LOOP_STATUS, contract.HW_LOOP_STATUS):
                 for kv in st.values:
                     if kv.key == "epoch_ns":
                         try:
@@ -167,7 +115,7 @@ class ReferenceNode:
                             self._refuse(f"loop status epoch_ns {kv.value[:40]!r} is not an integer")
 
     def on_measurement(self, msg) -> None:
-        t = self.last_t = stamp_ns(msg)
+        t = stamp_ns(msg)
         if len(msg.position) < 2:
             self._refuse(f"{len(msg.position)} gaps, expected 2")
             return

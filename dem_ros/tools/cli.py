@@ -178,22 +178,6 @@ def cmd_param(args: argparse.Namespace) -> int:
     return 1
 
 
-def cmd_hw(args: argparse.Namespace) -> int:
-    from ..nodes.hw_driver import request
-    from .common import UsageError
-
-    try:
-        v = request(args.action, args.reason, domain_id=args.domain_id, timeout_s=args.timeout)
-    except TimeoutError as exc:
-        raise UsageError(str(exc)) from None
-    keys = ("state", "reason", "answer", "board_mode", "t_sim_s", "lost", "late", "corrupt", "hold_samples", "trips",
-            "latency_p50_us", "latency_p99_us")
-    for k in keys:
-        if v.get(k, "") != "":
-            print(f"  {k:<16} {v[k]}")
-    return 0 if v["state"] != "fault" or args.action == "estop" else 1
-
-
 class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors (``dem-ros sim: error: ...``); the usage is one ``--help`` away."""
 
@@ -286,15 +270,10 @@ def _add_rig(rg: argparse.ArgumentParser) -> None:
 
 
 def _add_hw(hw: argparse.ArgumentParser) -> None:
-    from .common import domain_id
+    from . import hw as hw_tool
 
-    hw.add_argument("action", choices=["arm", "disarm", "estop", "status"])
-    hw.add_argument("reason", nargs="?", default="", help="estop: why (recorded with the fault)")
-    hw.add_argument("--domain-id", type=domain_id, default=None,
-                    help="ROS_DOMAIN_ID of the driver (default: the environment's)")
-    hw.add_argument("--timeout", type=float, default=5.0,
-                    help="seconds to find the driver and get its answer (default 5)")
-    hw.set_defaults(func=cmd_hw)
+    hw_tool.add_arguments(hw)
+    hw.set_defaults(func=hw_tool.cmd_hw)
 
 
 def _add_node(nd: argparse.ArgumentParser) -> None:

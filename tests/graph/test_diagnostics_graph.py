@@ -64,6 +64,13 @@ def test_every_status_is_node_colon_task_with_no_hardware_id(statuses):
     assert not names & former, sorted(names & former)
 
 
+def test_the_plant_watches_the_recorder(statuses):
+    """The plant node's watch on the recorder (nodes/recording_watch.py) saw its once-a-second reports."""
+    reports = [values for name, _, _, _, values in statuses if name == contract.RECORDING_STATUS]
+    assert reports and all("recorder" in v for v in reports), reports[:3]
+    assert any(v["recorder"] == "alive" for v in reports), [v["recorder"] for v in reports]
+
+
 @pytest.mark.parametrize(("node", "topic"), [(n, t.name) for n, ts in STREAMS.items() if n != "hw_driver"
                                              for t in ts])
 def test_each_1khz_topic_has_its_topic_status_at_1000_hz(statuses, node, topic):

@@ -91,27 +91,46 @@ def test_sigkill_leaves_a_bag_readable_up_to_its_last_chunk(tmp_path):
     assert "truncated" in res.stdout and "Traceback" not in res.stderr
 
 
-def _recording_watch():
-    """A reference node and the recorder's once-a-second reporter on one memory bus; the levels and
-    messages of the status 'reference: recording' as published."""
+def _level(st) -> int:
+    return st.level if isinstance(st.level, int) else int.from_bytes(bytes(st.level), "little")
+
+
+def _bare_watch(bus):
+    """A node that hosts the recording watch alone, its experiment at t = 2.5 s."""
+    from dem_ros import contract
+    from dem_ros.nodes.recording_watch import RecordingWatch
+
+    return RecordingWatch(bus.node("plant_sim"), contract.RECORDING_STATUS, lambda: 2.5)
+
+
+def _plant_sim(bus):
+    """The simulator node itself (waiting for its controller: no run, no clock of the experiment yet)."""
+    from dem_ros.nodes.plant_sim import PlantSimNode
+
+    return PlantSimNode(bus.node("plant_sim", ["--ros-args", "-p", "start_delay:=0.0", "-p", "min_subscribers:=0"]))
+
+
+def _recording_watch(make_host=_bare_watch, status=None):
+    """The recording watch's host (made by ``make_host`` on the bus) and the recorder's once-a-second reporter on
+    one memory bus; the levels and messages of the watch's status (default ``plant_sim: recording``) as
+    published."""
     from dem_ros import contract
     from dem_ros.nodes.common import Diagnostics
-    from dem_ros.nodes.reference import ReferenceNode
     from dem_ros.transport.memory import MemoryBus
 
     bus = MemoryBus()
-    ReferenceNode(bus.node("reference"))
+    host = make_host(bus)
     seen: list[tuple[int, str]] = []
+    name = status or contract.RECORDING_STATUS
     bus.node("probe").subscribe(contract.DIAGNOSTICS, lambda m: seen.extend(
-        (s.level if isinstance(s.level, int) else int.from_bytes(bytes(s.level), "little"), s.message)
-        for s in m.status if s.name == contract.RECORDING_STATUS))
+        (_level(s), s.message) for s in m.status if s.name == name))
     recorder = Diagnostics(bus.node("recorder"), contract.RECORDER_STATUS)  # the recorder node's reporter
-    return bus, recorder, seen
+    return bus, host, recorder, seen
 
 
 def _stall(bus, seconds: float) -> None:
     """The host (or the executor) stalls for ``seconds``: then each timer fires once, as the DDS and rclpy
-    timers do (missed periods are skipped, never burst), in the order of the bus (the reference's first)."""
+    timers do (missed periods are skipped, never burst), in the order of the bus (the watch's first)."""
     bus.now_ns += round(seconds * 1e9)
     for t in bus.timers:
         if t.next_ns <= bus.now_ns:
@@ -120,12 +139,12 @@ def _stall(bus, seconds: float) -> None:
 
 
 def test_a_stall_of_the_host_is_not_a_dead_recorder():
-    """Review defect: the reference latched ERROR when the recorder had been silent > 2.5 s of wall time at one
+    """Review defect: the watch latched ERROR when the recorder had been silent > 2.5 s of wall time at one
     of its own checks: after a 3 s stall its timer fired before the recorder's and latched a false, permanent
     'recording lost'. Counted in its own checks: one missed report is not a dead recorder."""
     from dem_ros.nodes.common import ERROR, OK
 
-    bus, _recorder, seen = _recording_watch()
+    bus, _watch, _recorder, seen = _recording_watch()
     bus.advance(3.5)
     assert seen and all(level == OK for level, _ in seen), seen
     _stall(bus, 3.0)
@@ -135,16 +154,17 @@ def test_a_stall_of_the_host_is_not_a_dead_recorder():
     assert not any("fault: the recorder" in line[2] for line in bus.log)
 
 
-def test_a_silent_recorder_is_reported_on_diagnostics_by_the_reference_node():
-    """A recorder killed or hung says nothing: the reference node, alive on the loop's path, latches ERROR on
-    the status 'reference: recording' when the recorder's once-a-second report is missing at RECORDER_MISSED of
-    its own once-a-second checks in a row (2 to 3 s after its last report), and logs it."""
+def test_a_silent_recorder_is_reported_with_the_experiment_time_of_its_last_report():
+    """A recorder killed or hung says nothing: the watch latches ERROR on its status when the recorder's
+    once-a-second report is missing at RECORDER_MISSED of its own once-a-second checks in a row (2 to 3 s after
+    its last report), names the experiment time of that report and logs it once."""
     from dem_ros.nodes.common import ERROR, OK
-    from dem_ros.nodes.reference import RECORDER_MISSED
+    from dem_ros.nodes.recording_watch import RECORDER_MISSED
 
-    bus, recorder, seen = _recording_watch()
+    bus, watch, recorder, seen = _recording_watch()
     bus.advance(3.0)
     assert seen and all(level == OK for level, _ in seen), seen  # alive: it reports every second
+    assert watch.values()["recorder"] == "alive" and watch.values()["recorder_last_t_s"] == 2.5
     assert recorder.timer is not None
     recorder.timer.cancel()  # the recorder dies (its last report at t = 3 s)
     bus.advance(RECORDER_MISSED - 0.01)
@@ -152,7 +172,73 @@ def test_a_silent_recorder_is_reported_on_diagnostics_by_the_reference_node():
     bus.advance(1.02)
     level, message = seen[-1]  # by 3 s after the last report
     assert level == ERROR and "the recorder has sent no status" in message, seen[-3:]
+    assert "its last at t = 2.500 s of the experiment" in message, message
+    assert watch.values()["recorder"] == "silent"
     bus.advance(5.0)
     assert seen[-1][0] == ERROR  # latched
     assert sum("fault: the recorder has sent no status" in line[2] for line in bus.log) == 1
 
+
+def test_the_plant_simulator_watches_the_recorder_and_the_reference_no_longer_does():
+    """The watch lives in the plant node (the one every graph has): ``plant_sim: recording``; the reference node
+    publishes no recording status of its own."""
+    from dem_ros import contract
+    from dem_ros.nodes.common import ERROR
+    from dem_ros.nodes.reference import ReferenceNode
+
+    def plant_and_reference(bus):
+        plant = _plant_sim(bus)
+        ReferenceNode(bus.node("reference"))
+        return plant
+
+    bus, plant, recorder, seen = _recording_watch(plant_and_reference)
+    names: set[str] = set()
+    bus.node("names").subscribe(contract.DIAGNOSTICS, lambda m: names.update(s.name for s in m.status))
+    bus.advance(3.0)
+    assert seen and plant.recording.values()["recorder"] == "alive", seen
+    assert recorder.timer is not None
+    recorder.timer.cancel()
+    bus.advance(3.0)
+    level, message = seen[-1]
+    assert level == ERROR and "its last at before t = 0 of the experiment" in message, message
+    assert contract.RECORDING_STATUS in names and "reference: recording" not in names, sorted(names)
+    assert any(line[1] == "/plant_sim" and "fault: the recorder has sent no status" in line[2] for line in bus.log)
+
+
+def test_the_hardware_driver_watches_the_recorder(monkeypatch):
+    """On a rig the driver stands in for the plant: the same watch, on ``hw_driver: recording`` (here before
+    the board answered: no experiment yet)."""
+    import socket
+
+    from dem_ros import contract
+    from dem_ros.nodes.common import ERROR
+    from dem_ros.nodes.hw_driver import HwDriverNode
+
+    monkeypatch.setenv("DEM_ROS_RT", "0")
+    interval = sys.getswitchinterval()
+    board = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # a board that never answers
+    board.bind(("127.0.0.1", 0))
+    made: list[HwDriverNode] = []
+
+    def driver(bus):
+        made.append(HwDriverNode(bus.node("hw_driver", ["--ros-args", "-p",
+                                                        f"url:=udp://127.0.0.1:{board.getsockname()[1]}"])))
+        return made[-1]
+
+    try:
+        bus, hw, recorder, seen = _recording_watch(driver, contract.HW_RECORDING_STATUS)
+        bus.advance(3.0)
+        assert seen and hw.recording.values()["recorder"] == "alive", seen
+        assert recorder.timer is not None
+        recorder.timer.cancel()
+        bus.advance(3.0)
+        level, message = seen[-1]
+        assert level == ERROR and "the recorder has sent no status" in message and "before t = 0" in message, seen
+    finally:
+        for hw in made:
+            hw.stop.set()
+            hw.reader.join(timeout=5)
+            if hw.ch is not None:
+                hw.ch.close()
+        board.close()
+        sys.setswitchinterval(interval)

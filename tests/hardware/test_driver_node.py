@@ -21,7 +21,7 @@ import pytest
 
 from dem_ros import contract
 from dem_ros.core.params import default_config
-from dem_ros.nodes.hw_driver import request
+from dem_ros.tools.hw import request
 from dem_ros.tools.launcher import write_params_file
 from dem_ros.transport import make_node
 

@@ -49,7 +49,7 @@ import pytest
 from dem_ros import contract
 from dem_ros.bag import BagReader
 from dem_ros.core.scenarios import get_scenario
-from dem_ros.nodes.hw_driver import HwClient
+from dem_ros.tools.hw import HwClient
 from dem_ros.tools.launcher import run_graph
 
 DELAY = 4

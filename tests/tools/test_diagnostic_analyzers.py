@@ -25,7 +25,7 @@ def _matches(analyzer: dict, name: str) -> bool:
 def _every_status() -> list[str]:
     names = [contract.LOOP_STATUS, contract.HW_LOOP_STATUS, contract.HW_STATE_STATUS, contract.ESTIMATOR_STATUS,
              contract.CONTROLLER_STATUS, contract.REFERENCE_STATUS, contract.RECORDING_STATUS,
-             contract.RECORDER_STATUS]
+             contract.HW_RECORDING_STATUS, contract.RECORDER_STATUS]
     names += [contract.inputs_status(n) for n in WITH_INPUTS]
     names += [contract.topic_status(n, t.name) for n, topics in STREAMS.items() for t in topics]
     return names

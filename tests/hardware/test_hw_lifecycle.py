@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 import pytest
+from rig_events import rig_events
 
 from dem_ros.core.scenarios import get_scenario
 from dem_ros.tools.launcher import run_graph
@@ -38,31 +39,16 @@ LIMIT_S = 400.0  # s: the whole sequence, start-up included, on a loaded machine
 
 
 def _first_landing(workdir: Path) -> dict | None:
-    """The emulated board's first ``mode`` line into LAND (or LANDED): the rig logs one at each mode change, with
-    its reason (its once-a-second status can miss it: a landing, LANDED and the driver's OFF that clears the reason
-    all fell between two reports in a CI run)."""
-    try:
-        lines = (workdir / "rig.log").read_text(errors="replace").splitlines()
-    except OSError:
-        return None
-    for line in lines:
-        if line.startswith("RIG ") and '"event": "mode"' in line:
-            ev = json.loads(line[4:])
-            if ev.get("mode") in ("LAND", "LANDED"):
-                return ev
-    return None
+    """The emulated board's first ``mode`` event into LAND (or LANDED): the rig announces one at each mode change,
+    with its reason (its once-a-second status can miss it: a landing, LANDED and the driver's OFF that clears the
+    reason all fell between two reports in a CI run)."""
+    return next((ev for ev in rig_events(workdir, "mode") if ev.get("mode") in ("LAND", "LANDED")), None)
 
 
 def _rig_status(workdir: Path) -> dict:
-    """The emulated board's newest status line (mode, true gaps, landings; once a second), {} before the first."""
-    try:
-        lines = (workdir / "rig.log").read_text(errors="replace").splitlines()
-    except OSError:
-        return {}
-    for line in reversed(lines):
-        if line.startswith("RIG ") and '"status"' in line:
-            return json.loads(line[4:])
-    return {}
+    """The emulated board's newest status (mode, true gaps, landings; once a second), {} before the first."""
+    statuses = rig_events(workdir, "status")
+    return statuses[-1] if statuses else {}
 
 
 class Script:

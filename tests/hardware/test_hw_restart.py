@@ -38,13 +38,13 @@ lift-off under the 4-sample command delay no longer fails it (tests/graph/test_r
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import time
 from pathlib import Path
 
 import pytest
+from rig_events import rig_events
 
 from dem_ros import contract
 from dem_ros.bag import BagReader
@@ -58,29 +58,24 @@ REARMS = 6  # re-arms after a landing the board made by itself during the lift-o
 
 
 def _rig_status(workdir: Path) -> dict:
-    """The emulated board as its log last told, {} before the first status: the true gaps of its newest status
-    line (once a second), the mode and reason of its newest ``mode`` line (logged at each change, when it happens),
+    """The emulated board as it last told, {} before the first status: the true gaps of its newest status (once a
+    second), the mode and reason of its newest ``mode`` event (announced at each change, when it happens),
     ``landings`` (the mode changes into LAND, or into LANDED from RUN/HOLD/OFF) and ``landed_wall_ns`` (when the
     newest landing began, wall clock)."""
-    try:
-        lines = (workdir / "rig.log").read_text(errors="replace").splitlines()
-    except OSError:
-        return {}
     status: dict = {}
     mode: dict | None = None
     landings, landed_wall_ns, prev = 0, None, "OFF"
-    for line in lines:
-        if not line.startswith("RIG "):
-            continue
-        if '"event": "status"' in line:
-            status = json.loads(line[4:])
-        elif '"event": "mode"' in line:
-            mode = json.loads(line[4:])
+    for ev in rig_events(workdir):
+        if ev.get("event") == "status":
+            status = ev
+        elif ev.get("event") == "mode":
+            mode = ev
             if mode["mode"] == "LAND" or (mode["mode"] == "LANDED" and prev != "LAND"):
                 landings, landed_wall_ns = landings + 1, mode["wall_ns"]
             prev = mode["mode"]
     if not status:
         return {}
+    status = dict(status)
     if mode is not None:
         status.update(mode=mode["mode"], reason=mode["reason"], landings=landings, landed_wall_ns=landed_wall_ns)
     return status

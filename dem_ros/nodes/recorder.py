@@ -21,7 +21,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from .. import __version__, contract
+from .. import __version__, contract, runstate
 from ..bag import Recorder
 from ..realtime import ENV as RT_ENV
 from ..transport import Node, run_node, serialize
@@ -102,7 +102,8 @@ class RecorderNode:
             self.diag.fault(f"recording stopped: {self._failure}")
 
     def close(self) -> dict:
-        """Finalise the bag; per-topic counters, also printed as a ``RECORDER {json}`` line."""
+        """Finalise the bag; per-topic counters, also printed as a ``RECORDER {json}`` line and told to a launcher
+        (its run-state event ``recorded``: :mod:`dem_ros.runstate`)."""
         counters = self.rec.close()
         summary = {name: {"received": c.received, "written": c.written, "dropped": c.dropped,
                           **({"lost": c.lost} if name in self.rec.grids else {})}
@@ -110,6 +111,7 @@ class RecorderNode:
         print("RECORDER " + json.dumps(summary), flush=True)
         if self.rec.failure is not None:
             print(f"RECORDER_FAILED {self.rec.failure}", flush=True)
+        runstate.announce("recorded", "recorder", counts=summary, failure=self.rec.failure)
         return summary
 
 

@@ -464,6 +464,7 @@ class _Graph:
                 time.sleep(0.3)  # last samples in flight
             _interrupt(proc)
         self.rig_summary = self._stop_rig()
+        self._events()  # the last ones (the recorder's counters when it closed the bag)
         halt.close()
         for fd in (self.state_r, self.state_w):
             with contextlib.suppress(OSError):
@@ -475,12 +476,10 @@ class _Graph:
         base = self.cpu_start or {}
         cpu = {n: c - base.get(n, 0.0) for n, c in self.cpu.items()}
         cpu_pct = {n: round(100.0 * cpu[n] / max(elapsed[n], 1e-9), 1) for n in self.procs if cpu[n] == cpu[n]}
-        recorder_counts = None
-        rec_log = self.logs.get("container" if self.compose else "recorder")
-        if self.bag is not None and rec_log is not None and rec_log.exists():
-            for line in rec_log.read_text(errors="replace").splitlines():
-                if line.startswith("RECORDER "):
-                    recorder_counts = json.loads(line[len("RECORDER "):])
+        recorder_counts = None  # the recorder's per-topic counters when it closed the bag (its "recorded" event)
+        for ev in self.events:
+            if ev.get("event") == "recorded" and ev.get("node") == "recorder":
+                recorder_counts = ev.get("counts")
         return {"interrupted": self.interrupted, "wall_s": self.wall, "cpu_percent": cpu_pct,
                 "returncodes": {n: p.returncode for n, p in self.procs.items()},
                 "logs": {n: str(p) for n, p in self.logs.items()}, "recorder": recorder_counts,

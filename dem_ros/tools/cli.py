@@ -165,12 +165,64 @@ def cmd_param(args: argparse.Namespace) -> int:
             raise UsageError(f"{what} '{shown}' is not valid UTF-8 (ROS names and strings are UTF-8)") from None
     if args.action == "set" and args.value is not None:
         check_param_value(args.node, args.name, args.value)
+    if args.action == "set" and args.value is None:
+        raise UsageError("param set needs a VALUE")
+    if _graph_transport(args.transport) == "rclpy":
+        return _param_rclpy(args)
     if args.action == "get":
         print(param_get(args.node, args.name, domain_id=args.domain_id, timeout_s=args.timeout))
         return 0
-    if args.value is None:
-        raise UsageError("param set needs a VALUE")
     ok, reason = param_set(args.node, args.name, args.value, domain_id=args.domain_id, timeout_s=args.timeout)
+    if ok:
+        print("Set parameter successful")
+        return 0
+    print(f"Setting parameter failed: {reason}", file=sys.stderr)
+    return 1
+
+
+def _graph_transport(transport: str) -> str:
+    """``auto`` -> rclpy when it imports, else dds (as ``dem-ros launch`` picks); rclpy asked for without it: one
+    line."""
+    from ..transport import rclpy_available
+    from .common import UsageError
+
+    if transport == "rclpy" and not rclpy_available():
+        raise UsageError("--transport rclpy needs a sourced ROS 2 (import rclpy failed); use dds")
+    return ("rclpy" if rclpy_available() else "dds") if transport == "auto" else transport
+
+
+def _param_rclpy(args: argparse.Namespace) -> int:
+    """``dem-ros param`` to a graph on rclpy, through rclpy's own parameter clients (the dds transport's speak
+    rmw_cyclonedds' request header, which rclpy's Fast DDS services do not read)."""
+    import os
+
+    import rclpy
+
+    from ..transport import TransportError
+    from ..transport.rclpy.client import RclpyServiceClient
+    from .common import UsageError
+
+    if args.domain_id is not None:
+        os.environ["ROS_DOMAIN_ID"] = str(args.domain_id)
+    # what dem-ros launch gives its nodes unless told otherwise: Fast DDS finds no LOCALHOST participant from SUBNET
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    rclpy.init(args=[])
+    client = None
+    try:
+        client = RclpyServiceClient("dem_ros_param")
+        if args.action == "get":
+            values = client.param_values(args.node, [args.name], timeout_s=args.timeout)
+            if args.name not in values:
+                raise UsageError(f"/{args.node.lstrip('/')} has no parameter {args.name!r}")
+            print(values[args.name])
+            return 0
+        ok, reason = client.param_set(args.node, args.name, args.value, timeout_s=args.timeout)
+    except TransportError as exc:
+        raise UsageError(str(exc)) from None
+    finally:
+        if client is not None:
+            client.close()
+        rclpy.try_shutdown()
     if ok:
         print("Set parameter successful")
         return 0
@@ -328,6 +380,9 @@ def _add_param(pm: argparse.ArgumentParser) -> None:
     pm.add_argument("--domain-id", type=domain_id, default=None,
                     help="ROS_DOMAIN_ID of the node (default: the environment's)")
     pm.add_argument("--timeout", type=float, default=5.0, help="seconds to find the node and get its reply (default 5)")
+    pm.add_argument("--transport", default="auto", choices=_TRANSPORTS,
+                    help="the graph's transport, whose service clients reach it: auto (rclpy when it imports, as "
+                         "dem-ros launch picks), rclpy or dds")
     pm.set_defaults(func=cmd_param)
 
 
@@ -372,7 +427,7 @@ _COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
     "replay": ("metrics, figures and what-if re-runs from a recorded bag", _add_replay),
     "faults": ("inject the fault catalogue into the real graph; a table of outcomes", _add_faults),
     "bag": ("inspect bags", _add_bag),
-    "param": ("get or set a parameter of a running node (DDS parameter services)", _add_param),
+    "param": ("get or set a parameter of a running node (its parameter services)", _add_param),
     "view": ("watch the running graph live in Foxglove (a WebSocket server; docs/manual/live-view.md)", _add_view),
     "study": ("robustness study: plant truth (grid or Monte Carlo) x controllers on Dask distributed", _add_study),
     "identify": ("R1, R2, K (K1, K2) and m of a rig from a recorded run, with 95 %% intervals", _add_identify),

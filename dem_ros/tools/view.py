@@ -126,8 +126,13 @@ def serve(opts: ViewOptions, *, stop: threading.Event | None = None) -> int:
     node = graph = view = None
     try:
         node = make_node("view", transport=opts.transport, args=[])
-        if node.transport == "dds":
-            graph = GraphAccess(["/" + n for n in NODES if n != "container"], timeout_s=opts.timeout_s)
+        services = None
+        if node.transport == "rclpy":  # the graph's services on rclpy's own clients (see view.graph)
+            from ..transport.rclpy.client import RclpyServiceClient
+
+            services = RclpyServiceClient("dem_ros_view_services")
+        graph = GraphAccess(["/" + n for n in NODES if n != "container"], timeout_s=opts.timeout_s,
+                            services=services)
         view = ViewServer(node, host=opts.host, port=opts.port, graph=graph)
         if graph is not None:
             graph.start()
@@ -138,10 +143,6 @@ def serve(opts: ViewOptions, *, stop: threading.Event | None = None) -> int:
         if not _loopback(opts.host):
             print(f"dem-ros view: WARNING: listening on {opts.host}, not on this machine only: anyone who reaches "
                   f"{url} can watch the run, set the nodes' parameters and arm, disarm or e-stop the hardware",
-                  file=sys.stderr, flush=True)
-        if graph is None:
-            print(f"dem-ros view: on the {node.transport} transport the view forwards the topics only: parameters "
-                  "and hw_driver's services go through the dds transport's clients (--transport dds)",
                   file=sys.stderr, flush=True)
         print(PREFIX + json.dumps({"listening": url, "port": view.port}), flush=True)
         while not stop.is_set() and not node.is_shutdown:

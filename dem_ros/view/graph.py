@@ -11,9 +11,11 @@ The nodes are found by asking each node of the graph (:data:`dem_ros.nodes.NODES
 list, again every :data:`PROBE_PERIOD_S` for those not found yet (a node that starts after the view);
 a node that stops answering is dropped until it answers again.
 
-The parameter and service clients are those of the dds transport (:mod:`dem_ros.transport.dds.client`,
-rmw_cyclonedds' request header): they reach nodes on the dds transport, as ``dem-ros param`` does.
-All calls go through one lock: the client's endpoints are per process, not per thread.
+The parameter and service clients are those of the view's transport: on ``dds`` the dds transport's
+(:mod:`dem_ros.transport.dds.client`, rmw_cyclonedds' request header, as ``dem-ros param``), on ``rclpy`` rclpy's
+own (:class:`dem_ros.transport.rclpy.client.RclpyServiceClient`: a graph on rclpy runs on the registry's Fast DDS,
+whose services do not read that header). All calls go through one lock: the clients' endpoints are per process,
+not per thread.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from ..core.params import ConfigError
-from ..transport import TransportError, param_set, trigger
+from ..transport import TransportError
 
 __all__ = ["HW_NODE", "HW_SERVICES", "PROBE_PERIOD_S", "GraphAccess", "join_name", "split_name"]
 
@@ -47,13 +49,47 @@ def join_name(node: str, name: str) -> str:
     return f"{node}.{name}"
 
 
+class DdsServices:
+    """The dds transport's service clients (:mod:`dem_ros.transport.dds.client`) behind :class:`GraphAccess`'s
+    four calls (:class:`dem_ros.transport.rclpy.client.RclpyServiceClient` has the same)."""
+
+    def param_list(self, node: str, *, timeout_s: float) -> list[str]:
+        from ..transport.dds.client import param_list
+
+        return param_list(node, timeout_s=timeout_s)
+
+    def param_values(self, node: str, names: list[str], *, timeout_s: float) -> dict[str, Any]:
+        from ..transport import paramvalue as pv
+        from ..transport.dds import msgs
+        from ..transport.dds.client import call_service
+
+        rep = call_service(node, "get_parameters", msgs.GetParameters_Request(names=list(names)), timeout_s=timeout_s)
+        return {n: pv.from_value_msg(v) for n, v in zip(names, rep.values, strict=False) if v.type != pv.NOT_SET}
+
+    def param_set(self, node: str, name: str, value: Any, *, timeout_s: float) -> tuple[bool, str]:
+        from ..transport.dds.client import param_set
+
+        return param_set(node, name, value, timeout_s=timeout_s)
+
+    def trigger(self, node: str, service: str, *, timeout_s: float) -> tuple[bool, str]:
+        from ..transport.dds.client import trigger
+
+        return trigger(node, service, timeout_s=timeout_s)
+
+    def close(self) -> None:
+        return None
+
+
 class GraphAccess:
     """Parameters of the graph's nodes and hw_driver's services, over the nodes' own services.
 
-    ``nodes``: the fully qualified names to look for; ``timeout_s``: per call.
+    ``nodes``: the fully qualified names to look for; ``timeout_s``: per call; ``services``: the clients
+    (default :class:`DdsServices`; on rclpy an :class:`~dem_ros.transport.rclpy.client.RclpyServiceClient`).
     """
 
-    def __init__(self, nodes: Iterable[str], *, timeout_s: float = 5.0, probe_timeout_s: float = 0.5):
+    def __init__(self, nodes: Iterable[str], *, timeout_s: float = 5.0, probe_timeout_s: float = 0.5,
+                 services: Any = None):
+        self.services = services if services is not None else DdsServices()
         self.candidates = tuple(nodes)
         self.timeout_s = timeout_s
         self.probe_timeout_s = probe_timeout_s
@@ -82,6 +118,8 @@ class GraphAccess:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=self.probe_timeout_s * len(self.candidates) + PROBE_PERIOD_S + 1.0)
+        with self._lock:
+            self.services.close()
 
     def known(self) -> dict[str, list[str]]:
         """The nodes found so far and their parameter names (a copy)."""
@@ -90,11 +128,9 @@ class GraphAccess:
 
     def probe(self, node: str) -> bool:
         """Ask ``node`` for its parameter names; True (and remembered) when it answers."""
-        from ..transport.dds.client import param_list
-
         try:
             with self._lock:
-                names = param_list(node, timeout_s=self.probe_timeout_s)
+                names = self.services.param_list(node, timeout_s=self.probe_timeout_s)
                 self._known[node] = sorted(names)
         except TransportError:
             return False
@@ -132,14 +168,8 @@ class GraphAccess:
         return out
 
     def _get_values(self, node: str, names: list[str]) -> dict[str, Any]:
-        from ..transport import paramvalue as pv
-        from ..transport.dds import msgs
-        from ..transport.dds.client import call_service
-
         with self._lock:
-            rep = call_service(node, "get_parameters", msgs.GetParameters_Request(names=list(names)),
-                               timeout_s=self.timeout_s)
-        return {n: pv.from_value_msg(v) for n, v in zip(names, rep.values, strict=False) if v.type != pv.NOT_SET}
+            return self.services.param_values(node, names, timeout_s=self.timeout_s)
 
     def set(self, full: str, value: Any) -> str | None:
         """Set ``/node.name`` to ``value`` as ``dem-ros param set`` does: None, or the reason it was refused."""
@@ -155,7 +185,7 @@ class GraphAccess:
         except ConfigError as exc:
             return str(exc)
         with self._lock:
-            ok, reason = param_set(node, name, text, timeout_s=self.timeout_s)
+            ok, reason = self.services.param_set(node, name, text, timeout_s=self.timeout_s)
         return None if ok else (reason or "refused by the node")
 
     # -- services ----------------------------------------------------------------------------------
@@ -167,4 +197,4 @@ class GraphAccess:
         if verb not in HW_SERVICES:
             raise ValueError(f"{verb!r} is not one of {', '.join(HW_SERVICES)}")
         with self._lock:
-            return trigger(HW_NODE, verb, timeout_s=self.timeout_s)
+            return self.services.trigger(HW_NODE, verb, timeout_s=self.timeout_s)

@@ -173,3 +173,46 @@ def test_a_stock_rclpy_client_sets_parameters_of_the_free_running_rclpy_graph(tm
     changed = [p.value.double_value for e in events if e.node == "/controller" for p in e.changed_parameters
                if p.name == "w"]
     assert changed == [61.0, 62.0, 63.0, 64.0, 65.0], changed
+
+
+def test_dem_ros_param_reaches_the_rclpy_graph_through_rclpys_own_clients(tmp_path):
+    """``dem-ros param`` on a graph of rclpy nodes (Fast DDS): get, set, and the node's reason for a refusal (the
+    dds transport's client speaks rmw_cyclonedds' request header, which these services do not read)."""
+    domain = domains.hold()
+    cfg = get_scenario("S1").config()
+    cfg["plant_sim"]["lockstep"] = False
+    meta = {"scenario": "S1", "controller": "adaptive", "estimator": "kf", "transport": "rclpy", "config": cfg}
+    out: dict = {}
+
+    def run() -> None:
+        try:
+            out["facts"] = launcher.run_graph(cfg, duration=20.0, transport="rclpy", compose=True, bag=None,
+                                              meta=meta, domain_id=domain, status=False, workdir=tmp_path / "logs")
+        except Exception as exc:  # reported below
+            out["error"] = exc
+
+    t = threading.Thread(target=run)
+    t.start()
+    env = {k: v for k, v in os.environ.items() if k != "ROS_AUTOMATIC_DISCOVERY_RANGE"}  # the CLI's own default
+    env["ROS_DOMAIN_ID"] = str(domain)
+
+    def param(*argv: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "dem_ros.tools.cli", "param", *argv, "--timeout", "30"],
+                              capture_output=True, text=True, env=env, timeout=120)
+
+    try:
+        log = tmp_path / "logs" / "container.log"
+        end = time.monotonic() + 180
+        while time.monotonic() < end and not _past_t0(log) and t.is_alive():
+            time.sleep(0.1)
+        got = param("get", "controller", "w")
+        setting = param("set", "controller", "w", "57")
+        again = param("get", "/controller", "w")
+        refused = param("set", "controller", "dt", "0.002")  # valid by the schema, read-only on the running node
+    finally:
+        t.join(timeout=300)
+    assert not t.is_alive() and "error" not in out, out.get("error")
+    assert (got.returncode, got.stdout.strip()) == (0, "50.0"), got.stdout + got.stderr
+    assert setting.returncode == 0 and "Set parameter successful" in setting.stdout, setting.stdout + setting.stderr
+    assert (again.returncode, again.stdout.strip()) == (0, "57.0"), again.stdout + again.stderr
+    assert refused.returncode == 1 and "read-only parameter: dt" in refused.stderr, refused.stderr

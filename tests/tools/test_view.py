@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
 import re
 import signal
 import socket
@@ -29,6 +28,7 @@ pytest.importorskip("foxglove", reason="foxglove-sdk is not installed (the 'view
 pytest.importorskip("websockets", reason="websockets is not installed (the 'view' extra: pip install -e '.[view]')")
 
 from dem_ros import contract, typestore
+from dem_ros.transport import rclpy_available
 from dem_ros.view import SUBPROTOCOL, layout
 from dem_ros.view.client import FoxgloveClient, ServiceFailure
 from dem_ros.view.graph import HW_SERVICES, split_name
@@ -192,13 +192,15 @@ async def _wait_listening(port: int, proc: subprocess.Popen, timeout_s: float) -
     raise AssertionError(f"the view did not listen on port {port} within {timeout_s:g} s")
 
 
-@pytest.mark.skipif(os.environ.get("DEM_ROS_VIEW_GRAPH") != "1", reason=(
-    "on demand (DEM_ROS_VIEW_GRAPH=1): beside two busy processes the client's parameter read timed out after 30 s "
-    "(the view reads each node's parameters through the DDS parameter services); open in issue #24"))
-def test_a_foxglove_client_watches_and_tunes_a_composed_free_running_graph(domain_id, tmp_path):
+@pytest.mark.parametrize("transport", [
+    "dds", pytest.param("rclpy", marks=pytest.mark.skipif(
+        not rclpy_available(), reason="rclpy is not installed (the 'ros' extra: the registry's Jazzy wheels)"))])
+def test_a_foxglove_client_watches_and_tunes_a_composed_free_running_graph(domain_id, tmp_path, transport):
+    """On either transport: the view's parameters go through that transport's own service clients (the dds
+    client's request header is rmw_cyclonedds'; rclpy's graph runs on Fast DDS)."""
     port = _free_port()
     # long enough for every check on a loaded machine; stopped (Ctrl-C) once they are done
-    proc = subprocess.Popen([*CLI, "launch", "--compose", "--free-run", "--duration", "300",
+    proc = subprocess.Popen([*CLI, "launch", "--compose", "--free-run", "--duration", "300", "--transport", transport,
                              "--domain-id", str(domain_id), "--view", str(port), "--bag-dir", str(tmp_path)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:

@@ -167,7 +167,7 @@ def cmd_param(args: argparse.Namespace) -> int:
         check_param_value(args.node, args.name, args.value)
     if args.action == "set" and args.value is None:
         raise UsageError("param set needs a VALUE")
-    if _graph_transport(args.transport) == "rclpy":
+    if _param_transport(args) == "rclpy":
         return _param_rclpy(args)
     if args.action == "get":
         print(param_get(args.node, args.name, domain_id=args.domain_id, timeout_s=args.timeout))
@@ -180,15 +180,23 @@ def cmd_param(args: argparse.Namespace) -> int:
     return 1
 
 
-def _graph_transport(transport: str) -> str:
-    """``auto`` -> rclpy when it imports, else dds (as ``dem-ros launch`` picks); rclpy asked for without it: one
+def _param_transport(args: argparse.Namespace) -> str:
+    """Whose clients reach the node: ``auto`` asks the DDS graph which vendor serves the node's parameter service
+    (Fast DDS, the registry's rclpy: rclpy's clients; else the dds transport's); rclpy asked for without it: one
     line."""
     from ..transport import rclpy_available
     from .common import UsageError
 
-    if transport == "rclpy" and not rclpy_available():
+    if args.transport == "rclpy" and not rclpy_available():
         raise UsageError("--transport rclpy needs a sourced ROS 2 (import rclpy failed); use dds")
-    return ("rclpy" if rclpy_available() else "dds") if transport == "auto" else transport
+    if args.transport != "auto":
+        return str(args.transport)
+    if not rclpy_available():
+        return "dds"
+    from ..transport.dds.client import FASTDDS_VENDOR, service_vendor
+
+    vendor = service_vendor(args.node, domain_id=args.domain_id, timeout_s=args.timeout)
+    return "rclpy" if vendor == FASTDDS_VENDOR else "dds"
 
 
 def _param_rclpy(args: argparse.Namespace) -> int:
@@ -381,8 +389,8 @@ def _add_param(pm: argparse.ArgumentParser) -> None:
                     help="ROS_DOMAIN_ID of the node (default: the environment's)")
     pm.add_argument("--timeout", type=float, default=5.0, help="seconds to find the node and get its reply (default 5)")
     pm.add_argument("--transport", default="auto", choices=_TRANSPORTS,
-                    help="the graph's transport, whose service clients reach it: auto (rclpy when it imports, as "
-                         "dem-ros launch picks), rclpy or dds")
+                    help="whose service clients reach the node: auto (rclpy's for a node on Fast DDS, the registry's "
+                         "rclpy; else the dds transport's), rclpy or dds")
     pm.set_defaults(func=cmd_param)
 
 

@@ -107,6 +107,13 @@ def _loopback(host: str) -> bool:
         return False
 
 
+def _rclpy_services() -> object:
+    """rclpy's service clients, for the graph's nodes on Fast DDS (see :class:`dem_ros.view.graph.RoutedServices`)."""
+    from ..transport.rclpy.client import RclpyServiceClient
+
+    return RclpyServiceClient("dem_ros_view_services")
+
+
 def serve(opts: ViewOptions, *, stop: threading.Event | None = None) -> int:
     """Run the view until SIGINT / SIGTERM (or ``stop``); 0, or UsageError for what cannot start."""
     try:
@@ -114,8 +121,8 @@ def serve(opts: ViewOptions, *, stop: threading.Event | None = None) -> int:
     except ImportError as exc:
         raise UsageError(f"dem-ros view needs the 'view' extra (pip install 'dem_ros[view]'): {exc}") from None
     from ..nodes import NODES
-    from ..transport import TransportError, make_node
-    from ..view.graph import GraphAccess
+    from ..transport import TransportError, make_node, rclpy_available
+    from ..view.graph import GraphAccess, RoutedServices
 
     if opts.domain_id is not None:
         os.environ["ROS_DOMAIN_ID"] = str(opts.domain_id)
@@ -126,13 +133,8 @@ def serve(opts: ViewOptions, *, stop: threading.Event | None = None) -> int:
     node = graph = view = None
     try:
         node = make_node("view", transport=opts.transport, args=[])
-        services = None
-        if node.transport == "rclpy":  # the graph's services on rclpy's own clients (see view.graph)
-            from ..transport.rclpy.client import RclpyServiceClient
-
-            services = RclpyServiceClient("dem_ros_view_services")
         graph = GraphAccess(["/" + n for n in NODES if n != "container"], timeout_s=opts.timeout_s,
-                            services=services)
+                            services=RoutedServices(_rclpy_services if rclpy_available() else None))
         view = ViewServer(node, host=opts.host, port=opts.port, graph=graph)
         if graph is not None:
             graph.start()

@@ -11,10 +11,10 @@ The nodes are found by asking each node of the graph (:data:`dem_ros.nodes.NODES
 list, again every :data:`PROBE_PERIOD_S` for those not found yet (a node that starts after the view);
 a node that stops answering is dropped until it answers again.
 
-The parameter and service clients are those of the view's transport: on ``dds`` the dds transport's
-(:mod:`dem_ros.transport.dds.client`, rmw_cyclonedds' request header, as ``dem-ros param``), on ``rclpy`` rclpy's
-own (:class:`dem_ros.transport.rclpy.client.RclpyServiceClient`: a graph on rclpy runs on the registry's Fast DDS,
-whose services do not read that header). All calls go through one lock: the clients' endpoints are per process,
+The parameter and service clients are those that reach each node (:class:`RoutedServices`): the dds transport's
+(:mod:`dem_ros.transport.dds.client`, rmw_cyclonedds' request header, as ``dem-ros param``) for a node on Cyclone,
+rclpy's own (:class:`dem_ros.transport.rclpy.client.RclpyServiceClient`) for a node on the registry's rclpy, whose
+Fast DDS services do not read that header. All calls go through one lock: the clients' endpoints are per process,
 not per thread.
 """
 
@@ -80,11 +80,57 @@ class DdsServices:
         return None
 
 
+class RoutedServices:
+    """Each node's services through the client that reaches it, chosen by the vendor of the DDS reader that takes
+    its requests (:func:`dem_ros.transport.dds.client.service_vendor`): a node on Fast DDS (the registry's rclpy)
+    through rclpy's clients (``rclpy_client()`` makes them, once; None: rclpy is not installed), any other through
+    the dds transport's. A graph launched on either transport is reached, whichever the view joined it on."""
+
+    def __init__(self, rclpy_client: Callable[[], Any] | None = None):
+        self._dds = DdsServices()
+        self._make_rclpy = rclpy_client
+        self._rclpy: Any = None
+        self._route: dict[str, Any] = {}
+
+    def _for(self, node: str, srv: str, srv_type: str | None, timeout_s: float) -> Any:
+        from ..transport.dds.client import FASTDDS_VENDOR, service_vendor
+
+        client = self._route.get(node)
+        if client is None:
+            vendor = service_vendor(node, srv, srv_type=srv_type, timeout_s=timeout_s)
+            if vendor is None:  # not found (yet)
+                raise TransportError(f"no service {node}/{srv} within {timeout_s:g} s (is the node running?)")
+            client = self._dds
+            if vendor == FASTDDS_VENDOR and self._make_rclpy is not None:
+                if self._rclpy is None:
+                    self._rclpy = self._make_rclpy()
+                client = self._rclpy
+            self._route[node] = client
+        return client
+
+    def param_list(self, node: str, *, timeout_s: float) -> list[str]:
+        return self._for(node, "list_parameters", None, timeout_s).param_list(node, timeout_s=timeout_s)
+
+    def param_values(self, node: str, names: list[str], *, timeout_s: float) -> dict[str, Any]:
+        return self._for(node, "get_parameters", None, timeout_s).param_values(node, names, timeout_s=timeout_s)
+
+    def param_set(self, node: str, name: str, value: Any, *, timeout_s: float) -> tuple[bool, str]:
+        return self._for(node, "set_parameters", None, timeout_s).param_set(node, name, value, timeout_s=timeout_s)
+
+    def trigger(self, node: str, service: str, *, timeout_s: float) -> tuple[bool, str]:
+        client = self._for(node, service, "std_srvs/srv/Trigger", timeout_s)
+        return client.trigger(node, service, timeout_s=timeout_s)
+
+    def close(self) -> None:
+        if self._rclpy is not None:
+            self._rclpy.close()
+
+
 class GraphAccess:
     """Parameters of the graph's nodes and hw_driver's services, over the nodes' own services.
 
     ``nodes``: the fully qualified names to look for; ``timeout_s``: per call; ``services``: the clients
-    (default :class:`DdsServices`; on rclpy an :class:`~dem_ros.transport.rclpy.client.RclpyServiceClient`).
+    (default :class:`DdsServices`; ``dem-ros view`` gives :class:`RoutedServices`).
     """
 
     def __init__(self, nodes: Iterable[str], *, timeout_s: float = 5.0, probe_timeout_s: float = 0.5,

@@ -22,7 +22,8 @@ from . import msgs, srvs, wire
 from .executor import ANY_SAMPLE
 from .node import QOS_SERVICES, Participant
 
-__all__ = ["call_service", "param_get", "param_list", "param_set", "set_bool", "trigger"]
+__all__ = ["FASTDDS_VENDOR", "call_service", "param_get", "param_list", "param_set", "service_vendor", "set_bool",
+           "trigger"]
 
 
 def _node_fqn(node_name: str) -> str:
@@ -64,6 +65,40 @@ def _endpoints(p: Any, fqn: str, srv: str, srv_type: str) -> list[Any]:
     return ep
 
 
+#: eProsima Fast DDS's vendor id (the first two bytes of a GUID prefix; the OMG's list): the RMW of the registry's
+#: rclpy, whose services take the request id from the sample identity, not from the payload as this client sends it
+FASTDDS_VENDOR = b"\x01\x0f"
+
+
+def service_vendor(node_name: str, srv: str = "get_parameters", *, srv_type: str | None = None,
+                   domain_id: int | None = None, timeout_s: float = 2.0) -> bytes | None:
+    """The DDS vendor id (two bytes) of the reader that takes ``<node>/<srv>``'s requests; None when none is found
+    within ``timeout_s``. Tells which client reaches the node: :data:`FASTDDS_VENDOR` needs rclpy's own."""
+    fqn = _node_fqn(node_name)
+    if srv_type is None:
+        srv_type = msgs.SERVICES[srv][0]
+    p = Participant.get(domain_id)
+    try:
+        writer = _endpoints(p, fqn, srv, srv_type)[1]
+        deadline = time.monotonic() + timeout_s
+        while True:
+            handles = writer.get_matched_subscriptions()
+            if handles:
+                return bytes(writer.get_matched_subscription_data(handles[0]).key.bytes[:2])
+            if time.monotonic() > deadline:
+                return None
+            time.sleep(0.01)
+    finally:
+        _release(p)
+
+
+def _release(p: Any) -> None:
+    if not p.has_nodes:  # a one-shot client process: release everything, as we found it
+        for key in [k for k, v in _ENDPOINTS.items() if v[0] is p]:
+            del _ENDPOINTS[key]
+        p.release_if_unused()
+
+
 def call_service(node_name: str, srv: str, request: Any, *, srv_type: str | None = None,
                  domain_id: int | None = None, timeout_s: float = 2.0) -> Any:
     """Call ``<node>/<srv>`` and return the response message.
@@ -82,10 +117,7 @@ def call_service(node_name: str, srv: str, request: Any, *, srv_type: str | None
     try:
         return _call(p, fqn, srv, srv_type, request, timeout_s)
     finally:
-        if not p.has_nodes:  # a one-shot client process: release everything, as we found it
-            for key in [k for k, v in _ENDPOINTS.items() if v[0] is p]:
-                del _ENDPOINTS[key]
-            p.release_if_unused()
+        _release(p)
 
 
 def _call(p: Any, fqn: str, srv: str, srv_type: str, request: Any, timeout_s: float) -> Any:

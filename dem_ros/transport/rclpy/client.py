@@ -3,8 +3,8 @@
 The dds transport's clients (:mod:`dem_ros.transport.dds.client`) speak rmw_cyclonedds' request header, which
 a node on another RMW (the registry's rclpy runs on Fast DDS) does not read. A tool that joined the graph on
 rclpy (``dem-ros view --transport rclpy``) calls the nodes' services through rclpy instead, as ``ros2 param``
-does: one plain rclpy node of its own, its clients kept per service, each call spun to its end on the caller's
-thread (one call at a time: the caller serialises them).
+does: one plain rclpy node of its own (rclpy initialised for it when the process has not), its clients kept per
+service, each call spun to its end on the caller's thread (one call at a time: the caller serialises them).
 """
 
 from __future__ import annotations
@@ -32,8 +32,9 @@ class RclpyServiceClient:
     """Parameter and Trigger calls to the graph's nodes over rclpy (the same answers as the dds client's)."""
 
     def __init__(self, name: str = "dem_ros_service_client"):
-        if not rclpy.ok():
-            raise TransportError("rclpy is not initialised: make an rclpy node of the process first")
+        self._own_context = not rclpy.ok()  # a process on the dds transport: rclpy for these calls only
+        if self._own_context:
+            rclpy.init(args=[])
         self._node = rclpy.create_node(name, enable_rosout=False)
         self._ex = SingleThreadedExecutor()
         self._ex.add_node(self._node)
@@ -42,6 +43,8 @@ class RclpyServiceClient:
     def close(self) -> None:
         self._ex.shutdown(timeout_sec=1.0)
         self._node.destroy_node()
+        if self._own_context:
+            rclpy.try_shutdown()
 
     def call(self, node_name: str, srv: str, srv_type: Any, request: Any, timeout_s: float) -> Any:
         """Call ``<node>/<srv>`` and return its response; TransportError when none comes within ``timeout_s``."""

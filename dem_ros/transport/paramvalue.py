@@ -24,6 +24,7 @@ __all__ = [
     "STRING_ARRAY",
     "describe",
     "descriptor_fields",
+    "for_declared",
     "from_value_msg",
     "spec_type",
     "to_value_msg",
@@ -66,6 +67,19 @@ def python_type(value: Any) -> int:
         if all(isinstance(v, str) for v in value):
             return STRING_ARRAY
     raise TypeError(f"cannot express {value!r} as a ROS parameter value")
+
+
+def for_declared(ptype: int, value: Any) -> Any:
+    """A value given to ``param set`` as the node's declared type ``ptype`` takes it: a command line's text parsed
+    as YAML (unless the parameter is a string), an integer for a double as a float (rclpy refuses an INTEGER for a
+    DOUBLE parameter)."""
+    if isinstance(value, str) and ptype != STRING:
+        import yaml
+
+        value = yaml.safe_load(value)
+    if ptype == DOUBLE and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    return value
 
 
 def to_value_msg(value_cls: type, value: Any, ptype: int | None = None) -> Any:

@@ -91,12 +91,7 @@ class RclpyServiceClient:
             ptype = int(types.types[0]) if types.types else pv.NOT_SET
             if ptype == pv.NOT_SET:
                 return False, f"{_fqn(node_name)} has no parameter {name!r}"
-            if isinstance(value, str) and ptype != pv.STRING:
-                import yaml
-
-                value = yaml.safe_load(value)
-            if ptype == pv.DOUBLE and isinstance(value, int) and not isinstance(value, bool):
-                value = float(value)
+            value = pv.for_declared(ptype, value)
             try:
                 pval = pv.to_value_msg(ParameterValue, value)
             except TypeError as exc:

@@ -75,7 +75,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="ROS_DOMAIN_ID of the graph (default: the environment's)")
     p.add_argument("--transport", default="auto", choices=["auto", "rclpy", "dds"],
                    help="how to join the graph (default auto: rclpy when it imports, else dds); parameters and "
-                        "services need dds, as dem-ros param does")
+                        "services reach nodes on either (the client that reaches each, as dem-ros param)")
     p.add_argument("--timeout", type=_seconds, default=5.0,
                    help="seconds a node has to answer a parameter or service call (default 5, as dem-ros param)")
     p.add_argument("--check", type=_seconds, default=None, metavar="SECONDS",

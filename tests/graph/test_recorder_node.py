@@ -179,6 +179,17 @@ def test_a_silent_recorder_is_reported_with_the_experiment_time_of_its_last_repo
     assert sum("fault: the recorder has sent no status" in line[2] for line in bus.log) == 1
 
 
+def _alive_then_silenced(bus, host, recorder, seen) -> tuple[int, str]:
+    """3 s with the recorder reporting (the host's watch says ``alive``), then 3 s after its timer stopped: the
+    watch's last (level, message)."""
+    bus.advance(3.0)
+    assert seen and host.recording.values()["recorder"] == "alive", seen
+    assert recorder.timer is not None
+    recorder.timer.cancel()
+    bus.advance(3.0)
+    return seen[-1]
+
+
 def test_the_plant_simulator_watches_the_recorder_and_the_reference_no_longer_does():
     """The watch lives in the plant node (the one every graph has): ``plant_sim: recording``; the reference node
     publishes no recording status of its own."""
@@ -194,12 +205,7 @@ def test_the_plant_simulator_watches_the_recorder_and_the_reference_no_longer_do
     bus, plant, recorder, seen = _recording_watch(plant_and_reference)
     names: set[str] = set()
     bus.node("names").subscribe(contract.DIAGNOSTICS, lambda m: names.update(s.name for s in m.status))
-    bus.advance(3.0)
-    assert seen and plant.recording.values()["recorder"] == "alive", seen
-    assert recorder.timer is not None
-    recorder.timer.cancel()
-    bus.advance(3.0)
-    level, message = seen[-1]
+    level, message = _alive_then_silenced(bus, plant, recorder, seen)
     assert level == ERROR and "its last at before t = 0 of the experiment" in message, message
     assert contract.RECORDING_STATUS in names and "reference: recording" not in names, sorted(names)
     assert any(line[1] == "/plant_sim" and "fault: the recorder has sent no status" in line[2] for line in bus.log)
@@ -227,12 +233,7 @@ def test_the_hardware_driver_watches_the_recorder(monkeypatch):
 
     try:
         bus, hw, recorder, seen = _recording_watch(driver, contract.HW_RECORDING_STATUS)
-        bus.advance(3.0)
-        assert seen and hw.recording.values()["recorder"] == "alive", seen
-        assert recorder.timer is not None
-        recorder.timer.cancel()
-        bus.advance(3.0)
-        level, message = seen[-1]
+        level, message = _alive_then_silenced(bus, hw, recorder, seen)
         assert level == ERROR and "the recorder has sent no status" in message and "before t = 0" in message, seen
     finally:
         for hw in made:
